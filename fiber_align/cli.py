@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""``fiber-align``: the command-line front end of the pure core.
+"""
+``fiber-align``: the command-line front end of the pure core.
 
 Each area registers its own sub-commands, so this file only lists where they live.
 A sub-command module provides ``register(subparsers)`` which adds its parser and sets

@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""One source of defaults: ROS params-file YAML under ``config/``.
+"""
+One source of defaults: ROS params-file YAML under ``config/``.
 
 A params file maps node names to ``{ros__parameters: {...}}``. The nodes load these
 files through ``--ros-args --params-file``; the CLI, the tests and the benchmarks load
@@ -17,7 +18,8 @@ class ConfigError(ValueError):
 
 
 def config_dir():
-    """Return the directory holding the shipped ``*.yaml`` files.
+    """
+    Return the directory holding the shipped ``*.yaml`` files.
 
     Looked up in order: ``$FIBER_ALIGN_CONFIG_DIR``, the source tree (``../config``
     beside the package, the pip editable and test case), and the installed share
@@ -44,7 +46,7 @@ def config_dir():
 
 
 def config_path(name):
-    """Return the path of a shipped config file, e.g. ``config_path('actuator.yaml')``."""
+    """Return the path of a config file: an existing path, or a name in :func:`config_dir`."""
     p = Path(name)
     if p.is_file():
         return p
@@ -71,7 +73,8 @@ def read_yaml(path):
 
 
 def load_params(path, node=None):
-    """Return the ``ros__parameters`` mapping of ``node`` in a ROS params file.
+    """
+    Return the ``ros__parameters`` mapping of ``node`` in a ROS params file.
 
     :param path: a path, or the name of a file in :func:`config_dir`.
     :param node: node name (with or without leading ``/``); ``None`` takes the only

@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Prandtl-Ishlinskii (PI) hysteresis: play operators, the model and its exact inverse.
+"""
+Prandtl-Ishlinskii (PI) hysteresis: play operators, the model and its exact inverse.
 
 Units: input voltage in V, thresholds in V, weights in m/V, output displacement in m.
 The inverse model maps displacement (m) to voltage (V); its thresholds are in m.
@@ -26,7 +27,8 @@ class NotInvertibleError(ValueError):
 
 
 def play_operators(u, thresholds, state=None):
-    """Run a bank of play operators over an input sequence.
+    """
+    Run a bank of play operators over an input sequence.
 
     :param u: input sequence, shape ``(N,)``.
     :param thresholds: thresholds, shape ``(..., n)``; leading axes (e.g. a particle
@@ -78,7 +80,8 @@ def first_bad_partial_sum(weights):
 
 @dataclass
 class PIModel:
-    """A Prandtl-Ishlinskii model ``u (V) -> y (m)``.
+    """
+    A Prandtl-Ishlinskii model ``u (V) -> y (m)``.
 
     :param thresholds: play thresholds in V, ``0 = r_1 < ... < r_n``.
     :param weights: operator weights in m/V.
@@ -130,7 +133,8 @@ class PIModel:
         return float(np.dot(self.weights, np.asarray(self._s)))
 
     def step(self, u):
-        """Advance one sample with input ``u`` (V); return the output (m).
+        """
+        Advance one sample with input ``u`` (V); return the output (m).
 
         Pure-Python over the operators: for n of order ten this is several times
         faster than numpy on tiny arrays, and it is the per-control-period call.
@@ -151,7 +155,8 @@ class PIModel:
         return y
 
     def simulate(self, u, reset=True):
-        """Run an input sequence (V) and return the output sequence (m).
+        """
+        Run an input sequence (V) and return the output sequence (m).
 
         :param reset: start from rest (default) rather than from the present state.
         """
@@ -163,7 +168,8 @@ class PIModel:
         return ops @ self.weights
 
     def operator_matrix(self, u):
-        """Return the ``(N, n)`` play-operator outputs for ``u`` from rest (V).
+        """
+        Return the ``(N, n)`` play-operator outputs for ``u`` from rest (V).
 
         The PI output is linear in the weights: ``y = operator_matrix(u) @ weights``.
         """
@@ -175,7 +181,8 @@ class PIModel:
         return np.maximum(u[..., None] - self.thresholds, 0.0) @ self.weights
 
     def inverse(self):
-        """Return the exact inverse PI model ``y (m) -> u (V)``, with matching state.
+        """
+        Return the exact inverse PI model ``y (m) -> u (V)``, with matching state.
 
         Weights ``w'_1 = 1/w_1``, ``w'_i = -w_i / (S_i S_{i-1})`` with partial sums
         ``S_i = w_1 + ... + w_i``; thresholds ``r'_i = sum_{j<=i} w_j (r_i - r_j)`` (m);
@@ -222,7 +229,8 @@ class PIModel:
 
 
 class InversePIModel:
-    """The inverse of a :class:`PIModel`: displacement (m) -> voltage (V).
+    """
+    The inverse of a :class:`PIModel`: displacement (m) -> voltage (V).
 
     Structurally a PI model with thresholds in m and weights in V/m whose partial
     sums need not be positive, so it is kept as its own small class.

@@ -1,0 +1,61 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+Check that the package installs the ament way.
+
+``colcon build`` must put every executable where ``ros2 run fiber_align <exe>`` looks
+and register the package in the ament index.
+"""
+
+import configparser
+from pathlib import Path
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+IGNORE = shutil.ignore_patterns('.venv', '.git', 'build', 'install', 'log', '__pycache__',
+                                '*.egg-info', 'runs', 'out', '.pytest_cache')
+
+
+def console_scripts():
+    """Return the console_scripts names declared in setup.py."""
+    text = (ROOT / 'setup.py').read_text()
+    names = ['fiber-align']
+    start = text.index('NODES = [')
+    block = text[start:text.index(']', start)]
+    names += [line.strip().strip("',") for line in block.splitlines()[1:] if line.strip()]
+    return names
+
+
+def test_setup_cfg_puts_scripts_in_lib_package():
+    cfg = configparser.ConfigParser()
+    cfg.read(ROOT / 'setup.cfg')
+    assert cfg['develop']['script_dir'] == '$base/lib/fiber_align'
+    assert cfg['install']['install_scripts'] == '$base/lib/fiber_align'
+
+
+@pytest.mark.slow
+def test_colcon_build_installs_every_executable(tmp_path):
+    colcon = Path(sys.executable).with_name('colcon')
+    if not colcon.exists():
+        pytest.fail('colcon is not installed in this environment (pip install colcon-core '
+                    'colcon-ros, part of the test extras)')
+    src = tmp_path / 'ws' / 'src' / 'fiber_align'
+    shutil.copytree(ROOT, src, ignore=IGNORE)
+    ws = tmp_path / 'ws'
+    proc = subprocess.run([str(colcon), 'build', '--event-handlers', 'console_direct-'],
+                          cwd=ws, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    lib = ws / 'install' / 'fiber_align' / 'lib' / 'fiber_align'
+    names = console_scripts()
+    assert len(names) == 8
+    for name in names:
+        exe = lib / name
+        assert exe.is_file(), 'missing executable %s in %s' % (name, lib)
+        assert exe.stat().st_mode & 0o111, '%s is not executable' % exe
+    share = ws / 'install' / 'fiber_align' / 'share'
+    assert (share / 'ament_index' / 'resource_index' / 'packages' / 'fiber_align').is_file()
+    assert (share / 'fiber_align' / 'package.xml').is_file()
+    assert any((share / 'fiber_align' / 'config').glob('*.yaml'))
