@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""The bimorph actuator: parameters (SI), validation and the closed-form static model.
+"""
+The bimorph actuator: parameters (SI), validation and the closed-form static model.
 
 Geometry (paper Figure 4): a five-layer cantilever PZT-5H / epoxy / beryllium bronze /
 epoxy / PZT-5H clamped at ``x = 0``. The piezo layers span ``0 <= x <= L`` and their width
@@ -48,7 +49,8 @@ _POSITIVE = {
 
 @dataclass(frozen=True)
 class Actuator:
-    """Bimorph parameters, all SI; field names equal the keys of ``config/actuator.yaml``.
+    """
+    Bimorph parameters, all SI; field names equal the keys of ``config/actuator.yaml``.
 
     Lengths in m, moduli in Pa, ``d31_m_per_v`` in m/V (its sign only sets the bending
     direction), densities in kg/m^3, ``max_field_v_per_m`` in V/m, ``v_max`` in V,
@@ -71,6 +73,7 @@ class Actuator:
     v_max: float
     tip_mass_kg: float = 0.0
     fe_elements: int = 40
+    sweep_fe_elements: int = 16
     geometry_source: str = ''
 
     def __post_init__(self):
@@ -96,10 +99,12 @@ class Actuator:
         if self.tip_mass_kg < 0:
             raise ConfigError('tip_mass_kg = %g kg is out of range; allowed: >= 0 kg'
                               % self.tip_mass_kg)
-        if int(self.fe_elements) != self.fe_elements or not 4 <= self.fe_elements <= 2000:
-            raise ConfigError('fe_elements = %r is out of range; allowed: an integer in '
-                              '4..2000' % (self.fe_elements,))
-        object.__setattr__(self, 'fe_elements', int(self.fe_elements))
+        for key in ('fe_elements', 'sweep_fe_elements'):
+            n = getattr(self, key)
+            if int(n) != n or not 4 <= n <= 2000:
+                raise ConfigError('%s = %r is out of range; allowed: an integer in 4..2000'
+                                  % (key, n))
+            object.__setattr__(self, key, int(n))
         vf = self.field_limit_v
         if self.v_max > vf * (1 + 1e-12):
             raise ConfigError(
@@ -179,11 +184,12 @@ class Actuator:
 
 
 _KEYS = [f.name for f in fields(Actuator)]
-_OPTIONAL = {'tip_mass_kg', 'fe_elements', 'geometry_source'}
+_OPTIONAL = {'tip_mass_kg', 'fe_elements', 'sweep_fe_elements', 'geometry_source'}
 
 
 def load_actuator(path='actuator.yaml'):
-    """Load an :class:`Actuator` from a ROS params file (node ``actuator``), SI units.
+    """
+    Load an :class:`Actuator` from a ROS params file (node ``actuator``), SI units.
 
     :param path: a file path, or the name of a shipped file in ``config/``
         (``actuator.yaml`` = paper Table 2, ``actuator_table1.yaml`` = Table 1).
@@ -205,7 +211,14 @@ def load_actuator(path='actuator.yaml'):
         if k == 'geometry_source':
             kwargs[k] = str(v)
         elif isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ConfigError('%s: %s = %r must be a number' % (where, k, v))
+            hint = ''
+            try:
+                float(v)
+                hint = ' (YAML reads %s as text: write the exponent with a sign, e.g. ' \
+                       '1.0e+6)' % v
+            except (TypeError, ValueError):
+                pass
+            raise ConfigError('%s: %s = %r must be a number%s' % (where, k, v, hint))
         else:
             kwargs[k] = v
     try:
@@ -216,7 +229,8 @@ def load_actuator(path='actuator.yaml'):
 
 # ---------------------------------------------------------------- closed-form statics
 def d12(hp, hb, Ep, Eb):  # noqa: N803 - the paper's symbols
-    """Return D12 = 12 x the bending stiffness per unit width of the laminate, N m.
+    """
+    Return D12 = 12 x the bending stiffness per unit width of the laminate, N m.
 
     Lengths in m, moduli in Pa; broadcasts over arrays.
     """
@@ -224,7 +238,8 @@ def d12(hp, hb, Ep, Eb):  # noqa: N803 - the paper's symbols
 
 
 def piezo_moment_per_width(voltage, hp, hb, Ep, d31):  # noqa: N803
-    """Return the piezo actuation moment per unit width, N m/m (= N).
+    """
+    Return the piezo actuation moment per unit width, N m/m (= N).
 
     Each layer carries the blocked stress ``Ep |d31| V / hp`` over ``hp`` at the lever arm
     ``(hb + hp) / 2``; the two layers act in opposite senses: ``m = Ep |d31| V (hb + hp)``.
@@ -234,7 +249,8 @@ def piezo_moment_per_width(voltage, hp, hb, Ep, d31):  # noqa: N803
 
 
 def tip_displacement(voltage, L, L0, hp, hb, Ep, Eb, d31, **_):  # noqa: N803
-    """Return the free output displacement at x = L0 (paper equation 5), m.
+    """
+    Return the free output displacement at x = L0 (paper equation 5), m.
 
     :param voltage: drive voltage, V. Lengths in m, moduli in Pa, d31 in m/V.
     """
@@ -243,7 +259,8 @@ def tip_displacement(voltage, L, L0, hp, hb, Ep, Eb, d31, **_):  # noqa: N803
 
 
 def deflection(x, voltage, L, L0, hp, hb, Ep, Eb, d31, **_):  # noqa: N803
-    """Return the free deflection v(x), m, for 0 <= x <= L0 (equation 3 + rigid extension).
+    """
+    Return the free deflection v(x), m, for 0 <= x <= L0 (equation 3 + rigid extension).
 
     :param x: positions along the beam from the clamp, m.
     :param voltage: drive voltage, V.
@@ -263,7 +280,8 @@ _GL_X, _GL_W = np.polynomial.legendre.leggauss(48)
 
 
 def tip_compliance(A, B, L, L0, hp, hb, Ep, Eb, **_):  # noqa: N803
-    """Return the static tip compliance at x = L0 of the tapered laminate, m/N.
+    """
+    Return the static tip compliance at x = L0 of the tapered laminate, m/N.
 
     Unit-load method for the clamped beam: ``c = int_0^L0 (L0 - x)^2 / EI(x) dx`` with
     ``EI = b(x) D12 / 12`` on the piezo part (``b`` linear from A to B) and
