@@ -60,4 +60,7 @@ def main(argv=None):
 
 
 if __name__ == '__main__':
-    sys.exit(main())
+    # Run through the package module so ``python -m fiber_align.cli`` and the console
+    # script share one UsageError class.
+    from fiber_align.cli import main as _main
+    sys.exit(_main())

@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Step and tracking metrics shared by ``simulate`` and ``analyze`` (pure numpy, SI units).
+"""
+Step and tracking metrics shared by ``simulate`` and ``analyze`` (pure numpy, SI units).
 
 All times are in s, displacements in m. Every function takes plain arrays, so the same
 code scores an offline simulation and a recorded bag.
@@ -11,7 +12,8 @@ import numpy as np
 
 
 def step_metrics(t, y, r_final, y0=0.0, t0=None, band=0.02):
-    """Return step-response metrics of ``y(t)`` for a step from ``y0`` to ``r_final``.
+    """
+    Return step-response metrics of ``y(t)`` for a step from ``y0`` to ``r_final``.
 
     :param t: sample times (s), increasing.
     :param y: response (m), same length as ``t``.
@@ -66,7 +68,8 @@ def step_metrics(t, y, r_final, y0=0.0, t0=None, band=0.02):
 
 
 def tracking_metrics(t, r, y, skip_s=0.0):
-    """Return tracking-error metrics of ``y`` against ``r`` after ``skip_s``.
+    """
+    Return tracking-error metrics of ``y`` against ``r`` after ``skip_s``.
 
     :param t: sample times (s).
     :param r: reference (m).

@@ -1,2 +1,2 @@
 # SPDX-License-Identifier: Apache-2.0
-"""plant."""
+"""The simulated plant: the actuator (amplifier, hysteresis, resonance, sensor)."""

@@ -1,0 +1,123 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+DriverCore: the last stage before the amplifier (step 5 of a control period).
+
+``command(ff, fb, t)`` sums feedforward and feedback (V), clamps to ``[v_min, v_max]``
+(V), limits the change since the previous output to ``slew_rate_v_per_s`` times the time
+elapsed (V/s, s), and returns the drive voltage. ``tick(t)`` is the watchdog: when no
+command has arrived for longer than ``watchdog_timeout_s`` it ramps the output (at the
+slew limit) to ``safe_voltage_v`` and counts the event. NaN inputs hold the previous
+output. Counters: ``saturation_count``, ``slew_count``, ``watchdog_count``,
+``nan_count``.
+"""
+
+import math
+
+from fiber_align.config import ConfigError, load_params
+
+CONFIG_FILE = 'driver.yaml'
+CONFIG_NODE = 'actuator_driver'
+
+
+class DriverCore:
+    """
+    Sum, clamp, slew-limit and watch the drive voltage (all V, V/s, s).
+
+    :param v_min: lowest drive (V).
+    :param v_max: highest drive (V).
+    :param slew_rate_v_per_s: largest rate of change (V/s); <= 0 or inf for none.
+    :param watchdog_timeout_s: longest silence (s) before the safe state; <= 0 disables.
+    :param safe_voltage_v: drive in the safe state (V).
+    """
+
+    def __init__(self, v_min=0.0, v_max=100.0, slew_rate_v_per_s=math.inf,
+                 watchdog_timeout_s=0.0, safe_voltage_v=0.0):
+        """Check and store the limits; start at ``safe_voltage_v``."""
+        if not v_max > v_min:
+            raise ConfigError('v_max (%g V) must exceed v_min (%g V)' % (v_max, v_min))
+        if not v_min <= safe_voltage_v <= v_max:
+            raise ConfigError('safe_voltage_v (%g V) must lie in [v_min, v_max]'
+                              % safe_voltage_v)
+        self.v_min = float(v_min)
+        self.v_max = float(v_max)
+        s = float(slew_rate_v_per_s)
+        self.slew = s if s > 0 and math.isfinite(s) else math.inf
+        self.timeout = float(watchdog_timeout_s)
+        self.safe = float(safe_voltage_v)
+        self.reset()
+
+    @classmethod
+    def from_params(cls, p):
+        """Build from the ``actuator_driver`` parameters (see ``config/driver.yaml``)."""
+        known = {'v_min', 'v_max', 'slew_rate_v_per_s', 'watchdog_timeout_s',
+                 'safe_voltage_v'}
+        return cls(**{k: float(v) for k, v in p.items() if k in known})
+
+    @classmethod
+    def from_config(cls, path=CONFIG_FILE):
+        """Build from ``config/driver.yaml``."""
+        return cls.from_params(load_params(path, CONFIG_NODE))
+
+    def reset(self):
+        """Output the safe voltage, forget the last command time, clear the counters."""
+        self.v = self.safe
+        self.t_last_cmd = None
+        self.t_last_out = None
+        self.tripped = False
+        self.saturated = False
+        self.saturation_count = 0
+        self.slew_count = 0
+        self.watchdog_count = 0
+        self.nan_count = 0
+
+    def _limit(self, target, t):
+        """Slew-limit the move from the present output to ``target`` at time ``t`` (s)."""
+        if self.t_last_out is not None and math.isfinite(self.slew):
+            dv_max = self.slew * max(0.0, t - self.t_last_out)
+            if target > self.v + dv_max:
+                target = self.v + dv_max
+                self.slew_count += 1
+            elif target < self.v - dv_max:
+                target = self.v - dv_max
+                self.slew_count += 1
+        self.t_last_out = t
+        self.v = target
+        return target
+
+    def command(self, ff, fb, t):
+        """Return the drive (V) for feedforward ``ff`` and feedback ``fb`` (V) at ``t`` (s)."""
+        u = ff + fb
+        if not math.isfinite(u):
+            self.nan_count += 1
+            self.t_last_cmd = t
+            return self.v
+        self.t_last_cmd = t
+        self.tripped = False
+        if u > self.v_max:
+            u = self.v_max
+            self.saturated = True
+        elif u < self.v_min:
+            u = self.v_min
+            self.saturated = True
+        else:
+            self.saturated = False
+        if self.saturated:
+            self.saturation_count += 1
+        return self._limit(u, t)
+
+    def tick(self, t):
+        """
+        Run the watchdog at time ``t`` (s); return the drive (V) to hold or ramp to.
+
+        Call it periodically between commands. After ``watchdog_timeout_s`` without a
+        command the driver enters the safe state (counted once per silence) and ramps
+        to ``safe_voltage_v``.
+        """
+        if self.timeout <= 0 or self.t_last_cmd is None:
+            return self.v
+        if t - self.t_last_cmd > self.timeout:
+            if not self.tripped:
+                self.tripped = True
+                self.watchdog_count += 1
+            return self._limit(self.safe, t)
+        return self.v

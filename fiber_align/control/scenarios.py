@@ -1,0 +1,79 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+Reference generators of the control scenarios (SEED-NOTES section 7), SI units.
+
+``make(name)`` returns a :class:`Scenario`; ``reference(t)`` gives the target
+displacement (m) at time ``t`` (s). The actuator moves one way from rest (drive >= 0),
+so the paper's 82 um sine and triangle are read as spanning 0..82 um (bias 41 um).
+
+``hysteresis-experiment`` is open loop: ``drive(t)`` gives the voltage (V), a 0-72 V
+triangle at 0.1 Hz (paper Section 5.1), and there is no reference.
+"""
+
+from dataclasses import dataclass
+import math
+
+NAMES = ('step', 'sine', 'triangle', 'hysteresis-experiment')
+STEP_M = 82e-6
+SINE_HZ = 0.75
+TRIANGLE_HZ = 1.0
+HYST_HZ = 0.1
+HYST_VMAX = 72.0
+
+
+@dataclass
+class Scenario:
+    """
+    A named reference (or open-loop drive) with its default duration and metrics window.
+
+    :param name: scenario name.
+    :param duration_s: default run length (s).
+    :param skip_s: leading time (s) left out of the tracking metrics (one period).
+    :param amplitude_m: peak reference (m); 0 for open loop.
+    :param frequency_hz: frequency (Hz) of periodic references; 0 for a step.
+    """
+
+    name: str
+    duration_s: float
+    skip_s: float
+    amplitude_m: float = STEP_M
+    frequency_hz: float = 0.0
+
+    @property
+    def open_loop(self):
+        """Tell whether the scenario drives a voltage instead of tracking a reference."""
+        return self.name == 'hysteresis-experiment'
+
+    def reference(self, t):
+        """Compute the target displacement (m) at time t (s)."""
+        a, f = self.amplitude_m, self.frequency_hz
+        if self.name == 'step':
+            return a if t >= 0.0 else 0.0
+        if self.name == 'sine':
+            return 0.5 * a * (1.0 - math.cos(2.0 * math.pi * f * t))
+        if self.name == 'triangle':
+            return a * triangle_wave(f * t)
+        return 0.0
+
+    def drive(self, t):
+        """Compute the open-loop voltage (V) of hysteresis-experiment at time t (s)."""
+        return HYST_VMAX * triangle_wave(HYST_HZ * t)
+
+
+def triangle_wave(phase):
+    """Return the unit triangle (0 at phase 0, 1 at phase 0.5, 0 at phase 1), periodic."""
+    p = phase - math.floor(phase)
+    return 2.0 * p if p < 0.5 else 2.0 * (1.0 - p)
+
+
+def make(name):
+    """Return the :class:`Scenario` called ``name`` (see :data:`NAMES`)."""
+    if name == 'step':
+        return Scenario('step', 0.05, 0.0)
+    if name == 'sine':
+        return Scenario('sine', 10.0, 1.0 / SINE_HZ, STEP_M, SINE_HZ)
+    if name == 'triangle':
+        return Scenario('triangle', 10.0, 1.0 / TRIANGLE_HZ, STEP_M, TRIANGLE_HZ)
+    if name == 'hysteresis-experiment':
+        return Scenario('hysteresis-experiment', 1.0 / HYST_HZ, 0.0, 0.0, HYST_HZ)
+    raise ValueError('unknown scenario %r (allowed: %s)' % (name, ', '.join(NAMES)))

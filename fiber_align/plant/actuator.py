@@ -1,0 +1,242 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The simulated actuator (plant): amplifier, hysteresis, resonance and sensor.
+
+One call of :meth:`SimulatedActuator.step` is one control period ``T`` (s):
+
+1. the drive voltage ``v`` (V) is held for the whole period (zero-order hold);
+2. the amplifier clamps it to ``[v_min, v_max]`` (V) and limits its change per period to
+   ``slew_rate_v_per_s * T`` (V) (the ramp inside a period is not modelled);
+3. the hysteresis law maps the applied voltage to a quasi-static displacement ``h`` (m);
+4. the bending mode ``x'' + 2 zeta wn x' + wn^2 x = wn^2 h`` is advanced exactly over
+   the period (matrix exponential of the continuous model, not Euler: the resonance near
+   1.4 kHz is close to the control rate);
+5. the sensor adds seeded Gaussian noise (m RMS) and rounds to its resolution (m).
+
+The displacement per volt ``alpha`` is the slope of the hysteresis law (``linear`` law:
+``alpha`` of the design model), the natural frequency ``wn`` comes from the design model
+(:func:`fiber_align.design.dynamics`) unless set. The noise comes from
+``numpy.random.default_rng(seed)``, one standard-normal draw per measurement, so a run is
+deterministic for a seed and the ROS plant node reproduces it sample for sample.
+"""
+
+import copy
+import math
+
+import numpy as np
+
+from fiber_align.config import ConfigError, load_params
+
+CONFIG_FILE = 'plant.yaml'
+CONFIG_NODE = 'simulated_actuator'
+FALLBACK_FIRST_MODE_HZ = 1400.0
+FALLBACK_ALPHA_M_PER_V = 89e-6 / 72.0
+_NOISE_BLOCK = 4096
+
+
+def design_dynamics():
+    """Return ``(omega_n_rad_s, alpha_m_per_v)`` of the design model (fallback 1.4 kHz)."""
+    try:
+        from fiber_align.design import dynamics, load_actuator
+        d = dynamics(load_actuator('actuator.yaml'))
+        return float(d['omega_n_rad_s']), float(d['alpha_m_per_v'])
+    except Exception:  # noqa: BLE001 - the design package may not be there yet
+        return 2.0 * math.pi * FALLBACK_FIRST_MODE_HZ, FALLBACK_ALPHA_M_PER_V
+
+
+def discretise(omega_n, zeta, period_s):
+    """
+    Return ``(Ad, Bd)`` of the exact ZOH discretisation of the 2nd-order mode.
+
+    State ``[x (m), x' (m/s)]``, input the quasi-static displacement ``h`` (m).
+
+    :param omega_n: natural frequency (rad/s).
+    :param zeta: damping ratio (dimensionless).
+    :param period_s: sample period (s).
+    """
+    from scipy.linalg import expm
+    a = np.array([[0.0, 1.0, 0.0],
+                  [-omega_n ** 2, -2.0 * zeta * omega_n, omega_n ** 2],
+                  [0.0, 0.0, 0.0]])
+    e = expm(a * period_s)
+    return e[:2, :2].copy(), e[:2, 2].copy()
+
+
+def make_law(kind):
+    """Return the plant's hysteresis law for ``kind`` (``default`` = ``dense-pi``)."""
+    from fiber_align.hysteresis.truth import make_hysteresis
+    return make_hysteresis('dense-pi' if kind in (None, 'default') else kind)
+
+
+class SimulatedActuator:
+    """
+    The plant: ``step(v)`` applies ``v`` (V) for one period and returns the measurement (m).
+
+    :param period_s: control period ``T`` (s).
+    :param hysteresis: law with ``step(u_v) -> m`` and ``reset()``.
+    :param omega_n_rad_s: natural frequency of the bending mode (rad/s).
+    :param damping_ratio: modal damping ratio (dimensionless).
+    :param v_min: amplifier lower limit (V).
+    :param v_max: amplifier upper limit (V).
+    :param slew_rate_v_per_s: amplifier slew limit (V/s); ``inf`` or <= 0 for none.
+    :param noise_rms_m: sensor noise (m RMS); 0 for none.
+    :param resolution_m: sensor resolution (m); 0 for none.
+    :param seed: seed of the noise generator.
+    :param nan_samples: measurement indices (0 = before the first step) that read NaN,
+        to exercise fault handling.
+    """
+
+    def __init__(self, period_s, hysteresis, omega_n_rad_s, damping_ratio=0.03,
+                 v_min=0.0, v_max=100.0, slew_rate_v_per_s=math.inf, noise_rms_m=0.0,
+                 resolution_m=0.0, seed=0, nan_samples=()):
+        """Build the plant at rest (see the class docstring for the units)."""
+        if not period_s > 0:
+            raise ValueError('period_s must be > 0, got %r' % period_s)
+        if not omega_n_rad_s > 0:
+            raise ValueError('omega_n_rad_s must be > 0, got %r' % omega_n_rad_s)
+        if not 0 <= damping_ratio < 1:
+            raise ValueError('damping_ratio must be in [0, 1), got %r' % damping_ratio)
+        if not v_max > v_min:
+            raise ValueError('v_max (%g V) must exceed v_min (%g V)' % (v_max, v_min))
+        if noise_rms_m < 0 or resolution_m < 0:
+            raise ValueError('noise_rms_m and resolution_m must be >= 0')
+        self.period_s = float(period_s)
+        self.hysteresis = hysteresis
+        self.omega_n_rad_s = float(omega_n_rad_s)
+        self.damping_ratio = float(damping_ratio)
+        self.v_min = float(v_min)
+        self.v_max = float(v_max)
+        slew = float(slew_rate_v_per_s)
+        self.max_dv = slew * self.period_s if slew > 0 and math.isfinite(slew) else math.inf
+        self.noise_rms_m = float(noise_rms_m)
+        self.resolution_m = float(resolution_m)
+        self.seed = int(seed)
+        self.nan_samples = frozenset(int(i) for i in nan_samples)
+        ad, bd = discretise(self.omega_n_rad_s, self.damping_ratio, self.period_s)
+        self._a = [float(x) for x in ad.ravel()]
+        self._b = [float(x) for x in bd]
+        self.reset()
+
+    @classmethod
+    def from_params(cls, params, period_s=None, **overrides):
+        """
+        Build from a ``simulated_actuator`` parameter mapping (see ``config/plant.yaml``).
+
+        :param params: the mapping; ``hysteresis`` names the law, ``omega_n_rad_s`` <= 0
+            takes the design model's value, ``rate_hz`` sets the period unless
+            ``period_s`` is given.
+        :param overrides: keyword arguments of the constructor that win over ``params``
+            (``hysteresis`` may be a kind name or a law object).
+        """
+        p = dict(params)
+        p.update({k: v for k, v in overrides.items() if v is not None})
+        known = {'rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min', 'v_max',
+                 'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m', 'seed', 'nan_samples'}
+        unknown = sorted(set(p) - known)
+        if unknown:
+            raise ConfigError('unknown simulated_actuator parameter(s): %s (allowed: %s)'
+                              % (', '.join(unknown), ', '.join(sorted(known))))
+        if period_s is None:
+            period_s = 1.0 / float(p.get('rate_hz', 1000.0))
+        law = p.get('hysteresis', 'default')
+        if isinstance(law, str):
+            law = make_law(law)
+        wn = float(p.get('omega_n_rad_s', 0.0))
+        if wn <= 0:
+            wn = design_dynamics()[0]
+        return cls(period_s, law, wn,
+                   damping_ratio=float(p.get('damping_ratio', 0.03)),
+                   v_min=float(p.get('v_min', 0.0)), v_max=float(p.get('v_max', 100.0)),
+                   slew_rate_v_per_s=float(p.get('slew_rate_v_per_s', math.inf)),
+                   noise_rms_m=float(p.get('noise_rms_m', 0.0)),
+                   resolution_m=float(p.get('resolution_m', 0.0)),
+                   seed=int(p.get('seed', 0)), nan_samples=p.get('nan_samples', ()))
+
+    @classmethod
+    def from_config(cls, path=CONFIG_FILE, period_s=None, **overrides):
+        """Build from a params file (default ``config/plant.yaml``, node simulated_actuator)."""
+        return cls.from_params(load_params(path, CONFIG_NODE), period_s, **overrides)
+
+    # -- state ------------------------------------------------------------------------
+    def reset(self, seed=None):
+        """Return to rest at 0 V, restart the noise generator; return the first measurement (m)."""
+        if seed is not None:
+            self.seed = int(seed)
+        self.hysteresis.reset()
+        self._rng = np.random.default_rng(self.seed)
+        self._noise = []
+        self._noise_i = 0
+        self.x = 0.0
+        self.xd = 0.0
+        self.h = 0.0
+        self.v_applied = 0.0
+        self.k = 0
+        self.y_meas = self._measure()
+        return self.y_meas
+
+    def _measure(self):
+        """Draw the sensor reading (m) of the present position."""
+        y = self.x
+        if self.noise_rms_m > 0:
+            if self._noise_i >= len(self._noise):
+                self._noise = self._rng.standard_normal(_NOISE_BLOCK).tolist()
+                self._noise_i = 0
+            y += self.noise_rms_m * self._noise[self._noise_i]
+            self._noise_i += 1
+        if self.resolution_m > 0:
+            y = round(y / self.resolution_m) * self.resolution_m
+        if self.k in self.nan_samples:
+            y = math.nan
+        return y
+
+    @property
+    def position_m(self):
+        """Give the true displacement (m) now."""
+        return self.x
+
+    @property
+    def velocity_m_per_s(self):
+        """Give the true velocity (m/s) now."""
+        return self.xd
+
+    def reachable_m(self):
+        """Return the largest quasi-static displacement (m): the loading curve at ``v_max``."""
+        law = self.hysteresis
+        if hasattr(law, 'loading_curve'):
+            return float(law.loading_curve(self.v_max))
+        probe = copy.deepcopy(law)
+        probe.reset()
+        y = 0.0
+        for u in np.linspace(0.0, self.v_max, 201):
+            y = probe.step(float(u))
+        return float(y)
+
+    def step(self, v):
+        """
+        Apply the drive ``v`` (V) for one period; return the new measurement (m).
+
+        A non-finite drive is treated as a fault of the driver: the amplifier holds its
+        previous output.
+        """
+        v = float(v)
+        if not math.isfinite(v):
+            v = self.v_applied
+        if v > self.v_max:
+            v = self.v_max
+        elif v < self.v_min:
+            v = self.v_min
+        dv = v - self.v_applied
+        if dv > self.max_dv:
+            v = self.v_applied + self.max_dv
+        elif dv < -self.max_dv:
+            v = self.v_applied - self.max_dv
+        self.v_applied = v
+        h = self.hysteresis.step(v)
+        self.h = h
+        a, b = self._a, self._b
+        x, xd = self.x, self.xd
+        self.x = a[0] * x + a[1] * xd + b[0] * h
+        self.xd = a[2] * x + a[3] * xd + b[1] * h
+        self.k += 1
+        self.y_meas = self._measure()
+        return self.y_meas
