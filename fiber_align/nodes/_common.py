@@ -1,0 +1,311 @@
+# SPDX-License-Identifier: Apache-2.0
+"""Shared plumbing of the fiber_align nodes: QoS, defaults, parameters, health, setpoints.
+
+Nothing here computes control: the nodes only turn messages into calls of the pure core
+(:mod:`fiber_align.control`, :mod:`fiber_align.plant`) and back. Units are SI throughout
+(m, m/s, V, s, Hz, W).
+
+Defaults come from the ROS params files under ``config/`` only: a node declares each of
+its parameters with the value found in its per-area file (e.g. ``plant.yaml``) overlaid
+by the graph file ``fiber_align.yaml`` (its ``/**`` section, then the node's section),
+which is exactly what ``bringup`` passes as ``--params-file`` arguments in that order.
+"""
+
+import json
+import math
+import sys
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rcl_interfaces.msg import ParameterType, SetParametersResult
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from fiber_align.config import ConfigError, config_path, read_yaml
+
+GRAPH_FILE = 'fiber_align.yaml'
+PLANT_FILE = 'plant.yaml'
+
+#: Control topics: reliable and deep, so that in lockstep nothing is dropped (1 s at 1 kHz)
+#: and index pairing holds. Compatible with default (reliable, depth 10) user publishers
+#: and with best-effort subscribers (e.g. a recorder).
+CONTROL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+#: ``/clock``: reliable publisher, matched by the best-effort subscriber of rclpy's
+#: TimeSource.
+CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                       reliability=ReliabilityPolicy.RELIABLE)
+DIAG_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                      reliability=ReliabilityPolicy.RELIABLE)
+
+SYNC_MODES = ('realtime', 'lockstep')
+
+#: DiagnosticStatus levels as ints (the message field is a byte).
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
+
+#: Exit report prefix: each node prints one line ``FIBER_ALIGN_SENT {json}`` on exit with
+#: the number of messages it published per topic; bringup collects them.
+SENT_PREFIX = 'FIBER_ALIGN_SENT '
+
+
+def _section(data, name):
+    """Return ``data[name]['ros__parameters']`` (or ``{}``) for a params-file mapping."""
+    for key in (name, '/' + name):
+        sec = data.get(key)
+        if isinstance(sec, dict) and isinstance(sec.get('ros__parameters'), dict):
+            return dict(sec['ros__parameters'])
+    return {}
+
+
+def normalize(value):
+    """Return ``value`` with ROS-compatible types: numeric lists become float lists.
+
+    ROS parameters need homogeneous arrays; ``[0, 80.9]`` in a YAML file is made
+    ``[0.0, 80.9]`` (recursively through mappings).
+    """
+    if isinstance(value, dict):
+        return {k: normalize(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        if value and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                         for v in value):
+            return [float(v) for v in value]
+        return list(value)
+    return value
+
+
+def node_defaults(node_name, area_files=()):
+    """Return the default parameter mapping of ``node_name``.
+
+    :param node_name: node name as in the params files (no namespace).
+    :param area_files: per-area params files (names in ``config/``), read in order.
+    :returns: the merged ``ros__parameters``: ``rate_hz`` of the plant (the graph's
+        control rate lives in ``plant.yaml``), then the area files, then ``fiber_align.yaml``
+        (``/**`` section, then the node's section); later values win.
+    :raises ConfigError: a file is missing or malformed.
+    """
+    out = {}
+    plant = _section(read_yaml(config_path(PLANT_FILE)), 'simulated_actuator')
+    if 'rate_hz' in plant:
+        out['rate_hz'] = plant['rate_hz']
+    for f in list(area_files) + [GRAPH_FILE]:
+        data = read_yaml(config_path(f))
+        if f == GRAPH_FILE:
+            out.update(_section(data, '/**'))
+        out.update(_section(data, node_name))
+    return normalize(out)
+
+
+def flatten_defaults(defaults, key):
+    """Return the nested mapping ``defaults[key]`` as ROS dotted names (``key.a``)."""
+    sub = defaults.get(key)
+    if not isinstance(sub, dict):
+        return {}
+    from fiber_align.config import flatten
+    return flatten(sub, key + '.')
+
+
+def descriptor(description, lo=None, hi=None, read_only=False, step=0.0):
+    """Return a ParameterDescriptor with a floating-point or integer range.
+
+    :param description: text, stating the unit.
+    :param lo: lower bound (``None``: no range).
+    :param hi: upper bound.
+    :param read_only: the parameter cannot change after start-up.
+    """
+    d = ParameterDescriptor(description=description, read_only=read_only)
+    if lo is not None and hi is not None:
+        if isinstance(lo, int) and isinstance(hi, int) and not isinstance(lo, bool):
+            d.integer_range = [IntegerRange(from_value=lo, to_value=hi, step=int(step))]
+        else:
+            d.floating_point_range = [FloatingPointRange(from_value=float(lo),
+                                                         to_value=float(hi), step=step)]
+    return d
+
+
+def declare(node, defaults, name, description, lo=None, hi=None, read_only=False,
+            choices=None):
+    """Declare parameter ``name`` with its default from ``defaults``; return its value.
+
+    :param choices: for string parameters, the allowed values (checked at start-up and
+        by :func:`check_parameters`).
+    :raises ConfigError: the default is missing from the params files.
+    """
+    if name not in defaults:
+        raise ConfigError('parameter %r of node %s has no default in config/' %
+                          (name, node.get_name()))
+    value = defaults[name]
+    if isinstance(value, int) and not isinstance(value, bool) and lo is not None \
+            and isinstance(lo, float):
+        value = float(value)
+    desc = description
+    if choices:
+        desc = '%s (one of: %s)' % (description, ', '.join(choices))
+    node.declare_parameter(name, value, descriptor(desc, lo, hi, read_only))
+    v = node.get_parameter(name).value
+    if choices and v not in choices:
+        raise ConfigError('parameter %s=%r: must be one of %s' % (name, v, ', '.join(choices)))
+    return v
+
+
+def check_parameters(params, ranges, choices=None):
+    """Check a parameter update against ranges; return a SetParametersResult.
+
+    :param params: the rclpy Parameters being set.
+    :param ranges: name -> (lo, hi) inclusive, SI units.
+    :param choices: name -> allowed string values.
+    """
+    choices = choices or {}
+    for p in params:
+        if p.name in ranges and p.type_ in (p.Type.DOUBLE, p.Type.INTEGER):
+            lo, hi = ranges[p.name]
+            v = float(p.value)
+            if not (math.isfinite(v) and lo <= v <= hi):
+                return SetParametersResult(
+                    successful=False,
+                    reason='%s=%r is out of range [%g, %g]' % (p.name, p.value, lo, hi))
+        if p.name in choices and p.value not in choices[p.name]:
+            return SetParametersResult(
+                successful=False,
+                reason='%s=%r: must be one of %s'
+                % (p.name, p.value, ', '.join(choices[p.name])))
+    return SetParametersResult(successful=True)
+
+
+def check_setpoint(value, lo, hi):
+    """Return ``None`` when the setpoint ``value`` (m) is usable, else the reason (str).
+
+    :param lo: lowest allowed setpoint (m).
+    :param hi: highest allowed setpoint (m).
+    """
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return 'setpoint %r is not a number' % (value,)
+    if math.isnan(v):
+        return 'setpoint is NaN'
+    if math.isinf(v):
+        return 'setpoint is %s' % ('+inf' if v > 0 else '-inf')
+    if v < lo or v > hi:
+        return 'setpoint %.6g m is outside [%.6g, %.6g] m' % (v, lo, hi)
+    return None
+
+
+class Health:
+    """Publish the node's health on ``/diagnostics`` (diagnostic_msgs/DiagnosticArray).
+
+    One DiagnosticStatus named after the node's fully qualified name. ``warn``/``error``
+    latch their level for ``hold_s`` seconds (wall time) so a short event is seen by
+    every subscriber; ``set_values`` adds key/value pairs (units in the key names).
+    """
+
+    def __init__(self, node, period_s=0.5, hold_s=2.0, hardware_id='fiber_align'):
+        """Create the publisher and a wall-clock timer (period in s)."""
+        from rclpy.clock import Clock, ClockType
+        self._node = node
+        self._pub = node.create_publisher(DiagnosticArray, '/diagnostics', DIAG_QOS)
+        self._hold_s = float(hold_s)
+        self._hw = hardware_id
+        self._level = OK
+        self._message = 'ok'
+        self._until = 0.0
+        self._base_level = OK
+        self._base_message = 'ok'
+        self.values = {}
+        self.sent = 0
+        self._timer = node.create_timer(float(period_s), self.publish,
+                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def status(self, level, message):
+        """Set the steady level (``OK``, ``WARN``, ``ERROR``: int) and message."""
+        self._base_level, self._base_message = level, message
+
+    def _latch(self, level, message):
+        self._level, self._message = level, message
+        self._until = time.monotonic() + self._hold_s
+        self.publish()
+
+    def warn(self, message):
+        """Report a WARN now and keep it for ``hold_s`` s."""
+        self._latch(WARN, message)
+
+    def error(self, message):
+        """Report an ERROR now and keep it for ``hold_s`` s."""
+        self._latch(ERROR, message)
+
+    def set_values(self, **values):
+        """Set key/value pairs reported with the status."""
+        self.values.update(values)
+
+    def publish(self):
+        """Publish the current status once."""
+        if time.monotonic() < self._until and self._level >= self._base_level:
+            level, message = self._level, self._message
+        else:
+            level, message = self._base_level, self._base_message
+        st = DiagnosticStatus(level=bytes([level]), name=self._node.get_fully_qualified_name(),
+                              message=message, hardware_id=self._hw)
+        st.values = [KeyValue(key=str(k), value=_fmt(v)) for k, v in self.values.items()]
+        arr = DiagnosticArray(status=[st])
+        arr.header.stamp = self._node.get_clock().now().to_msg()
+        try:
+            self._pub.publish(arr)
+            self.sent += 1
+        except Exception:  # noqa: BLE001 - context already shut down at exit
+            pass
+
+
+def _fmt(v):
+    if isinstance(v, float):
+        return repr(v)
+    return str(v)
+
+
+def report_sent(node, counts):
+    """Print the exit report of published message counts (one JSON line on stdout).
+
+    :param counts: topic name -> number of messages published.
+    """
+    line = SENT_PREFIX + json.dumps({'node': node.get_fully_qualified_name(),
+                                     'sent': dict(counts)})
+    print(line, flush=True)
+    sys.stdout.flush()
+
+
+def stamp_to_s(stamp):
+    """Return a builtin_interfaces/Time as float seconds."""
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
+def s_to_stamp(t_s):
+    """Return float seconds as a builtin_interfaces/Time (nanosecond exact for t >= 0)."""
+    from builtin_interfaces.msg import Time
+    ns = int(round(t_s * 1e9))
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def is_param_type_numeric(ptype):
+    """Return True for rcl_interfaces double/integer parameter types."""
+    return ptype in (ParameterType.PARAMETER_DOUBLE, ParameterType.PARAMETER_INTEGER)
+
+
+def run(node_factory, args=None):
+    """Run one node in the demo_nodes_py idiom; print its sent counts on exit.
+
+    :param node_factory: callable returning the node (after ``rclpy.init``).
+    """
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = node_factory()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            if hasattr(node, 'sent_counts'):
+                report_sent(node, node.sent_counts())
+            node.destroy_node()
+        rclpy.try_shutdown()

@@ -1,0 +1,297 @@
+# SPDX-License-Identifier: Apache-2.0
+"""``fuzzy_pid_controller``: the feedback law of the control core as a ROS 2 node.
+
+Runs once per ``displacement`` sample: ``fb_k = controller.step(r_k, y_k)``, built by
+:func:`fiber_align.control.simulate.build` for the graph's ``controller`` (``composite``
+and ``fuzzy``: :class:`~fiber_align.control.fuzzy_pid.FuzzyPid`; ``composite-pid`` and
+``pid``: :class:`~fiber_align.control.fuzzy_pid.PlainPid`; ``feedforward`` and
+``open-loop``: 0 V), so the node computes exactly what the offline loop computes.
+Topics (relative names, SI units):
+
+- sub ``setpoint`` (std_msgs/Float64, m), ``displacement`` (sensor_msgs/JointState, m).
+- pub ``feedback_voltage`` (std_msgs/Float64, V).
+- pub ``controller_state`` (std_msgs/Float64MultiArray): labelled layout, one dimension
+  per value: ``error_m``, ``error_rate_m_per_s``, ``kp_v_per_m``, ``ki_v_per_m_s``,
+  ``kd_v_s_per_m``, ``output_v``.
+- srv ``reset`` (std_srvs/Trigger): clear the integral and filters.
+
+Pairing: ``lockstep`` pairs the i-th displacement with the i-th setpoint; ``realtime``
+uses the latest valid setpoint (0 m until one arrives). A NaN, infinite or out-of-range
+setpoint is rejected with a logged reason and a WARN on ``/diagnostics``; the last valid
+setpoint is kept (in lockstep it takes the rejected one's place, so pairing holds).
+
+Every parameter of ``config/controller.yaml`` is a ROS parameter (nested keys become
+dotted names). Gains, scale factors and limits can be changed live; an update that is out
+of range or does not build a valid controller is rejected with the reason, and an
+accepted one keeps the controller's state (integral, filter) so the output does not jump.
+"""
+
+import math
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rcl_interfaces.msg import SetParametersResult
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
+from std_srvs.srv import Trigger
+
+from fiber_align.config import ConfigError, flatten
+from fiber_align.nodes import _common as c
+
+NODE_NAME = 'fuzzy_pid_controller'
+AREA_FILES = ('controller.yaml',)
+MODES = ('composite', 'composite-pid', 'fuzzy', 'pid', 'feedforward', 'open-loop')
+STATE_LABELS = ('error_m', 'error_rate_m_per_s', 'kp_v_per_m', 'ki_v_per_m_s',
+                'kd_v_s_per_m', 'output_v')
+GRAPH_KEYS = ('controller', 'sync_mode', 'rate_hz', 'diagnostics_period_s', 'setpoint_min_m',
+              'setpoint_max_m')
+#: Live-update rules by the last part of a parameter name: (lo, hi) for every value.
+VALUE_RANGES = {
+    'kp0': (0.0, 1e12), 'ki0': (0.0, 1e15), 'kd0': (0.0, 1e9),
+    'kp': (0.0, 1e12), 'ki': (0.0, 1e15), 'kd': (0.0, 1e9),
+    'kp_unit': (0.0, 1e12), 'ki_unit': (0.0, 1e15), 'kd_unit': (0.0, 1e9),
+    'e_scale_per_m': (1e-3, 1e12), 'ec_scale_s_per_m': (1e-6, 1e9),
+    'output_scale': (0.0, 10.0), 'derivative_filter_hz': (0.0, 1e6),
+    'u_min': (-1000.0, 1000.0), 'u_max': (-1000.0, 1000.0), 'tracking_time_s': (0.0, 10.0),
+}
+
+
+def unflatten(flat):
+    """Turn ROS dotted names back into the nested mapping of the params file."""
+    out = {}
+    for name, value in flat.items():
+        parts = name.split('.')
+        d = out
+        for p in parts[:-1]:
+            d = d.setdefault(p, {})
+        d[parts[-1]] = list(value) if isinstance(value, (list, tuple)) or (
+            hasattr(value, 'tolist')) else value
+    return out
+
+
+def make_controller(controller, params, rate_hz):
+    """Build the feedback law exactly as the offline simulation does.
+
+    :param controller: a controller name of ``fiber-align simulate`` (composite,
+        composite-pid, fuzzy, pid, feedforward, open-loop); the last two have no feedback.
+    :param params: controller parameters (nested, SI).
+    :param rate_hz: control rate (Hz).
+    :returns: an object with ``step(r, y) -> V`` or ``None``.
+    """
+    from fiber_align.config import load_params
+    from fiber_align.control.simulate import build
+    from fiber_align.hysteresis.pi import PIModel
+    comp = load_params('compensator.yaml', 'hysteresis_compensator')
+    model = PIModel(comp['thresholds_v'], comp['weights_m_per_v']) \
+        if 'thresholds_v' in comp else None
+    return build(controller, rate_hz, None, model=model, controller_params=params,
+                 comp_params=comp)[1]
+
+
+def check_values(name, value):
+    """Return ``None`` or the reason why ``value`` is not allowed for parameter ``name``."""
+    key = name.split('.')[-1]
+    if key not in VALUE_RANGES:
+        return None
+    lo, hi = VALUE_RANGES[key]
+    vals = list(value) if isinstance(value, (list, tuple)) or hasattr(value, 'tolist') \
+        else [value]
+    for v in vals:
+        try:
+            f = float(v)
+        except (TypeError, ValueError):
+            return '%s=%r is not a number' % (name, v)
+        if not (math.isfinite(f) and lo <= f <= hi):
+            return '%s=%r is out of range [%g, %g]' % (name, v, lo, hi)
+    return None
+
+
+class FuzzyPidControllerNode(Node):
+    """Transport and parameters around the fuzzy PID of the control core."""
+
+    def __init__(self, **kwargs):
+        """Declare parameters (defaults from config/), build the controller, wire topics."""
+        super().__init__(NODE_NAME, **kwargs)
+        d = c.node_defaults(NODE_NAME, AREA_FILES)
+        self.mode = c.declare(self, d, 'controller', 'control law (as in fiber-align simulate)',
+                              choices=MODES)
+        self.rate_hz = c.declare(self, d, 'rate_hz', 'control rate (Hz)', 1.0, 20000.0, True)
+        self.lockstep = c.declare(self, d, 'sync_mode', 'message pairing', read_only=True,
+                                  choices=c.SYNC_MODES) == 'lockstep'
+        diag = c.declare(self, d, 'diagnostics_period_s', '/diagnostics period (s)', 0.01,
+                         60.0, True)
+        self.sp_lo = c.declare(self, d, 'setpoint_min_m', 'lowest accepted setpoint (m)',
+                               -1e-3, 1e-3)
+        self.sp_hi = c.declare(self, d, 'setpoint_max_m', 'highest accepted setpoint (m)',
+                               -1e-3, 1e-3)
+        core = {k: v for k, v in d.items() if k not in GRAPH_KEYS}
+        self.core_names = []
+        for name, value in flatten(core).items():
+            key = name.split('.')[-1]
+            lo, hi = VALUE_RANGES.get(key, (None, None))
+            scalar = isinstance(value, (int, float)) and not isinstance(value, bool)
+            c.declare(self, {name: value}, name, 'controller parameter (SI, see '
+                      'controller.yaml)', lo if scalar else None, hi if scalar else None)
+            self.core_names.append(name)
+        self.ctl = make_controller(self.mode, self._core_params(), self.rate_hz)
+        self.add_on_set_parameters_callback(self._on_set)
+
+        self.pub_fb = self.create_publisher(Float64, 'feedback_voltage', c.CONTROL_QOS)
+        self.pub_state = self.create_publisher(Float64MultiArray, 'controller_state',
+                                               c.CONTROL_QOS)
+        self.create_subscription(JointState, 'displacement', self._on_disp, c.CONTROL_QOS)
+        self.create_subscription(Float64, 'setpoint', self._on_setpoint, c.CONTROL_QOS)
+        self.create_service(Trigger, '~/reset', self._on_reset)
+        self.health = c.Health(self, diag)
+        self.r = 0.0
+        self.sp_q = []
+        self.y_q = []
+        self.n_fb = 0
+        self.n_state = 0
+        self.rejected = 0
+        self.n_y = 0
+        self.health.status(c.OK, 'running (%s)' % self.mode)
+        self.get_logger().info('controller ready: mode %s at %g Hz, %s pairing'
+                               % (self.mode, self.rate_hz,
+                                  'index' if self.lockstep else 'latest-setpoint'))
+
+    # -- parameters -----------------------------------------------------------------
+    def _core_params(self, changes=None):
+        flat = {n: self.get_parameter(n).value for n in self.core_names}
+        flat.update(changes or {})
+        return unflatten(flat)
+
+    def _on_set(self, params):
+        """Validate a live update; rebuild the controller and keep its state."""
+        changes = {}
+        mode = self.mode
+        for p in params:
+            if p.name in ('setpoint_min_m', 'setpoint_max_m'):
+                res = c.check_parameters([p], {p.name: (-1e-3, 1e-3)})
+                if not res.successful:
+                    return res
+            elif p.name == 'controller':
+                if p.value not in MODES:
+                    return SetParametersResult(successful=False, reason='controller=%r: must be '
+                                               'one of %s' % (p.value, ', '.join(MODES)))
+                mode = p.value
+            elif p.name in self.core_names:
+                why = check_values(p.name, p.value)
+                if why:
+                    return SetParametersResult(successful=False, reason=why)
+                changes[p.name] = p.value
+        if not changes and mode == self.mode:
+            for p in params:
+                if p.name == 'setpoint_min_m':
+                    self.sp_lo = float(p.value)
+                elif p.name == 'setpoint_max_m':
+                    self.sp_hi = float(p.value)
+            return SetParametersResult(successful=True)
+        try:
+            new = make_controller(mode, self._core_params(changes), self.rate_hz)
+        except (ConfigError, ValueError, KeyError, TypeError) as exc:
+            return SetParametersResult(successful=False, reason='rejected: %s' % exc)
+        if new is not None and self.ctl is not None and mode == self.mode:
+            old, npid = self.ctl.pid, new.pid
+            npid.integral, npid.deriv, npid.e_prev, npid.u = (
+                old.integral, old.deriv, old.e_prev, old.u)
+            new.u = self.ctl.u
+            if getattr(self.ctl, 'reference_filter', None) is not None:
+                new.reference_filter = self.ctl.reference_filter
+        self.ctl = new
+        self.mode = mode
+        for p in params:
+            if p.name == 'setpoint_min_m':
+                self.sp_lo = float(p.value)
+            elif p.name == 'setpoint_max_m':
+                self.sp_hi = float(p.value)
+        self.get_logger().info('parameters updated: %s' % ', '.join(p.name for p in params))
+        return SetParametersResult(successful=True)
+
+    # -- messages -------------------------------------------------------------------
+    def _on_reset(self, request, response):
+        """Clear the controller's integral and filters."""
+        if self.ctl is not None:
+            self.ctl.reset()
+        response.success = True
+        response.message = 'controller reset'
+        return response
+
+    def _valid(self, value):
+        why = c.check_setpoint(value, self.sp_lo, self.sp_hi)
+        if why is None:
+            return float(value)
+        self.rejected += 1
+        msg = 'rejected %s; holding %.6g m' % (why, self.r)
+        self.get_logger().warn(msg)
+        self.health.warn(msg)
+        self.health.set_values(rejected_setpoints=self.rejected)
+        return self.r
+
+    def _on_setpoint(self, msg):
+        r = self._valid(msg.data)
+        self.r = r
+        if self.lockstep:
+            self.sp_q.append(r)
+            self._pair()
+
+    def _on_disp(self, msg):
+        y = msg.position[0] if len(msg.position) else math.nan
+        self.n_y += 1
+        if self.lockstep:
+            self.y_q.append(y)
+            self._pair()
+        else:
+            self._step(self.r, y)
+
+    def _pair(self):
+        while self.sp_q and self.y_q:
+            self._step(self.sp_q.pop(0), self.y_q.pop(0))
+
+    def _step(self, r, y):
+        if self.ctl is None:
+            fb, e, de, gains = 0.0, r - y, 0.0, (0.0, 0.0, 0.0)
+        else:
+            fb = self.ctl.step(r, y)
+            e = r - y
+            de = self.ctl.pid.deriv
+            gains = self.ctl.gains
+        self.pub_fb.publish(Float64(data=float(fb)))
+        self.n_fb += 1
+        st = Float64MultiArray()
+        st.layout.dim = [MultiArrayDimension(label=lab, size=1, stride=1)
+                         for lab in STATE_LABELS]
+        st.data = [float(e), float(de), float(gains[0]), float(gains[1]), float(gains[2]),
+                   float(fb)]
+        self.pub_state.publish(st)
+        self.n_state += 1
+        if self.n_fb % 500 == 0:
+            self.health.set_values(**{'sent.feedback_voltage': self.n_fb,
+                                      'sent.controller_state': self.n_state,
+                                      'rejected_setpoints': self.rejected,
+                                      'setpoint_m': self.r, 'mode': self.mode})
+
+    def sent_counts(self):
+        """Return published message counts per topic."""
+        return {'feedback_voltage': self.n_fb, 'controller_state': self.n_state}
+
+
+def main(args=None):
+    """Run the node (demo_nodes_py idiom)."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = FuzzyPidControllerNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            c.report_sent(node, node.sent_counts())
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

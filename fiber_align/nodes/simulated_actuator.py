@@ -1,0 +1,339 @@
+# SPDX-License-Identifier: Apache-2.0
+"""``simulated_actuator``: the plant and sensor of the control core as a ROS 2 node.
+
+Wraps :class:`fiber_align.plant.actuator.SimulatedActuator` (one ``step(v)`` = one control
+period). Topics (relative names, SI units):
+
+- sub ``drive_voltage`` (std_msgs/Float64, V): the amplifier input, held for one period.
+- pub ``displacement`` (sensor_msgs/JointState, joint ``bimorph_tip``): position = the
+  sensor reading (m), velocity = the model's tip velocity (m/s); header stamp = the sample
+  time t_k (sim time in lockstep, wall time in realtime).
+- pub ``optical_power`` (std_msgs/Float64, W): coupled power at the detector, when the
+  optics model (:mod:`fiber_align.plant.optics`) is installed.
+- pub ``/clock`` (rosgraph_msgs/Clock) in lockstep mode.
+- srv ``run`` (std_srvs/SetBool): start (true) or hold (false) the sample clock.
+
+Modes (parameter ``sync_mode``): ``realtime`` publishes a sample on a wall-clock timer at
+``rate_hz``; the first drive that arrives after a sample is applied at once for the rest
+of that period (the plant advances then, as in the offline loop); when none arrives
+before the next tick the plant advances with the held drive (zero-order hold) and the
+period counts as missed; ``lockstep`` publishes sample k with
+``/clock`` = k T and advances to k + 1 only when the drive for sample k has arrived; if it
+does not arrive within ``lockstep_timeout_s`` (wall time) it warns and keeps holding.
+
+In realtime mode the node measures the loop latency: for each sample, the wall time from
+publishing the displacement to the arrival of the first drive command after it, and
+counts missed cycles (periods in which no drive arrived, plus timer ticks skipped).
+The statistics are on ``/diagnostics``.
+"""
+
+import time
+
+import numpy as np
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
+from std_srvs.srv import SetBool
+
+from fiber_align.nodes import _common as c
+from fiber_align.plant.actuator import SimulatedActuator
+
+NODE_NAME = 'simulated_actuator'
+AREA_FILES = ('plant.yaml', 'optics.yaml')
+JOINT_NAME = 'bimorph_tip'
+PLANT_KEYS = ('rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min', 'v_max',
+              'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m', 'seed')
+LATENCY_BUFFER = 200_000
+WARMUP_SAMPLES = 1000  # realtime: drives before latency statistics start
+
+
+def make_optics(params, seed):
+    """Return the optical link (coupling + detector), or ``None`` without the optics model.
+
+    :param params: the node's ``optics.*`` parameters (ROS dotted names, SI units).
+    :param seed: detector noise seed.
+    """
+    try:
+        from fiber_align.plant.optics import OpticalLink
+    except ImportError:
+        return None
+    if not params:
+        return None
+    return OpticalLink.from_params(params, seed=seed)
+
+
+class SimulatedActuatorNode(Node):
+    """Transport, parameters and health around :class:`SimulatedActuator`."""
+
+    def __init__(self, **kwargs):
+        """Declare the parameters (defaults from config/), build the plant, wire topics."""
+        super().__init__(NODE_NAME, **kwargs)
+        d = c.node_defaults(NODE_NAME, AREA_FILES)
+        ro = True
+        self.rate_hz = c.declare(self, d, 'rate_hz', 'control rate (Hz)', 1.0, 20000.0, ro)
+        c.declare(self, d, 'hysteresis', 'true hysteresis law of the plant', read_only=ro,
+                  choices=('default', 'dense-pi', 'bouc-wen', 'paper', 'linear'))
+        c.declare(self, d, 'omega_n_rad_s', 'first bending mode (rad/s); <= 0: design model',
+                  -1.0, 1e6, ro)
+        c.declare(self, d, 'damping_ratio', 'modal damping ratio (1)', 0.0, 0.999, ro)
+        c.declare(self, d, 'v_min', 'amplifier lower limit (V)', -200.0, 200.0, ro)
+        c.declare(self, d, 'v_max', 'amplifier upper limit (V)', -200.0, 200.0, ro)
+        c.declare(self, d, 'slew_rate_v_per_s', 'amplifier slew limit (V/s); <= 0: none',
+                  -1.0, 1e12, ro)
+        c.declare(self, d, 'noise_rms_m', 'sensor noise (m RMS)', 0.0, 1e-3, ro)
+        c.declare(self, d, 'resolution_m', 'sensor resolution (m)', 0.0, 1e-3, ro)
+        c.declare(self, d, 'seed', 'sensor noise seed', 0, 2 ** 31 - 1, ro)
+        self.sync_mode = c.declare(self, d, 'sync_mode', 'sample clock', read_only=ro,
+                                   choices=c.SYNC_MODES)
+        self.timeout_s = c.declare(self, d, 'lockstep_timeout_s',
+                                   'lockstep: warn when no drive within this time (s)',
+                                   0.001, 3600.0)
+        self.autostart = c.declare(self, d, 'autostart',
+                                   'start the sample clock without a run call', read_only=ro)
+        diag_period = c.declare(self, d, 'diagnostics_period_s',
+                                '/diagnostics period (s)', 0.01, 60.0, ro)
+        self.add_on_set_parameters_callback(self._on_set)
+
+        params = {k: self.get_parameter(k).value for k in PLANT_KEYS}
+        self.plant = SimulatedActuator.from_params(params)
+        self.period_s = self.plant.period_s
+        optics_params = {}
+        for name, value in sorted(c.flatten_defaults(d, 'optics').items()):
+            optics_params[name] = c.declare(self, {name: value}, name,
+                                            'optics model parameter (SI, see optics.yaml)',
+                                            read_only=ro)
+        self.optics = make_optics(optics_params, int(params['seed']))
+
+        self.pub_disp = self.create_publisher(JointState, 'displacement', c.CONTROL_QOS)
+        self.pub_power = self.create_publisher(Float64, 'optical_power', c.CONTROL_QOS)
+        self.pub_clock = None
+        if self.sync_mode == 'lockstep':
+            self.pub_clock = self.create_publisher(ClockMsg, '/clock', c.CLOCK_QOS)
+        self.create_subscription(Float64, 'drive_voltage', self._on_drive, c.CONTROL_QOS)
+        self.create_service(SetBool, '~/run', self._on_run)
+        self.health = c.Health(self, diag_period)
+
+        self.running = False
+        self.started = False
+        self.k = 0                      # index of the last published sample
+        self.n_disp = 0
+        self.n_power = 0
+        self.n_clock = 0
+        self.n_drive = 0
+        self.v_latest = 0.0
+        self.pending = []               # lockstep: drives not yet applied
+        self.wait_since = None
+        self.holds = 0
+        # realtime latency bookkeeping (perf_counter seconds)
+        self.t_pub = None
+        self.drive_seen = True
+        self.stepped = False
+        self.lat = np.empty(LATENCY_BUFFER)
+        self.n_lat = 0
+        self.missed = 0
+        self.skipped = 0
+        self.t0_rt = None
+        self.ticks = 0
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        if self.sync_mode == 'realtime':
+            self.timer = self.create_timer(self.period_s, self._on_tick, clock=steady)
+        else:
+            self.timer = self.create_timer(min(0.1, self.timeout_s / 2), self._on_watch,
+                                           clock=steady)
+        self.create_timer(0.05, self._maybe_autostart, clock=steady)
+        self.health.status(0, 'ready, waiting for run' if not self.autostart else 'ready')
+        self.get_logger().info('plant ready: %s mode at %g Hz, optics %s'
+                               % (self.sync_mode, self.rate_hz,
+                                  'on' if self.optics else 'not installed'))
+
+    # -- parameters -----------------------------------------------------------------
+    def _on_set(self, params):
+        """Check live updates (only ``lockstep_timeout_s`` may change)."""
+        res = c.check_parameters(params, {'lockstep_timeout_s': (0.001, 3600.0)})
+        if res.successful:
+            for p in params:
+                if p.name == 'lockstep_timeout_s':
+                    self.timeout_s = float(p.value)
+        return res
+
+    # -- start / hold ---------------------------------------------------------------
+    def _maybe_autostart(self):
+        if self.autostart and not self.started:
+            if self.sync_mode == 'realtime' or (
+                    self.count_subscribers(self.pub_disp.topic_name) > 0
+                    and self.count_publishers(self.resolve_topic_name('drive_voltage')) > 0):
+                self._start()
+
+    def _on_run(self, request, response):
+        """Start (``data`` true) or hold (false) the sample clock."""
+        if request.data:
+            self._start()
+            response.message = 'running'
+        else:
+            self.running = False
+            self.health.status(0, 'held at sample %d' % self.k)
+            response.message = 'held at sample %d' % self.k
+        response.success = True
+        return response
+
+    def _start(self):
+        if self.running:
+            return
+        self.running = True
+        self.health.status(0, 'running')
+        if not self.started:
+            self.started = True
+            self.get_logger().info('sample clock started (%s)' % self.sync_mode)
+            if self.sync_mode == 'lockstep':
+                self._publish_sample(0.0)
+                self.wait_since = time.monotonic()
+        elif self.sync_mode == 'lockstep':
+            self.wait_since = time.monotonic()
+            self._advance()
+
+    # -- publishing -----------------------------------------------------------------
+    def _publish_sample(self, t_s):
+        """Publish /clock (lockstep), displacement and optical power for sample ``self.k``."""
+        stamp = c.s_to_stamp(t_s) if self.sync_mode == 'lockstep' else \
+            self.get_clock().now().to_msg()
+        if self.pub_clock is not None:
+            self.pub_clock.publish(ClockMsg(clock=stamp))
+            self.n_clock += 1
+        js = JointState()
+        js.header.stamp = stamp
+        js.name = [JOINT_NAME]
+        js.position = [float(self.plant.y_meas)]
+        js.velocity = [float(self.plant.velocity_m_per_s)]
+        self.pub_disp.publish(js)
+        self.n_disp += 1
+        if self.optics is not None:
+            p_w = self.optics.measure(self.k * self.period_s, self.plant.position_m,
+                                      self.period_s)
+            self.pub_power.publish(Float64(data=float(p_w)))
+            self.n_power += 1
+
+    # -- drive ----------------------------------------------------------------------
+    def _on_drive(self, msg):
+        """Take a drive command (V)."""
+        self.n_drive += 1
+        if self.sync_mode == 'realtime':
+            self.v_latest = msg.data
+            if not self.drive_seen and self.t_pub is not None:
+                if self.n_lat < LATENCY_BUFFER and self.n_drive > WARMUP_SAMPLES:
+                    self.lat[self.n_lat] = time.perf_counter() - self.t_pub
+                    self.n_lat += 1
+                self.drive_seen = True
+                if self.running:
+                    # the command for sample k arrived within its period: apply it now
+                    # for this period (as the offline loop does); the next tick publishes
+                    self.plant.step(msg.data)
+                    self.stepped = True
+            return
+        self.pending.append(msg.data)
+        if self.running:
+            self._advance()
+
+    def _advance(self):
+        """Lockstep: apply the drive of sample k, publish sample k + 1."""
+        while self.pending and self.running:
+            v = self.pending.pop(0)
+            self.v_latest = v
+            self.plant.step(v)
+            self.k += 1
+            self._publish_sample(self.k * self.period_s)
+            self.wait_since = time.monotonic()
+
+    def _on_watch(self):
+        """Lockstep: warn (and keep holding) when the drive is late."""
+        self._update_values()
+        if not (self.running and self.started) or self.wait_since is None:
+            return
+        late = time.monotonic() - self.wait_since
+        if late > self.timeout_s:
+            self.holds += 1
+            msg = ('no drive_voltage for sample %d within %.3g s: holding'
+                   % (self.k, self.timeout_s))
+            self.get_logger().warn(msg)
+            self.health.warn(msg)
+            self.wait_since = time.monotonic()
+
+    def _on_tick(self):
+        """Realtime: one control period on the wall clock."""
+        if not self.running or not self.context.ok():
+            return
+        now = time.perf_counter()
+        if not self.started or self.t0_rt is None:
+            self.started = True
+            self.t0_rt = now
+            self.ticks = 0
+            self._publish_sample(0.0)
+        else:
+            if not self.stepped:
+                if self.n_drive > 0:
+                    self.missed += 1
+                self.plant.step(self.v_latest)     # no command this period: hold (ZOH)
+            self.stepped = False
+            self.k += 1
+            self._publish_sample(0.0)
+        self.ticks += 1
+        expected = int((now - self.t0_rt) / self.period_s) + 1
+        if expected > self.ticks:
+            self.skipped += expected - self.ticks
+            self.ticks = expected
+        self.t_pub = time.perf_counter()
+        self.drive_seen = False
+        if self.k % 200 == 0:
+            self._update_values()
+
+    def latency_stats(self):
+        """Return realtime loop statistics: latencies (s) and missed-cycle share."""
+        lat = self.lat[:self.n_lat]
+        n = max(1, self.ticks)
+        out = {'samples': int(self.k + 1 if self.started else 0),
+               'latency_n': int(lat.size),
+               'missed_cycles': int(self.missed + self.skipped),
+               'missed_share': float(self.missed + self.skipped) / n}
+        if lat.size:
+            out.update(latency_p50_s=float(np.percentile(lat, 50)),
+                       latency_p99_s=float(np.percentile(lat, 99)),
+                       latency_max_s=float(lat.max()))
+        return out
+
+    def _update_values(self):
+        vals = {'sample': self.k, 'sim_time_s': self.k * self.period_s,
+                'position_m': self.plant.position_m, 'drive_v': self.plant.v_applied,
+                'lockstep_holds': self.holds}
+        if self.sync_mode == 'realtime':
+            vals.update(self.latency_stats())
+        vals.update({'sent.displacement': self.n_disp, 'sent.optical_power': self.n_power,
+                     'sent.clock': self.n_clock})
+        self.health.set_values(**vals)
+
+    def sent_counts(self):
+        """Return published message counts per topic."""
+        return {'displacement': self.n_disp, 'optical_power': self.n_power,
+                '/clock': self.n_clock}
+
+
+def main(args=None):
+    """Run the node (demo_nodes_py idiom)."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = SimulatedActuatorNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            c.report_sent(node, node.sent_counts())
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()
