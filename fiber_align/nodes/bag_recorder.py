@@ -1,0 +1,200 @@
+# SPDX-License-Identifier: Apache-2.0
+"""``bag_recorder``: record the graph's topics into a rosbag2 (version 9) bag with rosbags.
+
+Parameters (defaults in ``config/recorder.yaml``, node ``bag_recorder``):
+
+* ``output`` (str): bag directory to create; empty = ``fiber_align_<YYYYmmdd_HHMMSS>``.
+* ``storage`` (str): ``mcap`` or ``sqlite3``.
+* ``topics`` (str[]): names to record; relative names resolve in the node's namespace.
+* ``discovery_period_s`` (s): how often to look for publishers of not-yet-subscribed topics.
+* ``queue_depth`` (messages): history depth of every subscription.
+* ``counts_file`` (bool): write ``recorder_counts.json`` (messages per topic) in the bag.
+
+A topic is subscribed (``raw=True``: the CDR bytes are written as received, stamped with
+the wall-clock receive time in ns) once a publisher shows its type. The QoS follows the
+publishers: reliable if all are reliable, transient-local if all are (latched topics).
+Every message is written in its callback, so whatever reached the node is in the bag;
+on SIGINT, SIGTERM or rclpy shutdown the spin ends and the bag is closed (finalised).
+"""
+
+from datetime import datetime
+import json
+import os
+import signal
+import sys
+import threading
+import time
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+
+from fiber_align.analysis import bagio
+from fiber_align.config import ConfigError
+
+NODE_NAME = 'bag_recorder'
+DEFAULT_TOPICS = ['setpoint', 'displacement', 'feedforward_voltage', 'feedback_voltage',
+                  'drive_voltage', 'optical_power', 'controller_state', 'alignment_state',
+                  '/diagnostics', '/clock']
+
+
+def _default_output():
+    return 'fiber_align_' + datetime.now().strftime('%Y%m%d_%H%M%S')
+
+
+class BagRecorder(Node):
+    """Subscribe raw to the requested topics as they appear and write them to a bag."""
+
+    def __init__(self, **kwargs):
+        """Declare the parameters, open the bag and start discovery."""
+        super().__init__(NODE_NAME, **kwargs)
+        self.declare_parameter('output', '')
+        self.declare_parameter('storage', 'mcap')
+        self.declare_parameter('topics', DEFAULT_TOPICS)
+        self.declare_parameter('discovery_period_s', 0.2)
+        self.declare_parameter('queue_depth', 1000)
+        self.declare_parameter('counts_file', True)
+        gp = self.get_parameter
+        self.output = gp('output').value or _default_output()
+        storage = str(gp('storage').value)
+        period = float(gp('discovery_period_s').value)
+        self.depth = int(gp('queue_depth').value)
+        self.counts_file = bool(gp('counts_file').value)
+        if not period > 0:
+            raise ConfigError('discovery_period_s must be > 0 s, got %r' % period)
+        if self.depth < 1:
+            raise ConfigError('queue_depth must be >= 1, got %r' % self.depth)
+        self.wanted = [self.resolve_topic_name(t) for t in gp('topics').value]
+        from rosbags.rosbag2 import Writer
+        self.typestore = bagio.typestore()
+        if os.path.exists(self.output):
+            raise ConfigError('output %s exists already; choose a new bag directory'
+                              % self.output)
+        self.writer = Writer(self.output, version=9,
+                             storage_plugin=bagio._storage_plugin(storage))
+        self.writer.open()
+        self.closed = False
+        self.subs = {}
+        self.conns = {}
+        self.counts = {}
+        self.timer = self.create_timer(period, self.discover)
+        self.get_logger().info('recording %s into %s (%s)'
+                               % (', '.join(self.wanted), self.output, storage))
+        self.discover()
+
+    def _qos(self, topic):
+        infos = self.get_publishers_info_by_topic(topic)
+        rel = ReliabilityPolicy.RELIABLE
+        dur = DurabilityPolicy.VOLATILE
+        if infos:
+            if any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in infos):
+                rel = ReliabilityPolicy.BEST_EFFORT
+            if all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos):
+                dur = DurabilityPolicy.TRANSIENT_LOCAL
+        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self.depth,
+                          reliability=rel, durability=dur)
+
+    def discover(self):
+        """Subscribe to every wanted topic whose type is now known."""
+        if self.closed:
+            return
+        types = dict(self.get_topic_names_and_types())
+        for topic in self.wanted:
+            if topic in self.subs or topic not in types:
+                continue
+            msgtype = types[topic][0]
+            if not self.get_publishers_info_by_topic(topic):
+                continue
+            try:
+                cls = bagio.message_class(msgtype)
+                conn = self.writer.add_connection(topic, msgtype, typestore=self.typestore)
+            except Exception as exc:  # noqa: BLE001 - unknown type: skip it, say so
+                self.get_logger().warning('cannot record %s (%s): %s' % (topic, msgtype, exc))
+                self.subs[topic] = None
+                continue
+            self.conns[topic] = conn
+            self.counts[topic] = 0
+            self.subs[topic] = self.create_subscription(
+                cls, topic, self._callback(topic, conn), self._qos(topic), raw=True)
+            self.get_logger().info('subscribed to %s (%s)' % (topic, msgtype))
+
+    def _callback(self, topic, conn):
+        write = self.writer.write
+
+        def cb(data):
+            if self.closed:
+                return
+            write(conn, time.time_ns(), data)
+            self.counts[topic] += 1
+        return cb
+
+    def close(self):
+        """Finalise the bag (idempotent); log and return the message counts per topic."""
+        if self.closed:
+            return self.counts
+        self.closed = True
+        self.writer.close()
+        msg = ', '.join('%s: %d' % kv for kv in sorted(self.counts.items())) or 'no topics'
+        self.get_logger().info('bag %s closed; messages per topic: %s' % (self.output, msg))
+        if self.counts_file:
+            with open(os.path.join(self.output, 'recorder_counts.json'), 'w',
+                      encoding='utf-8') as f:
+                json.dump(self.counts, f, indent=1, sort_keys=True)
+        return self.counts
+
+
+def _drain(executor, node, quiet_s=0.2, limit_s=3.0):
+    """Run callbacks until none has run for ``quiet_s`` s (at most ``limit_s`` s)."""
+    end = time.monotonic() + limit_s
+    last, quiet_since = sum(node.counts.values()), time.monotonic()
+    while rclpy.ok() and time.monotonic() < end:
+        executor.spin_once(timeout_sec=0.02)
+        now_count = sum(node.counts.values())
+        if now_count != last:
+            last, quiet_since = now_count, time.monotonic()
+        elif time.monotonic() - quiet_since >= quiet_s:
+            break
+
+
+def main(args=None):
+    """Run the recorder until SIGINT, SIGTERM or shutdown; the bag is always finalised.
+
+    The node installs its own SIGINT/SIGTERM handlers: they only stop the spin loop, so
+    the messages already queued for the node are still taken and written before the
+    bag is closed.
+    """
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = threading.Event()
+
+    def on_signal(signum, frame):
+        stop.set()
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    node = None
+    code = 0
+    try:
+        node = BagRecorder()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while rclpy.ok() and not stop.is_set():
+            executor.spin_once(timeout_sec=0.1)
+        _drain(executor, node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ConfigError as exc:
+        print('bag_recorder: error: %s' % exc, file=sys.stderr, flush=True)
+        code = 2
+    finally:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_IGN)
+        if node is not None:
+            node.close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())
