@@ -1,0 +1,548 @@
+# SPDX-License-Identifier: Apache-2.0
+"""Alignment sequencer: a pure, step-based state machine that finds, peaks and tracks light.
+
+Once per control period the loop calls ``seq.update(t_s, displacement_m, power_w)`` and
+gets the displacement setpoint (m) back. Commands ``align()``, ``release()`` and
+``switch(on)`` return ``(ok, message)``. ``state`` and ``fault_reason`` tell where it is.
+
+States::
+
+    IDLE -> SEARCHING -> PEAKING -> TRACKING      (align)
+    any  -> RELEASING -> IDLE                     (release, switch(False))
+    IDLE -> PEAKING (re-peak) -> TRACKING         (switch(True): to the last aligned spot)
+    any active state -> FAULT (reason)
+
+SEARCHING
+    Measures the detector floor at rest (the IDLE samples count), sets the first-light
+    threshold ``threshold_sigma`` standard deviations above its mean, then ramps the
+    setpoint across the reachable range until the power stays above the threshold for
+    ``confirm_samples`` samples. A floor that is already bright (above ``floor_max_w``)
+    means light is present at the start: it goes straight to PEAKING.
+PEAKING
+    Continues the sweep through the peak and fits a parabola to ``ln P`` against the
+    measured displacement (the Gaussian mode overlap makes ``ln P`` exactly quadratic in
+    the offset, so a three-parameter least-squares fit on one sweep locates the peak; see
+    docs/alignment.md for the sample counts of the alternatives). It moves to the vertex,
+    waits for the loop to settle, and checks the power against the fitted peak; a miss
+    triggers a short local re-sweep. ``switch(True)`` uses the same local re-sweep.
+TRACKING
+    Dither extremum seeking: the setpoint is ``x_hat + a sin(2 pi f t)``; the gradient of
+    ``ln P`` is the exponentially weighted regression of ``ln P`` on the measured
+    displacement (phase-free, so the loop's lag at the dither frequency does not bias it);
+    ``x_hat`` moves at ``bandwidth * g / (2 c)`` where ``c`` is the fitted curvature, so
+    the tracking loop has the configured bandwidth (rad/s) whatever the fiber.
+
+All quantities are SI (s, m, W); dB only for ratios. Defaults: ``config/sequencer.yaml``.
+"""
+
+import math
+
+import numpy as np
+
+from fiber_align.config import load_params
+
+CONFIG_FILE = 'sequencer.yaml'
+CONFIG_NODE = 'alignment_sequencer'
+
+IDLE = 'IDLE'
+SEARCHING = 'SEARCHING'
+PEAKING = 'PEAKING'
+TRACKING = 'TRACKING'
+RELEASING = 'RELEASING'
+FAULT = 'FAULT'
+STATES = (IDLE, SEARCHING, PEAKING, TRACKING, RELEASING, FAULT)
+ACTIVE = (SEARCHING, PEAKING, TRACKING)
+
+DEFAULTS = dict(
+    range_min_m=0.0, range_max_m=65e-6, park_position_m=0.0,
+    floor_samples=10, threshold_sigma=6.0, floor_max_w=1e-8, min_threshold_w=1e-12,
+    confirm_samples=2, search_speed_m_per_s=0.5e-3, search_timeout_s=0.4,
+    peak_speed_m_per_s=1.0e-3, peak_drop_db=3.0, peak_fit_window_db=10.0,
+    peak_min_fit_samples=5, power_lag_s=0.16e-3, range_tolerance_m=0.5e-6,
+    settle_tolerance_m=0.15e-6, settle_samples=3, settle_timeout_s=0.05,
+    verify_samples=4, verify_tolerance_db=0.08, max_refits=2,
+    repeak_span_m=1.5e-6, repeak_speed_m_per_s=0.5e-3, switch_ramp_time_s=0.0,
+    dither_amplitude_m=0.3e-6, dither_frequency_hz=25.0, tracking_bandwidth_rad_s=10.0,
+    gradient_time_s=0.04, track_loss_db=10.0, track_loss_timeout_s=0.02,
+    sensor_timeout_s=0.01, follow_error_m=10e-6, follow_timeout_s=0.05,
+    release_tolerance_m=1e-6, release_timeout_s=0.1,
+)
+
+
+def load_sequencer_params(path=CONFIG_FILE, **overrides):
+    """Return the sequencer parameters from a params file, ``overrides`` applied."""
+    p = dict(load_params(path, CONFIG_NODE))
+    p.update(overrides)
+    return p
+
+
+def fit_log_parabola(x_m, p_w, curvature=None):
+    """Fit ``ln P = a - c (x - x0)^2`` to samples; return ``(x0, c, ln_p0)`` or ``None``.
+
+    :param x_m: positions (m).
+    :param p_w: powers (W), all > 0.
+    :param curvature: known ``c`` (1/m^2); then only ``x0`` and ``ln_p0`` are fitted.
+    :returns: vertex ``x0`` (m), curvature ``c`` (1/m^2, > 0 for a peak) and ``ln P`` at
+        the vertex, or ``None`` when the samples do not define a peak.
+    """
+    x = np.asarray(x_m, dtype=float)
+    lp = np.log(np.asarray(p_w, dtype=float))
+    if x.size < (2 if curvature else 3):
+        return None
+    xm = x.mean()
+    xs = (x - xm) * 1e6                         # um, for conditioning
+    if curvature:
+        c_um = curvature * 1e-12
+        a = np.vstack([np.ones_like(xs), xs]).T
+        coef, *_ = np.linalg.lstsq(a, lp + c_um * xs ** 2, rcond=None)
+        x0_um = coef[1] / (2.0 * c_um)
+        lp0 = coef[0] + c_um * x0_um ** 2
+        return xm + x0_um * 1e-6, curvature, float(lp0)
+    if np.ptp(xs) <= 0:
+        return None
+    a = np.vstack([np.ones_like(xs), xs, xs ** 2]).T
+    coef, *_ = np.linalg.lstsq(a, lp, rcond=None)
+    c_um = -coef[2]
+    if not c_um > 0:
+        return None
+    x0_um = coef[1] / (2.0 * c_um)
+    lp0 = coef[0] + c_um * x0_um ** 2
+    return xm + x0_um * 1e-6, c_um * 1e12, float(lp0)
+
+
+class Sequencer:
+    """Find, peak, track and switch the light on one axis (see the module docstring)."""
+
+    def __init__(self, params=None, **overrides):
+        """Build a sequencer from a parameter mapping (``None``: config/sequencer.yaml)."""
+        p = dict(DEFAULTS)
+        if params is None:
+            params = load_params(CONFIG_FILE, CONFIG_NODE)
+        unknown = sorted(set(params) - set(DEFAULTS) - {'control_period_s'})
+        if unknown:
+            raise ValueError('unknown sequencer parameter(s): %s' % ', '.join(unknown))
+        p.update({k: v for k, v in params.items() if k in DEFAULTS})
+        bad = sorted(set(overrides) - set(DEFAULTS))
+        if bad:
+            raise ValueError('unknown sequencer parameter(s): %s' % ', '.join(bad))
+        p.update(overrides)
+        if not p['range_max_m'] > p['range_min_m']:
+            raise ValueError('range_max_m must exceed range_min_m')
+        self.p = p
+        self.state = IDLE
+        self.fault_reason = ''
+        self.aligned_position_m = None
+        self.curvature_per_m2 = None
+        self.aligned_power_w = None
+        self.threshold_w = None
+        self.floor = None
+        self.peak_samples = 0
+        self.events = []
+        self._setpoint = p['park_position_m']
+        self._t = None
+        self._last_power_t = None
+        self._last_y_t = None
+        self._follow_since = None
+        self._idle_buf = []
+        self._phase = ''
+        self._enter(IDLE)
+
+    # ---- commands -------------------------------------------------------------------
+    def align(self):
+        """Start a full alignment (search, peak, track); return ``(ok, message)``."""
+        if self.state in (SEARCHING, PEAKING):
+            return False, 'busy: already %s' % self.state
+        self.fault_reason = ''
+        self._enter(SEARCHING)
+        self._phase = 'start'
+        return True, 'alignment started'
+
+    def release(self):
+        """Park the fiber at the park position and go IDLE; clears a FAULT."""
+        self.fault_reason = ''
+        self._enter(RELEASING)
+        return True, 'releasing to %.1f um' % (self.p['park_position_m'] * 1e6)
+
+    def switch(self, on):
+        """Switch the light on (go to the last aligned spot and re-peak) or off (park)."""
+        if not on:
+            if self.state == FAULT:
+                return False, 'in FAULT (%s); call release' % self.fault_reason
+            self._enter(RELEASING)
+            return True, 'switching off'
+        if self.state == FAULT:
+            return False, 'in FAULT (%s); call release or align' % self.fault_reason
+        if self.state in (SEARCHING, PEAKING):
+            return False, 'busy: %s' % self.state
+        if self.state == TRACKING:
+            return True, 'already on'
+        if self.aligned_position_m is None:
+            return False, 'no aligned position yet: call align first'
+        self._enter(PEAKING)
+        self._phase = 'goto'
+        self._goal = self.aligned_position_m
+        self._switch_from = self._setpoint
+        self._refits = 0
+        return True, 'switching on to %.2f um' % (self.aligned_position_m * 1e6)
+
+    @property
+    def setpoint_m(self):
+        """Return the last setpoint (m)."""
+        return self._setpoint
+
+    # ---- the control-period step ----------------------------------------------------
+    def update(self, t_s, displacement_m, power_w, driver_active=None):
+        """Advance one control period; return the displacement setpoint (m).
+
+        :param t_s: time of the samples (s).
+        :param displacement_m: measured displacement (m), or ``None`` if none arrived.
+        :param power_w: optical power reading (W), or ``None`` if none arrived.
+        :param driver_active: ``False`` when the driver reports it is not driving.
+        """
+        t = float(t_s)
+        dt = 0.0 if self._t is None else max(0.0, t - self._t)
+        self._t = t
+        self.dt = dt
+        y = None if displacement_m is None else float(displacement_m)
+        pw = None if power_w is None else float(power_w)
+        if y is not None and not math.isfinite(y):
+            y = None
+        if pw is not None and not math.isfinite(pw):
+            pw = None
+        if y is not None:
+            self._last_y_t = t
+        if pw is not None:
+            self._last_power_t = t
+        if self.state in ACTIVE and self._check_health(t, y, pw, driver_active):
+            return self._setpoint
+        if y is None:
+            y = self._y_last if hasattr(self, '_y_last') else self._setpoint
+        self._y_last = y
+        handler = getattr(self, '_do_' + self.state.lower())
+        handler(t, y, pw)
+        if self.state == PEAKING:
+            self.peak_samples += 1
+        self._setpoint = min(max(self._setpoint, self.p['range_min_m']),
+                             self.p['range_max_m'])
+        return self._setpoint
+
+    # ---- internals ------------------------------------------------------------------
+    def _enter(self, state):
+        self.state = state
+        self._state_t = self._t
+        self._follow_since = None
+        if state == PEAKING:
+            self.peak_samples = 0
+        if state == IDLE:
+            self._idle_buf = []
+        self.events.append((self._t, state, self.fault_reason))
+
+    def _fault(self, reason):
+        self.fault_reason = reason
+        self._enter(FAULT)
+
+    def _check_health(self, t, y, pw, driver_active):
+        """Return True (and fault) when a sensor is silent or the driver is not driving."""
+        p = self.p
+        t0 = self._state_t if self._state_t is not None else t
+        if driver_active is False:
+            self._fault('driver inactive: the driver reports it is not driving the '
+                        'actuator')
+            return True
+        last_p = self._last_power_t if self._last_power_t is not None else t0
+        if t - max(last_p, t0) > p['sensor_timeout_s']:
+            self._fault('sensor silent: no optical power reading for %.0f ms'
+                        % ((t - max(last_p, t0)) * 1e3))
+            return True
+        last_y = self._last_y_t if self._last_y_t is not None else t0
+        if t - max(last_y, t0) > p['sensor_timeout_s']:
+            self._fault('sensor silent: no displacement reading for %.0f ms'
+                        % ((t - max(last_y, t0)) * 1e3))
+            return True
+        if y is not None:
+            if abs(y - self._setpoint) > p['follow_error_m']:
+                if self._follow_since is None:
+                    self._follow_since = t
+                elif t - self._follow_since > p['follow_timeout_s']:
+                    self._fault('driver inactive or actuator stuck: displacement %.1f um '
+                                'does not follow setpoint %.1f um for %.0f ms'
+                                % (y * 1e6, self._setpoint * 1e6,
+                                   (t - self._follow_since) * 1e3))
+                    return True
+            else:
+                self._follow_since = None
+        return False
+
+    def _elapsed(self, t):
+        return t - (self._state_t if self._state_t is not None else t)
+
+    def _at_rest(self, y):
+        """Return True when ``y`` (m) moved less than ``settle_tolerance_m`` since last call."""
+        prev, self._y_prev = getattr(self, '_y_prev', None), y
+        return prev is not None and abs(y - prev) < self.p['settle_tolerance_m']
+
+    def _do_idle(self, t, y, pw):
+        self._setpoint = self.p['park_position_m']
+        if not self._at_rest(y):
+            self._idle_buf = []
+        elif pw is not None:
+            self._idle_buf.append(pw)
+            del self._idle_buf[:-int(self.p['floor_samples'])]
+
+    def _do_fault(self, t, y, pw):
+        pass  # hold the last setpoint; release() parks
+
+    def _do_releasing(self, t, y, pw):
+        p = self.p
+        self._setpoint = p['park_position_m']
+        if abs(y - self._setpoint) < p['release_tolerance_m'] or \
+                self._elapsed(t) > p['release_timeout_s']:
+            self._enter(IDLE)
+
+    # SEARCHING ------------------------------------------------------------------------
+    def _do_searching(self, t, y, pw):
+        p = self.p
+        if self._elapsed(t) > p['search_timeout_s']:
+            self._fault('no light found: search timed out after %.0f ms at %.1f um '
+                        '(threshold %.1f dBm)' % (self._elapsed(t) * 1e3, y * 1e6,
+                                                  _dbm(self.threshold_w)))
+            return
+        if self._phase == 'start':
+            self._setpoint = p['range_min_m']
+            self._floor_buf = list(self._idle_buf)
+            self._phase = 'floor'
+        if self._phase == 'floor':
+            if self._at_rest(y) and pw is not None:
+                self._floor_buf.append(pw)
+            if len(self._floor_buf) < int(p['floor_samples']):
+                return
+            f = np.asarray(self._floor_buf[-int(p['floor_samples']):])
+            mean, std = float(f.mean()), float(f.std(ddof=1))
+            self.floor = (mean, std)
+            if np.ptp(f) <= 1e-9 * abs(mean):
+                self._fault('sensor silent: optical power reading is stuck at %.3g W'
+                            % mean)
+                return
+            if mean > p['floor_max_w']:
+                self.threshold_w = p['floor_max_w']
+                self._log('light present at the start (%.1f dBm)' % _dbm(mean))
+                self._start_peaking(t, y, pw)
+                return
+            self.threshold_w = max(mean + p['threshold_sigma'] * std, p['min_threshold_w'])
+            self._phase = 'scan'
+            self._confirm = 0
+        if self._phase == 'scan':
+            if pw is not None and pw > self.threshold_w:
+                self._confirm += 1
+                if self._confirm >= int(p['confirm_samples']):
+                    self.first_light_t = t
+                    self._start_peaking(t, y, pw)
+                    return
+            else:
+                self._confirm = 0
+            self._setpoint = min(self._setpoint + p['search_speed_m_per_s'] * self.dt,
+                                 p['range_max_m'])
+            if self._setpoint >= p['range_max_m'] and \
+                    abs(y - p['range_max_m']) < p['release_tolerance_m']:
+                self._fault('no light found anywhere in the reachable range %.1f..%.1f um '
+                            '(threshold %.1f dBm): broken fiber, no source, or the slot is '
+                            'outside the reachable range'
+                            % (p['range_min_m'] * 1e6, p['range_max_m'] * 1e6,
+                               _dbm(self.threshold_w)))
+
+    # PEAKING --------------------------------------------------------------------------
+    def _start_peaking(self, t, y, pw):
+        self._enter(PEAKING)
+        self.first_light_t = t
+        self._phase = 'sweep'
+        self._sweep_end = self.p['range_max_m']
+        self._sweep_speed = self.p['peak_speed_m_per_s']
+        self._samples = []
+        self._refits = 0
+        self._setpoint = max(self._setpoint, y)
+
+    def _start_local(self, center):
+        """Begin a local sweep over ``center +- repeak_span_m``."""
+        p = self.p
+        lo = max(center - p['repeak_span_m'], p['range_min_m'])
+        self._sweep_end = min(center + p['repeak_span_m'], p['range_max_m'])
+        self._sweep_speed = p['repeak_speed_m_per_s']
+        self._samples = []
+        self._goal = lo
+        self._phase = 'goto_sweep'
+
+    def _settled(self, y):
+        if abs(y - self._goal) < self.p['settle_tolerance_m']:
+            self._settle_count += 1
+        else:
+            self._settle_count = 0
+        return self._settle_count >= int(self.p['settle_samples'])
+
+    def _do_peaking(self, t, y, pw):
+        p = self.p
+        if self._phase in ('goto', 'goto_sweep', 'goto_peak'):
+            if not hasattr(self, '_goto_t') or self._goto_phase != self._phase:
+                self._goto_t, self._goto_phase, self._settle_count = t, self._phase, 0
+            ramp = p['switch_ramp_time_s'] if self._phase == 'goto' else 0.0
+            tau = t - self._goto_t
+            if tau < ramp:                      # raised-cosine move (switch on)
+                x0 = self._switch_from
+                self._setpoint = x0 + (self._goal - x0) * 0.5 * (
+                    1.0 - math.cos(math.pi * tau / ramp))
+                return
+            self._setpoint = self._goal
+            if self._settled(y):
+                if self._phase == 'goto':        # switch-on: re-peak locally
+                    self._start_local(self._goal)
+                elif self._phase == 'goto_sweep':
+                    self._phase = 'sweep'
+                else:
+                    self._phase, self._verify = 'verify', []
+                self._goto_phase = None
+            elif t - self._goto_t > p['settle_timeout_s'] + abs(
+                    self._goal - y) / p['peak_speed_m_per_s']:
+                if self._phase == 'goto_peak':   # accept, the tracker will finish it
+                    self._phase, self._verify = 'verify', []
+                    self._goto_phase = None
+                else:
+                    self._fault('actuator does not settle at %.2f um (at %.2f um)'
+                                % (self._goal * 1e6, y * 1e6))
+            return
+        if self._phase == 'sweep':
+            self._sweep(t, y, pw)
+        elif self._phase == 'verify':
+            if pw is not None:
+                self._verify.append(pw)
+            self._setpoint = self._goal
+            if len(self._verify) < int(p['verify_samples']):
+                return
+            meas = float(np.mean(self._verify))
+            miss_db = 10.0 * math.log10(math.exp(self._fit_lp0) / max(meas, 1e-300))
+            if miss_db > p['verify_tolerance_db'] and self._refits < int(p['max_refits']):
+                self._refits += 1
+                self._log('peak missed by %.3f dB; local re-sweep' % miss_db)
+                self._start_local(self._goal)
+                return
+            self.aligned_position_m = self._goal
+            self.aligned_power_w = meas
+            self.peak_t = t
+            self._start_tracking(t)
+
+    def _sweep(self, t, y, pw):
+        p = self.p
+        if pw is not None and pw > 0:
+            self._samples.append((t, y, pw))
+        self._setpoint = min(self._setpoint + self._sweep_speed * self.dt, self._sweep_end)
+        if not self._samples:
+            return
+        arr = np.asarray(self._samples)
+        pmax = arr[:, 2].max()
+        imax = int(arr[:, 2].argmax())
+        dropped = pw is not None and pw < pmax * 10 ** (-p['peak_drop_db'] / 10.0) and \
+            imax < len(arr) - 1 and len(arr) >= int(p['peak_min_fit_samples'])
+        at_end = self._setpoint >= self._sweep_end and \
+            abs(y - self._sweep_end) < p['settle_tolerance_m'] * 4
+        if not (dropped or at_end):
+            return
+        self._fit_and_go(arr, pmax, local=self._sweep_end != p['range_max_m'])
+
+    def _fit_and_go(self, arr, pmax, local):
+        p = self.p
+        # pair each power with the displacement power_lag_s earlier (detector averaging)
+        tt, yy, pp = arr[:, 0], arr[:, 1], arr[:, 2]
+        x = np.interp(tt - p['power_lag_s'], tt, yy) if len(tt) > 1 else yy
+        keep = pp >= pmax * 10 ** (-p['peak_fit_window_db'] / 10.0)
+        if self.threshold_w is not None:
+            keep &= pp > 3.0 * self.threshold_w
+        fit = None
+        if keep.sum() >= int(p['peak_min_fit_samples']) or (local and keep.sum() >= 2):
+            curv = self.curvature_per_m2 if (local and keep.sum() < 5) else None
+            fit = fit_log_parabola(x[keep], pp[keep], curvature=curv)
+        lo, hi = p['range_min_m'], p['range_max_m']
+        tol = p['range_tolerance_m']
+        x0 = None if fit is None else fit[0]
+        if fit is None or x0 > hi + tol or x0 < lo - tol:
+            best = yy[int(pp.argmax())]
+            where = '' if x0 is None else 'peak estimated at %.1f um, ' % (x0 * 1e6)
+            if (x0 is not None and x0 > hi) or (
+                    x0 is None and not local and best >= yy.max() - 1e-6):
+                self._fault('slot outside the reachable range: power still rising at the end '
+                            'of travel (%s%.1f..%.1f um reachable)'
+                            % (where, lo * 1e6, hi * 1e6))
+            elif (x0 is not None and x0 < lo) or (
+                    x0 is None and not local and best <= yy.min() + 1e-6):
+                self._fault('slot outside the reachable range: power falls from the start of '
+                            'travel (%s%.1f..%.1f um reachable)'
+                            % (where, lo * 1e6, hi * 1e6))
+            else:
+                self._fault('peak search failed: the %d samples over %.1f..%.1f um do not '
+                            'show a peak' % (len(pp), yy.min() * 1e6, yy.max() * 1e6))
+            return
+        x0, c, lp0 = fit
+        self.curvature_per_m2 = c
+        self._fit_lp0 = lp0
+        self._goal = min(max(x0, lo), hi)
+        self._phase = 'goto_peak'
+
+    # TRACKING -------------------------------------------------------------------------
+    def _start_tracking(self, t):
+        self._enter(TRACKING)
+        self._x_hat = self._goal
+        self._track_t0 = t
+        self._stats = None
+        self._loss_since = None
+
+    def _do_tracking(self, t, y, pw):
+        p = self.p
+        if pw is not None and pw > 0:
+            low = self.aligned_power_w * 10 ** (-p['track_loss_db'] / 10.0)
+            if pw < low:
+                if self._loss_since is None:
+                    self._loss_since = t
+                elif t - self._loss_since > p['track_loss_timeout_s']:
+                    self._fault('power lost while tracking: %.1f dBm, more than %.0f dB '
+                                'below the aligned %.1f dBm' % (
+                                    _dbm(pw), p['track_loss_db'],
+                                    _dbm(self.aligned_power_w)))
+                    return
+            else:
+                self._loss_since = None
+                lp = math.log(pw)
+                yy = y
+                a = min(1.0, self.dt / p['gradient_time_s']) if self.dt > 0 else 1.0
+                if self._stats is None:
+                    self._stats = [yy, lp, 0.0, 0.0]
+                else:
+                    s = self._stats
+                    dy, dl = yy - s[0], lp - s[1]
+                    s[0] += a * dy
+                    s[1] += a * dl
+                    s[2] = (1 - a) * (s[2] + a * dy * dl)
+                    s[3] = (1 - a) * (s[3] + a * dy * dy)
+                    amp = p['dither_amplitude_m']
+                    if s[3] > 0.1 * amp * amp and t - self._track_t0 > p['gradient_time_s']:
+                        g = s[2] / s[3]                      # d lnP / dx, 1/m
+                        c = self.curvature_per_m2
+                        step = p['tracking_bandwidth_rad_s'] * self.dt * g / (2.0 * c)
+                        lim = p['tracking_bandwidth_rad_s'] * self.dt * 5 * amp
+                        self._x_hat += min(max(step, -lim), lim)
+        self._x_hat = min(max(self._x_hat, p['range_min_m']), p['range_max_m'])
+        self.aligned_position_m = self._x_hat
+        self._setpoint = self._x_hat + p['dither_amplitude_m'] * math.sin(
+            2.0 * math.pi * p['dither_frequency_hz'] * (t - self._track_t0))
+
+    def _log(self, text):
+        self.events.append((self._t, self.state, text))
+
+    def status(self):
+        """Return a dict describing the state (for topics, diagnostics and reports)."""
+        return dict(state=self.state, phase=self._phase, fault_reason=self.fault_reason,
+                    setpoint_m=self._setpoint, aligned_position_m=self.aligned_position_m,
+                    threshold_w=self.threshold_w, peak_samples=self.peak_samples)
+
+
+def _dbm(p_w):
+    """Return ``p_w`` (W) in dBm for messages; ``nan`` for ``None``."""
+    if p_w is None:
+        return float('nan')
+    return 10.0 * math.log10(max(p_w, 1e-15) / 1e-3)

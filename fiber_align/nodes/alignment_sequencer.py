@@ -1,0 +1,182 @@
+# SPDX-License-Identifier: Apache-2.0
+"""``alignment_sequencer``: the setpoint source that finds, peaks, tracks and switches light.
+
+Wraps :class:`fiber_align.alignment.sequencer.Sequencer` (one ``update`` per displacement
+sample). Topics and services (relative names, SI units):
+
+- sub ``displacement`` (sensor_msgs/JointState, position[0] in m, stamp = t_k) and
+  ``optical_power`` (std_msgs/Float64, W).
+- pub ``setpoint`` (std_msgs/Float64, m): exactly one per displacement sample.
+- pub ``alignment_state`` (std_msgs/String, JSON: state, fault_reason,
+  aligned_position_m, threshold_w, peak_samples), latched, on every change.
+- ``/diagnostics``: OK while IDLE, SEARCHING, PEAKING, TRACKING, RELEASING; ERROR with
+  the reason in FAULT.
+- srv ``align``, ``release`` (std_srvs/Trigger); ``switch`` (std_srvs/SetBool: true goes
+  to the last aligned position and re-peaks, false parks at 0 m).
+- sub ``/diagnostics``: a status of the ``actuator_driver`` at ERROR or STALE is passed
+  to the core as ``driver_active=False`` (FAULT "driver inactive" in an active state).
+
+Pairing: ``lockstep`` pairs the i-th displacement with the i-th optical power (the plant
+publishes both for every sample); if the plant publishes no power, a displacement waits
+at most ``power_queue_limit`` samples and is then processed without power (which the core
+reports as "sensor silent" once active). ``realtime`` uses the power readings received
+since the previous displacement (the latest one), or none.
+"""
+
+import json
+import math
+
+from diagnostic_msgs.msg import DiagnosticArray
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64, String
+from std_srvs.srv import SetBool, Trigger
+
+from fiber_align.alignment import sequencer as sq
+from fiber_align.nodes import _common as c
+
+NODE_NAME = 'alignment_sequencer'
+AREA_FILES = ('sequencer.yaml',)
+POWER_QUEUE_LIMIT = 5
+STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                       reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+class AlignmentSequencerNode(Node):
+    """Transport, services and health around the pure :class:`~sq.Sequencer`."""
+
+    def __init__(self, **kwargs):
+        """Declare the parameters (defaults from config/), build the core, wire topics."""
+        super().__init__(NODE_NAME, **kwargs)
+        d = c.node_defaults(NODE_NAME, AREA_FILES)
+        self.lockstep = c.declare(self, d, 'sync_mode', 'message pairing', read_only=True,
+                                  choices=c.SYNC_MODES) == 'lockstep'
+        diag = c.declare(self, d, 'diagnostics_period_s', '/diagnostics period (s)', 0.01,
+                         60.0, True)
+        core = {}
+        for name in list(sq.DEFAULTS) + ['control_period_s']:
+            if name in d:
+                core[name] = c.declare(self, d, name, 'sequencer parameter (SI, see '
+                                       'sequencer.yaml)', read_only=True)
+        self.seq = sq.Sequencer({k: v for k, v in core.items()})
+        self.pub_sp = self.create_publisher(Float64, 'setpoint', c.CONTROL_QOS)
+        self.pub_state = self.create_publisher(String, 'alignment_state', STATE_QOS)
+        self.create_subscription(JointState, 'displacement', self._on_disp, c.CONTROL_QOS)
+        self.create_subscription(Float64, 'optical_power', self._on_power, c.CONTROL_QOS)
+        self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, c.DIAG_QOS)
+        self.create_service(Trigger, 'align', self._on_align)
+        self.create_service(Trigger, 'release', self._on_release)
+        self.create_service(SetBool, 'switch', self._on_switch)
+        self.health = c.Health(self, diag)
+        self.y_q = []
+        self.p_q = []
+        self.driver_active = None
+        self.n_sp = 0
+        self.n_state = 0
+        self._last = None
+        self._publish_state()
+        self.get_logger().info('sequencer ready (%s pairing)'
+                               % ('index' if self.lockstep else 'latest power'))
+
+    # -- inputs ---------------------------------------------------------------------
+    def _on_power(self, msg):
+        self.p_q.append(float(msg.data))
+        if self.lockstep:
+            self._pair()
+        else:
+            del self.p_q[:-1]
+
+    def _on_disp(self, msg):
+        y = msg.position[0] if len(msg.position) else math.nan
+        t = c.stamp_to_s(msg.header.stamp)
+        if self.lockstep:
+            self.y_q.append((t, y))
+            self._pair()
+        else:
+            p = self.p_q.pop() if self.p_q else None
+            self.p_q = []
+            self._step(t, y, p)
+
+    def _pair(self):
+        while self.y_q and self.p_q:
+            t, y = self.y_q.pop(0)
+            self._step(t, y, self.p_q.pop(0))
+        while len(self.y_q) > POWER_QUEUE_LIMIT:
+            t, y = self.y_q.pop(0)
+            self._step(t, y, None)
+
+    def _on_diag(self, msg):
+        for st in msg.status:
+            if st.name.rstrip('/').endswith('actuator_driver'):
+                level = st.level[0] if isinstance(st.level, (bytes, bytearray)) \
+                    else int(st.level)
+                self.driver_active = level < c.ERROR
+
+    # -- the step -------------------------------------------------------------------
+    def _step(self, t, y, p):
+        y = None if not math.isfinite(y) else y
+        r = self.seq.update(t, y, p, driver_active=self.driver_active)
+        self.pub_sp.publish(Float64(data=float(r)))
+        self.n_sp += 1
+        self._publish_state()
+
+    def _publish_state(self):
+        s = self.seq.status()
+        key = (s['state'], s['fault_reason'])
+        if key == self._last:
+            return
+        self._last = key
+        self.pub_state.publish(String(data=json.dumps(s)))
+        self.n_state += 1
+        if s['state'] == sq.FAULT:
+            self.health.status(c.ERROR, 'FAULT: %s' % s['fault_reason'])
+            self.get_logger().error('FAULT: %s' % s['fault_reason'])
+        else:
+            self.health.status(c.OK, s['state'])
+            self.get_logger().info('state %s' % s['state'])
+        self.health.set_values(state=s['state'], fault_reason=s['fault_reason'],
+                               aligned_position_m=s['aligned_position_m'],
+                               peak_samples=s['peak_samples'])
+
+    # -- services -------------------------------------------------------------------
+    def _answer(self, response, result):
+        response.success, response.message = bool(result[0]), str(result[1])
+        self._publish_state()
+        return response
+
+    def _on_align(self, request, response):
+        return self._answer(response, self.seq.align())
+
+    def _on_release(self, request, response):
+        return self._answer(response, self.seq.release())
+
+    def _on_switch(self, request, response):
+        return self._answer(response, self.seq.switch(bool(request.data)))
+
+    def sent_counts(self):
+        """Return published message counts per topic."""
+        return {'setpoint': self.n_sp, 'alignment_state': self.n_state}
+
+
+def main(args=None):
+    """Run the node (demo_nodes_py idiom)."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = AlignmentSequencerNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            c.report_sent(node, node.sent_counts())
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,122 @@
+# SPDX-License-Identifier: Apache-2.0
+"""The alignment_sequencer node in lockstep reproduces the offline sequencer sample by sample.
+
+A harness node plays the plant (the first-order stand-in loop plus the optics model):
+it publishes displacement i and optical power i, waits for setpoint i, steps the loop.
+The node is driven through its ``align`` and ``switch`` services; its setpoints must
+equal those of the pure core run offline on the same inputs.
+"""
+
+import time
+
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+from std_msgs.msg import Float64, String  # noqa: E402
+from std_srvs.srv import SetBool, Trigger  # noqa: E402
+
+from fiber_align.alignment import scenarios as sc  # noqa: E402
+from fiber_align.alignment import sequencer as sq  # noqa: E402
+from fiber_align.nodes import _common as c  # noqa: E402
+
+pytestmark = pytest.mark.ros
+SLOT = 30e-6
+PERIOD = 1e-3
+
+
+class Harness(Node):
+    """Lockstep plant stand-in: one displacement + power per received setpoint."""
+
+    def __init__(self, bench):
+        """Wire the topics and service clients."""
+        super().__init__('align_harness')
+        self.bench = bench
+        self.pub_y = self.create_publisher(JointState, 'displacement', c.CONTROL_QOS)
+        self.pub_p = self.create_publisher(Float64, 'optical_power', c.CONTROL_QOS)
+        self.create_subscription(Float64, 'setpoint', self._on_sp, c.CONTROL_QOS)
+        self.create_subscription(String, 'alignment_state', self._on_state, 10)
+        self.cli_align = self.create_client(Trigger, 'align')
+        self.cli_switch = self.create_client(SetBool, 'switch')
+        self.setpoints = []
+        self.states = []
+        self.k = 0
+
+    def publish_sample(self):
+        """Publish sample k (displacement and power at t_k)."""
+        b = self.bench
+        t = self.k * PERIOD
+        p = b.link.measure(t, b.loop.position_m, PERIOD)
+        msg = JointState(name=['bimorph_tip'], position=[b.loop.y_meas])
+        msg.header.stamp = c.s_to_stamp(t)
+        self.inputs.append((t, b.loop.y_meas, p))
+        self.pub_y.publish(msg)
+        self.pub_p.publish(Float64(data=p))
+
+    def _on_sp(self, msg):
+        self.setpoints.append(msg.data)
+        self.bench.loop.step(msg.data)
+        self.k += 1
+        if self.k < self.n_target:
+            self.publish_sample()
+
+    def _on_state(self, msg):
+        self.states.append(msg.data)
+
+
+def _spin_until(ex, cond, timeout_s):
+    end = time.monotonic() + timeout_s
+    while not cond() and time.monotonic() < end:
+        ex.spin_once(timeout_sec=0.05)
+    return cond()
+
+
+def test_node_lockstep_matches_offline_core():
+    from fiber_align.nodes.alignment_sequencer import AlignmentSequencerNode
+    rclpy.init()
+    ex = SingleThreadedExecutor()
+    node = harness = None
+    try:
+        node = AlignmentSequencerNode(
+            parameter_overrides=[Parameter('sync_mode', value='lockstep')])
+        bench = sc.build(seed=9, loop=sc.FirstOrderLoop(seed=9), slot_m=SLOT, record=False)
+        harness = Harness(bench)
+        harness.inputs = []
+        ex.add_node(node)
+        ex.add_node(harness)
+        assert _spin_until(ex, lambda: harness.cli_align.service_is_ready()
+                           and harness.pub_y.get_subscription_count() > 0
+                           and harness.pub_p.get_subscription_count() > 0, 10.0)
+        # 20 idle samples, then align, then run to 150 samples
+        harness.n_target = 20
+        harness.publish_sample()
+        assert _spin_until(ex, lambda: len(harness.setpoints) >= 20, 20.0)
+        fut = harness.cli_align.call_async(Trigger.Request())
+        assert _spin_until(ex, fut.done, 10.0) and fut.result().success
+        harness.n_target = 150
+        harness.publish_sample()
+        assert _spin_until(ex, lambda: len(harness.setpoints) >= 150, 60.0)
+        assert node.seq.state == sq.TRACKING, node.seq.fault_reason
+        assert any('"TRACKING"' in s for s in harness.states)
+        assert bench.link.loss_db(harness.k * PERIOD, bench.loop.position_m) < 0.1
+
+        # the pure core, offline, on the same inputs (times through the ns stamp) gives
+        # the same setpoints
+        core = sq.Sequencer()
+        offline = []
+        for i, (t, y, p) in enumerate(harness.inputs[:150]):
+            if i == 20:
+                core.align()
+            offline.append(core.update(c.stamp_to_s(c.s_to_stamp(t)), y, p))
+        assert offline == harness.setpoints[:150]
+    finally:
+        for n in (node, harness):
+            if n is not None:
+                ex.remove_node(n)
+                n.destroy_node()
+        ex.shutdown()
+        rclpy.try_shutdown()
