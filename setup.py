@@ -31,7 +31,8 @@ setup(
     # The ROS 2 client libraries are deliberately not here: a real Jazzy workspace
     # provides them from apt, and pip must not pull wheels over them. The pip route
     # installs them through the 'ros' extra.
-    install_requires=['setuptools', 'numpy', 'PyYAML', 'matplotlib', 'rosbags>=0.10'],
+    install_requires=['setuptools', 'numpy', 'scipy', 'threadpoolctl', 'PyYAML', 'matplotlib',
+                      'rosbags>=0.10'],
     extras_require={
         'ros': [
             'ros-jazzy-rclpy',
@@ -49,7 +50,7 @@ setup(
             'colcon-core',
             'colcon-ros',
         ],
-        'bench': ['scikit-fuzzy', 'pyswarms', 'scipy', 'networkx'],
+        'bench': ['scikit-fuzzy', 'pyswarms', 'networkx'],
     },
     zip_safe=True,
     maintainer='fiber_align maintainers',

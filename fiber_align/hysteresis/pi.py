@@ -15,8 +15,6 @@ invertible exactly when every partial sum is positive, and its inverse is again 
 model (Kuhnen / Krejci), computed by :meth:`PIModel.inverse`.
 """
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from fiber_align.config import ConfigError, load_params, write_params
@@ -26,13 +24,40 @@ class NotInvertibleError(ValueError):
     """The weights have a non-positive partial sum; the model has no inverse."""
 
 
+def _segments(u):
+    """
+    Split an input sequence into monotone runs.
+
+    :param u: input sequence, shape ``(N,)``.
+    :returns: list of ``(start, stop, direction)`` with direction +1 (non-decreasing)
+        or -1 (non-increasing); flat samples join the run they are in.
+    """
+    d = np.sign(np.diff(u))
+    nz = np.nonzero(d)[0]
+    if nz.size == 0:
+        return [(0, u.size, 1)]
+    dirs = d[nz]
+    change = nz[1:][dirs[1:] != dirs[:-1]]  # diff index where the direction flips
+    starts = np.concatenate([[0], change + 1])
+    stops = np.concatenate([change + 1, [u.size]])
+    first = [int(dirs[0])] + [int(d[c]) for c in change]
+    return list(zip(starts.tolist(), stops.tolist(), first))
+
+
 def play_operators(u, thresholds, state=None):
     """
     Run a bank of play operators over an input sequence.
 
-    :param u: input sequence, shape ``(N,)``.
-    :param thresholds: thresholds, shape ``(..., n)``; leading axes (e.g. a particle
-        swarm) are vectorised over.
+    Operator ``i`` follows ``y(k) = max(u(k) - r_i, min(u(k) + r_i, y(k-1)))``.
+    Within a run where ``u`` does not decrease this is ``max(u(k) - r, y0)`` and where
+    it does not increase ``min(u(k) + r, y0)`` (``y0`` the state at the run start),
+    so the work is vectorised over samples, operators and any leading axes; inputs with
+    many reversals (noise) fall back to a per-sample loop vectorised over operators.
+    Both paths give bit-identical results.
+
+    :param u: input sequence, shape ``(N,)`` (V for the forward model, m for the inverse).
+    :param thresholds: thresholds, shape ``(..., n)`` (same unit as ``u``); leading
+        axes (e.g. a particle swarm) are vectorised over.
     :param state: operator outputs before the first sample, shape like ``thresholds``;
         default all zero (at rest with u = 0).
     :returns: ``(outputs, final_state)``; outputs has shape ``(N,) + thresholds.shape``.
@@ -44,10 +69,29 @@ def play_operators(u, thresholds, state=None):
         raise ValueError('state shape %s does not match thresholds shape %s'
                          % (y.shape, r.shape))
     out = np.empty((u.size,) + r.shape)
+    if u.size == 0:
+        return out, y
+    # The first sample may move either way from the state; do it the general way.
+    np.minimum(u[0] + r, y, out=y)
+    np.maximum(u[0] - r, y, out=y)
+    out[0] = y
+    if u.size == 1:
+        return out, y.copy()
+    segs = _segments(u[1:])
+    if len(segs) * 8 < u.size:
+        bshape = (-1,) + (1,) * r.ndim
+        for a, b, direction in segs:
+            uu = u[1 + a:1 + b].reshape(bshape)
+            blk = out[1 + a:1 + b]
+            if direction > 0:
+                np.maximum(uu - r, y, out=blk)
+            else:
+                np.minimum(uu + r, y, out=blk)
+            y = blk[-1].copy()
+        return out, y
     lo_off = -r
-    for k in range(u.size):
+    for k in range(1, u.size):
         uk = u[k]
-        # max(u - r, min(u + r, y)) without temporaries beyond two in-place ops
         np.minimum(uk + r, y, out=y)
         np.maximum(uk + lo_off, y, out=y)
         out[k] = y
@@ -78,7 +122,6 @@ def first_bad_partial_sum(weights):
     return int(bad[0]) if bad.size else None
 
 
-@dataclass
 class PIModel:
     """
     A Prandtl-Ishlinskii model ``u (V) -> y (m)``.
@@ -89,14 +132,11 @@ class PIModel:
     :param require_invertible: refuse weights with a non-positive partial sum.
     """
 
-    thresholds: np.ndarray
-    weights: np.ndarray
-    state: np.ndarray = None
-    require_invertible: bool = True
-
-    def __post_init__(self):
-        self.thresholds = check_thresholds(self.thresholds)
-        self.weights = np.asarray(self.weights, dtype=float).reshape(-1)
+    def __init__(self, thresholds, weights, state=None, require_invertible=True):
+        """Check and store the parameters (V, m/V) and the operator state (V)."""
+        self.thresholds = check_thresholds(thresholds)
+        self.weights = np.asarray(weights, dtype=float).reshape(-1)
+        self.require_invertible = bool(require_invertible)
         if self.weights.shape != self.thresholds.shape:
             raise ValueError('%d weights for %d thresholds'
                              % (self.weights.size, self.thresholds.size))
@@ -106,30 +146,45 @@ class PIModel:
             bad = first_bad_partial_sum(self.weights)
             if bad is not None:
                 raise NotInvertibleError(
-                    'not invertible: partial sum of weights 1..%d is %.6g <= 0; every '
-                    'partial sum w_1 + ... + w_i must be > 0'
-                    % (bad + 1, float(np.sum(self.weights[:bad + 1]))))
-        if self.state is None:
-            self.state = np.zeros_like(self.thresholds)
-        else:
-            self.state = np.asarray(self.state, dtype=float).reshape(self.thresholds.shape)
+                    'not invertible: partial sum of weights 1..%d is %.6g <= 0 (first bad '
+                    'index %d); every partial sum w_1 + ... + w_i must be > 0'
+                    % (bad + 1, float(np.sum(self.weights[:bad + 1])), bad + 1))
         self._r = self.thresholds.tolist()
         self._w = self.weights.tolist()
-        self._s = self.state.tolist()
+        self.reset(state)
+
+    def __repr__(self):
+        """Return a short description (thresholds in V, weights in m/V)."""
+        return 'PIModel(thresholds=%r, weights=%r)' % (self._r, self._w)
 
     @property
     def n(self):
-        """Number of play operators."""
+        """Return the number of play operators."""
         return self.thresholds.size
+
+    @property
+    def state(self):
+        """Return the present operator outputs (V), a copy."""
+        return np.asarray(self._s, dtype=float)
+
+    @state.setter
+    def state(self, value):
+        """Set the operator outputs (V)."""
+        self.reset(value)
 
     def reset(self, state=None):
         """Put the operators back at rest, or at ``state`` (V per operator)."""
-        self.state = (np.zeros_like(self.thresholds) if state is None
-                      else np.asarray(state, dtype=float).reshape(self.thresholds.shape))
-        self._s = self.state.tolist()
+        if state is None:
+            self._s = [0.0] * self.thresholds.size
+            return
+        st = np.asarray(state, dtype=float)
+        if st.size != self.thresholds.size or not np.all(np.isfinite(st)):
+            raise ValueError('state needs %d finite values (V), got %s'
+                             % (self.thresholds.size, st.shape))
+        self._s = st.reshape(-1).tolist()
 
     def output(self):
-        """Return the present output (m) for the present operator state."""
+        """Return the displacement (m) the present operator state gives."""
         return float(np.dot(self.weights, np.asarray(self._s)))
 
     def step(self, u):
@@ -163,7 +218,6 @@ class PIModel:
         if reset:
             self.reset()
         ops, final = play_operators(u, self.thresholds, np.asarray(self._s))
-        self.state = final
         self._s = final.tolist()
         return ops @ self.weights
 
@@ -253,7 +307,7 @@ class InversePIModel:
 
     @property
     def state(self):
-        """Present operator states (m)."""
+        """Return the present operator states (m)."""
         return np.asarray(self._s)
 
     def step(self, y):
