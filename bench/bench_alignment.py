@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Full-size alignment checks at 1 kHz through the composite loop (docs/alignment.md).
+"""
+Full-size alignment checks at 1 kHz through the composite loop (docs/alignment.md).
 
 - 20 slots across the reachable range, one noise seed each: aligned within 0.05 dB in
   <= 0.5 s and <= 60 peak samples; every failure a FAULT with a reason.

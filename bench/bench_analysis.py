@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Benchmark ``fiber-align analyze`` on a long lockstep bag (default: one hour at 1 kHz).
+"""
+Benchmark ``fiber-align analyze`` on a long lockstep bag (default: one hour at 1 kHz).
 
 Generates a bag with every loop topic (clock, displacement, setpoint, feedforward,
 feedback, drive, optical power, controller state: 8 topics x rate x duration messages),

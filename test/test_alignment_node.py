@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""The alignment_sequencer node in lockstep reproduces the offline sequencer sample by sample.
+"""
+The alignment_sequencer node in lockstep reproduces the offline sequencer sample by sample.
 
 A harness node plays the plant (the first-order stand-in loop plus the optics model):
 it publishes displacement i and optical power i, waits for setpoint i, steps the loop.

@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Offline align / switch / track through the control core's composite loop (1 kHz).
+"""
+Offline align / switch / track through the control core's composite loop (1 kHz).
 
 Reduced sizes keep the file fast; ``python -m bench bench_alignment`` runs the full
 20 slots, 1,000 switch cycles and 60 s of tracking.

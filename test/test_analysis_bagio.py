@@ -63,7 +63,8 @@ def test_encoders_match_rosbags_serializer():
 
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
 def test_bag_from_plain_rosbags_with_varying_layout(tmp_path, storage):
-    """A bag written message by message with rosbags (other tool) reads the same.
+    """
+    A bag written message by message with rosbags (other tool) reads the same.
 
     The joint names change half way, so the JointState layout is not fixed and the
     reader must fall back to rosbags' deserialiser for those batches.

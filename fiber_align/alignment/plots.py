@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Plot an alignment run for people: optical power (dBm) and displacement (um) over time.
+"""
+Plot an alignment run for people: optical power (dBm) and displacement (um) over time.
 
 The arrays are SI (s, m, W, from :func:`fiber_align.alignment.scenarios.run` with
 ``record=True``); only the axes are in dBm, um and ms for reading. The background is
@@ -26,7 +27,8 @@ def _segments(state):
 
 
 def plot_run(res, path, title=None):
-    """Write a two-panel figure of a recorded run to ``path`` (PNG, SVG or PDF).
+    """
+    Write a two-panel figure of a recorded run to ``path`` (PNG, SVG or PDF).
 
     :param res: the dict of ``run(..., record=True)`` (needs ``trace``).
     :param path: output file.

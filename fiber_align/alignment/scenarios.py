@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Offline alignment scenarios: the sequencer as the setpoint source of a closed loop.
+"""
+Offline alignment scenarios: the sequencer as the setpoint source of a closed loop.
 
 One control period ``k`` (docs/CONTRACTS.md): the loop's measurement ``y_k`` (m) and the
 detector reading ``P_k`` (W, from the true tip position at ``t_k``) go to
@@ -41,7 +42,8 @@ METRIC_KEYS = ('time_to_first_light_s', 'time_to_peak_s', 'final_loss_db', 'peak
 
 
 class FirstOrderLoop:
-    """Stand-in closed loop: ``x <- x + (1 - exp(-T/tau)) (r - x)``, noisy sensor (SI).
+    """
+    Stand-in closed loop: ``x <- x + (1 - exp(-T/tau)) (r - x)``, noisy sensor (SI).
 
     :param period_s: control period (s).
     :param tau_s: closed-loop time constant (s).
@@ -77,7 +79,8 @@ class FirstOrderLoop:
 
 
 class CompositeLoop:
-    """Plant + composite controller (inverse-PI feedforward + fuzzy PID) + driver (SI).
+    """
+    Plant + composite controller (inverse-PI feedforward + fuzzy PID) + driver (SI).
 
     Built from the control core with its config files (:func:`fiber_align.control.
     simulate.make_plant` and :func:`~fiber_align.control.simulate.build`,
@@ -216,7 +219,8 @@ def _true_loss(bench):
 
 def build(seed=0, loop='composite', slot_m=None, period_s=1e-3, record=True,
           seq_params=None, optics_params=None, **optics_overrides):
-    """Return a :class:`Bench` with the slot at ``slot_m`` (m; random in the range if None).
+    """
+    Return a :class:`Bench` with the slot at ``slot_m`` (m; random in the range if None).
 
     :param optics_overrides: keys of ``config/optics.yaml`` (e.g. ``fiber_broken=True``,
         ``slot_drift_m_per_s``).
@@ -291,7 +295,8 @@ def rise_time(t, p, lo, hi):
 
 
 def switch_cycles(bench, cycles=5, on_s=0.06, off_s=0.03, level_s=0.01):
-    """Run ``cycles`` off/on switch cycles from TRACKING; return per-cycle metrics.
+    """
+    Run ``cycles`` off/on switch cycles from TRACKING; return per-cycle metrics.
 
     :param on_s: time on (s) from the switch-on command to the switch-off command.
     :param off_s: time off (s).
@@ -357,7 +362,8 @@ def track_bench(bench, duration_s):
 
 
 def run(name, seed=0, loop='composite', record=False, **kw):
-    """Run scenario ``name`` (align, switch, track); return a dict of SI metrics.
+    """
+    Run scenario ``name`` (align, switch, track); return a dict of SI metrics.
 
     Keyword arguments: ``slot_m`` (m), ``cycles``, ``duration_s`` (s),
     ``drift_m_per_s`` (m/s), ``period_s`` (s), ``seq_params`` / ``optics_params``
@@ -394,7 +400,8 @@ def run(name, seed=0, loop='composite', record=False, **kw):
 
 
 def align_trials(n=20, seed=0, loop='ideal', **kw):
-    """Align ``n`` times, slots spread over the reachable range, seeds ``seed..seed+n-1``.
+    """
+    Align ``n`` times, slots spread over the reachable range, seeds ``seed..seed+n-1``.
 
     Slot ``i`` is drawn uniformly inside the i-th of ``n`` equal bins of the range, so
     the whole range is covered. Returns ``(list of per-trial dicts, summary dict)``.
@@ -435,7 +442,8 @@ def _clean(obj):
 
 
 def run_cli(args):
-    """Run ``fiber-align simulate --scenario align|switch|track``; return an exit code.
+    """
+    Run ``fiber-align simulate --scenario align|switch|track``; return an exit code.
 
     Reads ``args.scenario``, ``args.seed``, ``args.json``, ``args.plot`` and, when present,
     ``args.loop``, ``args.cycles``, ``args.duration`` (s), ``args.slot`` (m),

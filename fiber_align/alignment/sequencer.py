@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Alignment sequencer: a pure, step-based state machine that finds, peaks and tracks light.
+"""
+Alignment sequencer: a pure, step-based state machine that finds, peaks and tracks light.
 
 Once per control period the loop calls ``seq.update(t_s, displacement_m, power_w)`` and
 gets the displacement setpoint (m) back. Commands ``align()``, ``release()`` and
@@ -77,7 +78,8 @@ def load_sequencer_params(path=CONFIG_FILE, **overrides):
 
 
 def fit_log_parabola(x_m, p_w, curvature=None):
-    """Fit ``ln P = a - c (x - x0)^2`` to samples; return ``(x0, c, ln_p0)`` or ``None``.
+    """
+    Fit ``ln P = a - c (x - x0)^2`` to samples; return ``(x0, c, ln_p0)`` or ``None``.
 
     :param x_m: positions (m).
     :param p_w: powers (W), all > 0.
@@ -192,7 +194,8 @@ class Sequencer:
 
     # ---- the control-period step ----------------------------------------------------
     def update(self, t_s, displacement_m, power_w, driver_active=None):
-        """Advance one control period; return the displacement setpoint (m).
+        """
+        Advance one control period; return the displacement setpoint (m).
 
         :param t_s: time of the samples (s).
         :param displacement_m: measured displacement (m), or ``None`` if none arrived.

@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Read and write the graph's rosbag2 bags (mcap and sqlite3) with rosbags, fast.
+"""
+Read and write the graph's rosbag2 bags (mcap and sqlite3) with rosbags, fast.
 
 Reading streams the raw CDR bytes of one topic at a time and decodes them in vectorised
 numpy batches when the message layout is fixed (``std_msgs/Float64``, ``rosgraph_msgs/Clock``,
@@ -63,7 +64,8 @@ def typestore():
 
 @dataclass
 class Stream:
-    """One decoded topic.
+    """
+    One decoded topic.
 
     ``t_ns`` holds the bag (receive) timestamps in ns, in the order the messages were
     written; ``fields`` maps field names to arrays of the same length (SI units):
@@ -126,7 +128,8 @@ def _cdr_f64s(buf, values):
 
 
 def joint_state_template(name='bimorph_tip', frame_id=''):
-    """Return (template bytes, stamp offset, position offset, velocity offset) of a JointState.
+    """
+    Return (template bytes, stamp offset, position offset, velocity offset) of a JointState.
 
     The template is the CDR of a one-joint JointState (position, velocity, no effort);
     offsets are byte offsets into the whole message (header included).
@@ -150,7 +153,8 @@ def joint_state_template(name='bimorph_tip', frame_id=''):
 
 
 def multiarray_template(labels):
-    """Return (template bytes, data offset) of a Float64MultiArray, one dim per label.
+    """
+    Return (template bytes, data offset) of a Float64MultiArray, one dim per label.
 
     Each dim has size 1 and stride 1; the data holds ``len(labels)`` doubles.
     """
@@ -169,7 +173,8 @@ def multiarray_template(labels):
 
 
 def encode_float64(values):
-    """Return an (N, 12) uint8 array of CDR ``std_msgs/Float64`` messages for ``values``.
+    """
+    Return an (N, 12) uint8 array of CDR ``std_msgs/Float64`` messages for ``values``.
 
     CDR alignment counts from the end of the 4-byte encapsulation header, so the double
     follows the header directly (no padding): 4 + 8 bytes.
@@ -221,7 +226,8 @@ def encode_clock(clock_ns):
 # --------------------------------------------------------------------------- writing
 
 def write_bag(path, series, storage='mcap', namespace='', chunk=_BATCH):
-    """Write the graph's topics to a new rosbag2 (version 9) bag with rosbags.
+    """
+    Write the graph's topics to a new rosbag2 (version 9) bag with rosbags.
 
     :param path: bag directory to create (must not exist).
     :param series: mapping of topic last name -> dict with ``t_ns`` (int64 receive times,
@@ -294,7 +300,8 @@ def _write_part(writer, conn, key, part, ts, chunk):
 
 
 def _mcap_write_rows(writer, conn, t_ns, rows):
-    """Write fixed-size messages as whole MCAP chunks built with numpy; False if not possible.
+    """
+    Write fixed-size messages as whole MCAP chunks built with numpy; False if not possible.
 
     Equivalent to rosbags' McapWriter (same records, one channel per chunk, uncompressed,
     chunk of about 1 MiB) but without a Python call per message. Uses rosbags internals,
@@ -389,7 +396,8 @@ def last_name(topic):
 
 
 def discover(connections):
-    """Map graph stream keys to connections, whatever the namespace.
+    """
+    Map graph stream keys to connections, whatever the namespace.
 
     A topic matches a key when its last name component equals the key and its type is
     the key's type. A ``std_msgs/String`` topic whose last name contains ``state`` or
@@ -450,7 +458,8 @@ class BagReader:
         return c is not None and c.msgcount > 0
 
     def read(self, key, keep=None, stride=1):
-        """Decode the stream ``key`` (a :data:`GRAPH_TOPICS` key) into a :class:`Stream`.
+        """
+        Decode the stream ``key`` (a :data:`GRAPH_TOPICS` key) into a :class:`Stream`.
 
         :param keep: field names to keep (default all), to save memory.
         :param stride: keep every ``stride``-th message only (for plots of long runs).
@@ -472,7 +481,8 @@ class BagReader:
     # ----- raw access
 
     def raw_batches(self, conn, batch=_BATCH):
-        """Yield (t_ns int64 array, rows) batches of one connection's raw CDR messages.
+        """
+        Yield (t_ns int64 array, rows) batches of one connection's raw CDR messages.
 
         ``rows`` is an (n, L) uint8 array when every message of the batch has the same
         length, else a list of ``bytes``. Messages come in bag order (timestamp order).
@@ -496,7 +506,8 @@ class BagReader:
 
 
 def _storages(reader):
-    """Return the storage readers (rosbags internals) of ``reader`` in file order, or None.
+    """
+    Return the storage readers (rosbags internals) of ``reader`` in file order, or None.
 
     None means "use the public per-message API": unknown internals or per-message
     compression.
@@ -550,7 +561,8 @@ def _sqlite_batches(storage, conn, batch):
 
 
 def _mcap_batches(storage, conn):
-    """Yield one batch per MCAP chunk using the chunk and message indexes (no per-message Python).
+    """
+    Yield one batch per MCAP chunk using the chunk and message indexes (no per-message Python).
 
     For each chunk holding the channel, the chunk is decompressed (rosbags' own
     decompressor and CRC check), the channel's message index gives the (log time,
@@ -644,7 +656,8 @@ class _Walker:
 
 
 def _joint_state_layout(row):
-    """Return ((position, velocity, effort) (offset, n) pairs, struct mask) of a JointState.
+    """
+    Return ((position, velocity, effort) (offset, n) pairs, struct mask) of a JointState.
 
     Offsets are into the whole message; the mask marks the bytes that must be equal in
     every message of a fixed-layout stream (all but the stamp, padding and doubles).
@@ -875,7 +888,8 @@ def _decode(bag, conn, keep=None, stride=1):
 
 
 def read_streams(path, keys=None):
-    """Read the graph streams of a bag; return (streams dict, lockstep flag, all topics).
+    """
+    Read the graph streams of a bag; return (streams dict, lockstep flag, all topics).
 
     :param keys: stream keys to read (default every key of :data:`GRAPH_TOPICS` present).
     """
@@ -886,7 +900,8 @@ def read_streams(path, keys=None):
 
 
 def read_hysteresis_experiment(path):
-    """Return (t s, u V, y m) of a hysteresis experiment bag (drive_voltage vs displacement).
+    """
+    Return (t s, u V, y m) of a hysteresis experiment bag (drive_voltage vs displacement).
 
     ``y`` is the displacement position, ``t`` its header stamp relative to the first
     sample, ``u`` the drive voltage applied during each sample's period, aligned as in

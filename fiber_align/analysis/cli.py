@@ -99,7 +99,8 @@ def _labels(labels, width):
 
 
 def analyze_bag(path, params=None, v_limits=None, keep_arrays=False):
-    """Analyse the bag at ``path``; return (result dict, arrays for the figures).
+    """
+    Analyse the bag at ``path``; return (result dict, arrays for the figures).
 
     The result holds ``bag``, ``lockstep``, ``alignment``, ``topics`` (found streams),
     ``notes`` (what is missing and what was analysed anyway) and ``metrics`` (SI units).

@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Figures of a recorded run: signals against time, error, hysteresis loop, gains, power.
+"""
+Figures of a recorded run: signals against time, error, hysteresis loop, gains, power.
 
 Inputs are SI arrays (s, m, V, W); the axes are for people: ms, um, V, dBm. Long runs are
 decimated to a min/max envelope of at most ``max_points`` points per line, so an hour at
@@ -132,7 +133,8 @@ def plot_power(path, t, p_w, max_points=4000):
 
 
 def make_figures(out_dir, data, max_points=4000):
-    """Write every figure the data allows into ``out_dir``; return [(title, path)].
+    """
+    Write every figure the data allows into ``out_dir``; return [(title, path)].
 
     :param data: dict from :func:`fiber_align.analysis.cli.analyze_bag` (``arrays``).
     """

@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Align recorded streams to control periods, compute the run's metrics, write reports.
+"""
+Align recorded streams to control periods, compute the run's metrics, write reports.
 
 Alignment (see docs/analysis.md): the time base is the ``displacement`` stream, one
 sample per control period, time = header stamp relative to the first sample (s).
@@ -36,7 +37,8 @@ def default_params():
 
 
 def align_index(disp_t_ns, stream_t_ns):
-    """Return, for each displacement sample, the index of its message in a real-time stream.
+    """
+    Return, for each displacement sample, the index of its message in a real-time stream.
 
     The message of sample i is the last one received before sample i+1 was received
     (any time after the last sample for the last one); -1 where there is none.
@@ -64,7 +66,8 @@ def align_values(n, values, idx=None):
 
 
 def align_to_samples(streams, lockstep):
-    """Return per-control-period arrays from decoded streams (see the module docstring).
+    """
+    Return per-control-period arrays from decoded streams (see the module docstring).
 
     :param streams: mapping of stream key -> :class:`fiber_align.analysis.bagio.Stream`;
         needs ``displacement``.
@@ -89,7 +92,8 @@ def align_to_samples(streams, lockstep):
 
 
 def find_steps(r, step_min_m):
-    """Return the indices where the setpoint jumps by more than ``step_min_m`` (m).
+    """
+    Return the indices where the setpoint jumps by more than ``step_min_m`` (m).
 
     Index 0 counts as a step when ``|r[0]|`` exceeds ``step_min_m`` (a step from rest).
     """
@@ -104,7 +108,8 @@ def find_steps(r, step_min_m):
 
 def loop_metrics(t, r, y, v=None, v_limits=None, skip_s=0.0, step_min_m=1e-6, band=0.02,
                  max_steps=1000):
-    """Return the closed-loop metrics of one run from per-period arrays (all SI).
+    """
+    Return the closed-loop metrics of one run from per-period arrays (all SI).
 
     :param t: sample times (s); :param r: setpoint (m); :param y: displacement (m);
     :param v: drive voltage (V) or None; :param v_limits: (v_min, v_max) in V for the
@@ -187,7 +192,8 @@ def _stats(x):
 
 
 def timing_metrics(al, drive_t_ns=None, lockstep=False):
-    """Return loop timing: period and jitter (s) from stamps and receive times, latency.
+    """
+    Return loop timing: period and jitter (s) from stamps and receive times, latency.
 
     Latency is the time from receiving a displacement sample to receiving the drive
     command of the same period (paired by order in lockstep, by receive time otherwise).
@@ -218,7 +224,8 @@ def timing_metrics(al, drive_t_ns=None, lockstep=False):
 
 
 def optical_metrics(t, p, light_threshold_w, t0=0.0):
-    """Return alignment events from optical power ``p`` (W) at times ``t`` (s).
+    """
+    Return alignment events from optical power ``p`` (W) at times ``t`` (s).
 
     ``time_to_first_light_s``: first time ``p >= light_threshold_w``;
     ``time_to_peak_s``: first time ``p`` reaches 99 % of its maximum;
@@ -352,7 +359,8 @@ def to_text(res):
 
 
 def write_report(path, res, figures):
-    """Write a Markdown (``.md``) or HTML (``.html``/``.htm``) report; return its path.
+    """
+    Write a Markdown (``.md``) or HTML (``.html``/``.htm``) report; return its path.
 
     :param figures: list of (title, path) of the figures; linked relative to the report.
     """

@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""``alignment_sequencer``: the setpoint source that finds, peaks, tracks and switches light.
+"""
+``alignment_sequencer``: the setpoint source that finds, peaks, tracks and switches light.
 
 Wraps :class:`fiber_align.alignment.sequencer.Sequencer` (one ``update`` per displacement
 sample). Topics and services (relative names, SI units):

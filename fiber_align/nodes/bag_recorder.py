@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""``bag_recorder``: record the graph's topics into a rosbag2 (version 9) bag with rosbags.
+"""
+``bag_recorder``: record the graph's topics into a rosbag2 (version 9) bag with rosbags.
 
 Parameters (defaults in ``config/recorder.yaml``, node ``bag_recorder``):
 
@@ -159,7 +160,8 @@ def _drain(executor, node, quiet_s=0.2, limit_s=3.0):
 
 
 def main(args=None):
-    """Run the recorder until SIGINT, SIGTERM or shutdown; the bag is always finalised.
+    """
+    Run the recorder until SIGINT, SIGTERM or shutdown; the bag is always finalised.
 
     The node installs its own SIGINT/SIGTERM handlers: they only stop the spin loop, so
     the messages already queued for the node are still taken and written before the

@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Optical coupling between two single-mode fibers and the power detector (pure numpy).
+"""
+Optical coupling between two single-mode fibers and the power detector (pure numpy).
 
 The input fiber rides on the actuator tip (displacement ``x``, m); the output fiber's core
 sits at the slot position ``s(t)`` (m), unknown to the sequencer. With equal mode-field
@@ -60,7 +61,8 @@ def rayleigh_factor(gap_m, mode_radius_m, wavelength_m, index=1.0):
 
 def coupling_efficiency(offset_m, gap_m=0.0, mode_radius_m=5.2e-6, wavelength_m=1.55e-6,
                         index=1.0):
-    """Return the power coupling efficiency of two equal single-mode fibers (0..1).
+    """
+    Return the power coupling efficiency of two equal single-mode fibers (0..1).
 
     :param offset_m: lateral offset ``d`` between the cores (m), scalar or array.
     :param gap_m: axial gap ``z`` between the end faces (m).
@@ -84,7 +86,8 @@ def _section(params, name):
 
 
 class FiberCoupling:
-    """Noise-free coupled power as a function of time and actuator displacement.
+    """
+    Noise-free coupled power as a function of time and actuator displacement.
 
     The slot (output core) position is ``slot_position_m + slot_drift_m_per_s * t +
     slot_vibration_amplitude_m * sin(2 pi slot_vibration_frequency_hz t)`` (m).
@@ -153,7 +156,8 @@ class Detector:
 
     def __init__(self, noise_floor_w=1e-10, rin_db=0.02, averaging_time_s=0.5e-3,
                  saturation_w=10e-3, sample_period_s=1e-3, seed=0):
-        """Set the detector up.
+        """
+        Set the detector up.
 
         :param noise_floor_w: RMS of the dark reading per raw sample (W); -70 dBm = 1e-10 W.
         :param rin_db: standard deviation of a lit raw reading (dB).
@@ -215,7 +219,8 @@ class OpticalLink:
 
     @classmethod
     def from_params(cls, params=None, seed=0, **overrides):
-        """Build a link from an ``optics`` parameter mapping; ``overrides`` replace keys.
+        """
+        Build a link from an ``optics`` parameter mapping; ``overrides`` replace keys.
 
         :param params: mapping with the keys of ``config/optics.yaml`` (nested under
             ``optics`` or flat, or ROS dotted ``optics.*``); ``None`` loads the file.
