@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-rclpy = pytest.importorskip('rclpy')
+import rclpy  # noqa: E402 - a hard dependency of the node tests
 
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402

@@ -12,6 +12,7 @@ from fiber_align import cli
 from fiber_align.analysis import bagio
 from fiber_align.analysis import report as rp
 from fiber_align.analysis.cli import analyze_bag
+from fiber_align.control import simulate
 
 LAB = ('error', 'error_rate', 'kp', 'ki', 'kd', 'output')
 
@@ -19,7 +20,6 @@ LAB = ('error', 'error_rate', 'kp', 'ki', 'kd', 'output')
 @pytest.fixture(scope='module')
 def sim():
     """Return a short offline closed-loop step run (fuzzy PID, no noise)."""
-    simulate = pytest.importorskip('fiber_align.control.simulate')
     return simulate.run('step', 'fuzzy', duration_s=0.12, noise=False)
 
 
@@ -32,7 +32,7 @@ def _lockstep_series(res, wall0=1_700_000_000_000_000_000):
     cs = np.column_stack([err, np.zeros(n), res.gains, res.fb])
     return {
         'clock': {'t_ns': wall, 'clock_ns': stamp},
-        'displacement': {'t_ns': wall + 10, 'stamp_ns': stamp, 'position': res.y_true},
+        'displacement': {'t_ns': wall + 10, 'stamp_ns': stamp, 'position': res.y_meas},
         'setpoint': {'t_ns': wall + 20, 'data': res.r},
         'feedforward_voltage': {'t_ns': wall + 30, 'data': res.ff},
         'feedback_voltage': {'t_ns': wall + 30, 'data': res.fb},
@@ -80,7 +80,7 @@ def _write_plain_rosbags(path, series, storage):
 def test_lockstep_bag_metrics_equal_offline_simulation(tmp_path, sim):
     """Metrics from a lockstep bag of a run equal simulate's metrics to 1e-9 relative."""
     bagio.write_bag(tmp_path / 'ls', _lockstep_series(sim), namespace='rig')
-    skip = 0.5 * (sim.t[-1] - sim.t[0])     # simulate's tracking window for a step
+    skip = sim.metrics['tracking_skip_s']   # simulate's tracking window
     params = dict(rp.default_params(), skip_s=skip)
     res, _ = analyze_bag(tmp_path / 'ls', params, (0.0, 100.0))
     assert res['lockstep'] and res['alignment'] == 'order'

@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-rclpy = pytest.importorskip('rclpy')
+import rclpy  # noqa: E402 - a hard dependency of the recorder tests
 
 from fiber_align.analysis import bagio  # noqa: E402
 

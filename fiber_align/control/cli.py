@@ -12,8 +12,9 @@ def register(sub):
     """Add the ``simulate`` and ``fuzzy-surface`` sub-commands."""
     p = sub.add_parser('simulate', help='closed-loop simulation of a control scenario')
     p.add_argument('--scenario', default='step',
-                   help='step | sine | triangle | hysteresis-experiment '
-                        '(align | switch | track: fiber_align.alignment)')
+                   help='step | sine | triangle | staircase | hysteresis-experiment; '
+                        'align | switch | track run the alignment sequencer '
+                        '(fiber_align.alignment.scenarios)')
     p.add_argument('--controller', default='composite',
                    help='open-loop | feedforward | pid | fuzzy | composite | composite-pid')
     p.add_argument('--rate', type=float, default=None, help='control rate, Hz')
@@ -22,19 +23,64 @@ def register(sub):
     p.add_argument('--noise', choices=('on', 'off'), default='off')
     p.add_argument('--plant', default='default', help='default | paper | linear')
     p.add_argument('--model', default=None,
-                   help='feedforward PI model file (default: identified from the '
-                        'hysteresis experiment on the same plant)')
+                   help='feedforward PI model file, or "identify" (default: the model in '
+                        'config/compensator.yaml, identified on the default plant; for '
+                        'another --plant, identified on that plant)')
     p.add_argument('--json', action='store_true', help='print the metrics as JSON')
     p.add_argument('--plot', default=None, help='write a plot (PNG/PDF/SVG)')
     p.add_argument('--csv', default=None, help='write the arrays as CSV')
     p.add_argument('--compare', action='store_true',
                    help='every controller on every scenario: the paper-style table')
+    al = p.add_argument_group('alignment scenarios (align, switch, track)')
+    al.add_argument('--loop', choices=('composite', 'ideal'), default=None,
+                    help='closed loop under the sequencer: the control core\'s composite '
+                         'loop (default) or a first-order stand-in')
+    al.add_argument('--cycles', type=int, default=None,
+                    help='switch: off/on cycles (default 5)')
+    al.add_argument('--slot', type=float, default=None, metavar='M',
+                    help='slot (output core) position, m (default: random in the range)')
+    al.add_argument('--drift', type=float, default=None, metavar='M_PER_S',
+                    help='track: slot drift, m/s (default 1e-6)')
     p.set_defaults(func=cmd_simulate)
     q = sub.add_parser('fuzzy-surface', help='the three fuzzy rule surfaces')
     q.add_argument('--points', type=int, default=41, help='grid points per axis')
     q.add_argument('--json', action='store_true', help='print JSON rows')
     q.add_argument('--plot', default=None, help='write a plot (PNG/PDF/SVG)')
     q.set_defaults(func=cmd_fuzzy_surface)
+
+
+ALIGN_SCENARIOS = ('align', 'switch', 'track')
+
+
+def _check_alignment_args(args):
+    """Raise UsageError for out-of-range alignment options (SI units)."""
+    if args.cycles is not None and args.cycles < 1:
+        raise UsageError('--cycles must be >= 1, got %d' % args.cycles)
+    for name, v in (('--slot', args.slot), ('--drift', args.drift),
+                    ('--duration', args.duration), ('--rate', args.rate)):
+        if v is not None and not math.isfinite(v):
+            raise UsageError('%s must be a finite number, got %r' % (name, v))
+    if args.slot is not None and not 0.0 <= args.slot <= 1e-3:
+        raise UsageError('--slot is in metres (e.g. 40e-6), got %g' % args.slot)
+    if args.drift is not None and abs(args.drift) > 1e-3:
+        raise UsageError('--drift is in m/s (e.g. 1e-6), got %g' % args.drift)
+    if args.duration is not None and not args.duration > 0:
+        raise UsageError('--duration must be > 0 s, got %g' % args.duration)
+    if args.rate is not None and not args.rate > 0:
+        raise UsageError('--rate must be > 0 Hz, got %g' % args.rate)
+
+
+def _json_clean(x):
+    """Return ``x`` with non-finite floats as None and numpy scalars as Python numbers."""
+    if isinstance(x, dict):
+        return {k: _json_clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_clean(v) for v in x]
+    if hasattr(x, 'item') and not isinstance(x, (str, bytes)):
+        x = x.item()
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
 
 
 def _fmt(v, scale=1.0, digits=3):
@@ -49,13 +95,19 @@ def _fmt(v, scale=1.0, digits=3):
 def cmd_simulate(args):
     """Run ``simulate``; return an exit code."""
     from fiber_align.control import scenarios, simulate
-    if args.scenario in ('align', 'switch', 'track'):
+    if args.scenario in ALIGN_SCENARIOS:
         try:
             mod = importlib.import_module('fiber_align.alignment.scenarios')
         except ModuleNotFoundError:
             raise UsageError('scenario %s needs fiber_align.alignment.scenarios, which is '
                              'not installed' % args.scenario) from None
+        _check_alignment_args(args)
         return mod.run_cli(args)
+    extra = [o for o, v in (('--loop', args.loop), ('--cycles', args.cycles),
+                            ('--slot', args.slot), ('--drift', args.drift)) if v is not None]
+    if extra:
+        raise UsageError('%s only apply to --scenario %s'
+                         % (', '.join(extra), '|'.join(ALIGN_SCENARIOS)))
     if args.rate is not None and not args.rate > 0:
         raise UsageError('--rate must be > 0 Hz, got %g' % args.rate)
     if args.duration is not None and not args.duration > 0:
@@ -63,7 +115,7 @@ def cmd_simulate(args):
     if args.plant not in simulate.PLANTS:
         raise UsageError('unknown --plant %r (allowed: %s)'
                          % (args.plant, ', '.join(simulate.PLANTS)))
-    if args.model is not None:
+    if args.model is not None and args.model not in ('identify', 'identified'):
         simulate.check_model_file(args.model)
     noise = args.noise == 'on'
     if args.compare:
@@ -75,10 +127,10 @@ def cmd_simulate(args):
                                    model=args.model)
                 rows.append(res.metrics)
         if args.json:
-            print(json.dumps(rows, indent=1))
+            print(json.dumps(_json_clean(rows), indent=1))
             return 0
-        print('plant %s, rate %g Hz, noise %s (errors of the true displacement)'
-              % (args.plant, rows[0]['rate_hz'], args.noise))
+        print('plant %s, rate %g Hz, noise %s (measured displacement, as analyze scores a '
+              'bag; true_* keys in --json)' % (args.plant, rows[0]['rate_hz'], args.noise))
         print('| scenario | controller | settling ms | overshoot % | rise ms | '
               'RMS error um | max error um | max V |')
         print('|---|---|---|---|---|---|---|---|')
@@ -90,8 +142,9 @@ def cmd_simulate(args):
                 _fmt(m['max_voltage_v'], 1, 1)))
         return 0
     if args.scenario not in scenarios.NAMES:
-        raise UsageError('unknown --scenario %r (allowed: %s, align, switch, track)'
-                         % (args.scenario, ', '.join(scenarios.NAMES)))
+        raise UsageError('unknown --scenario %r (allowed: %s, %s)'
+                         % (args.scenario, ', '.join(scenarios.NAMES),
+                            ', '.join(ALIGN_SCENARIOS)))
     if args.controller not in simulate.CONTROLLERS:
         raise UsageError('unknown --controller %r (allowed: %s)'
                          % (args.controller, ', '.join(simulate.CONTROLLERS)))
@@ -104,11 +157,18 @@ def cmd_simulate(args):
         plot_result(res, args.plot)
     m = res.metrics
     if args.json:
-        print(json.dumps({k: (None if isinstance(v, float) and not math.isfinite(v) else v)
-                          for k, v in m.items()}, indent=1))
+        print(json.dumps(_json_clean(m), indent=1))
     else:
         for k, v in m.items():
-            print('%s: %s' % (k, v))
+            if k == 'steps':
+                for i, st in enumerate(v):
+                    print('step %d: %.4g -> %.4g um at %.4g ms: settling %s ms, overshoot '
+                          '%s %%' % (i + 1, st['from_m'] * 1e6, st['to_m'] * 1e6,
+                                     st['t_step_s'] * 1e3,
+                                     _fmt(st['settling_time_s'], 1e3, 2),
+                                     _fmt(st['overshoot_pct'], 1, 2)))
+            else:
+                print('%s: %s' % (k, v))
     return 0
 
 

@@ -72,13 +72,15 @@ class DriverCore:
 
     def _limit(self, target, t):
         """Slew-limit the move from the present output to ``target`` at time ``t`` (s)."""
-        if self.t_last_out is not None and math.isfinite(self.slew):
-            dv_max = self.slew * max(0.0, t - self.t_last_out)
-            if target > self.v + dv_max:
-                target = self.v + dv_max
+        tl = self.t_last_out
+        if tl is not None and self.slew != math.inf:
+            dv_max = self.slew * (t - tl if t > tl else 0.0)
+            v = self.v
+            if target > v + dv_max:
+                target = v + dv_max
                 self.slew_count += 1
-            elif target < self.v - dv_max:
-                target = self.v - dv_max
+            elif target < v - dv_max:
+                target = v - dv_max
                 self.slew_count += 1
         self.t_last_out = t
         self.v = target
@@ -87,22 +89,21 @@ class DriverCore:
     def command(self, ff, fb, t):
         """Return the drive (V) for feedforward ``ff`` and feedback ``fb`` (V) at ``t`` (s)."""
         u = ff + fb
-        if not math.isfinite(u):
-            self.nan_count += 1
-            self.t_last_cmd = t
-            return self.v
         self.t_last_cmd = t
+        if u - u != 0.0:            # NaN or infinite
+            self.nan_count += 1
+            return self.v
         self.tripped = False
         if u > self.v_max:
             u = self.v_max
             self.saturated = True
+            self.saturation_count += 1
         elif u < self.v_min:
             u = self.v_min
             self.saturated = True
+            self.saturation_count += 1
         else:
             self.saturated = False
-        if self.saturated:
-            self.saturation_count += 1
         return self._limit(u, t)
 
     def tick(self, t):

@@ -23,7 +23,7 @@ derivative, a 1 kHz loop cannot), so ``config/controller.yaml`` lists them per r
 import math
 
 from fiber_align.config import ConfigError, load_params
-from fiber_align.control.fuzzy import FuzzyInference
+from fiber_align.control.fuzzy import FuzzyInference, FuzzySurface
 from fiber_align.control.pid import Pid
 
 CONFIG_FILE = 'controller.yaml'
@@ -81,11 +81,15 @@ class FuzzyPid:
     :param reference_filter: optional object with ``step(r) -> m`` and ``reset()``
         (a :class:`fiber_align.control.shaping.ReferenceModel`) whose output replaces
         the reference in the error, as the composite controller does.
+    :param surface_intervals: 0 evaluates the exact closed-form inference every period;
+        an even ``q >= 2`` uses the :class:`~fiber_align.control.fuzzy.FuzzySurface`
+        with ``q`` sub-intervals per rule cell (error bound
+        :func:`~fiber_align.control.fuzzy.surface_error_bound`).
     """
 
     def __init__(self, fis, pid, kp0, ki0, kd0, units, output_scale=(0.8, 0.8, 0.6),
                  e_scale_per_m=1e6, ec_scale_s_per_m=1e3, enabled=True,
-                 reference_filter=None):
+                 reference_filter=None, surface_intervals=0):
         """Store the parts; gains start at the base values."""
         self.reference_filter = reference_filter
         self.fis = fis
@@ -96,6 +100,14 @@ class FuzzyPid:
         self.e_scale = float(e_scale_per_m)
         self.ec_scale = float(ec_scale_s_per_m)
         self.enabled = bool(enabled)
+        q = int(surface_intervals)
+        self.surface = FuzzySurface.cached(fis, q) if q else None
+        # gain_o = g_o0 + g_o1 * M_o / A_o (area A and moment M of the aggregated set
+        # about the domain centre, see FuzzyInference.area_moment)
+        g = []
+        for b, u, sc, (lo, h) in zip(self.base, self.units, self.output_scale, fis._out):
+            g += [b + sc * u * (lo + 3.0 * h), sc * u * h]
+        self._g = tuple(g)
         self.reset()
 
     @classmethod
@@ -117,7 +129,8 @@ class FuzzyPid:
                        output_scale=fz.get('output_scale', (0.8, 0.8, 0.6)),
                        e_scale_per_m=fz.get('e_scale_per_m', 1e6),
                        ec_scale_s_per_m=fz.get('ec_scale_s_per_m', 1e3), enabled=enabled,
-                       reference_filter=reference_filter)
+                       reference_filter=reference_filter,
+                       surface_intervals=int(fz.get('surface_intervals', 0)))
         except KeyError as exc:
             raise ConfigError('fuzzy_pid gains lack %s' % exc) from None
 
@@ -146,16 +159,26 @@ class FuzzyPid:
         self.held = False
         self.nan_count = 0
 
+    def schedule(self, e, ec):
+        """Return the gains ``(kp, ki, kd)`` (SI) for fuzzy inputs E, EC (fuzzy units)."""
+        if self.surface is not None:
+            return self.surface.gains(e, ec, self._g)
+        dk = self.fis.evaluate(e, ec)
+        b, un, sc = self.base, self.units, self.output_scale
+        return (b[0] + sc[0] * dk[0] * un[0], b[1] + sc[1] * dk[1] * un[1],
+                b[2] + sc[2] * dk[2] * un[2])
+
     def step(self, r, y):
         """
         Advance one period: reference ``r`` (m), measurement ``y`` (m) -> voltage (V).
 
         A NaN reference or measurement holds the previous output and sets :attr:`held`.
         """
-        if self.reference_filter is not None:
-            r = self.reference_filter.step(r)
+        rf = self.reference_filter
+        if rf is not None:
+            r = rf.step(r)
         e = r - y
-        if not math.isfinite(e):
+        if e - e != 0.0:            # NaN or infinite
             self.nan_count += 1
             self.held = True
             return self.u
@@ -163,15 +186,15 @@ class FuzzyPid:
         pid = self.pid
         if self.enabled:
             # rate of the error for EC: the PID's filtered derivative as of last period
-            dk = self.fis.evaluate(self.e_scale * e, self.ec_scale * pid.deriv)
-            b, un, sc = self.base, self.units, self.output_scale
-            kp = b[0] + sc[0] * dk[0] * un[0]
-            ki = b[1] + sc[1] * dk[1] * un[1]
-            kd = b[2] + sc[2] * dk[2] * un[2]
-            pid.kp, pid.ki, pid.kd = kp, ki, kd
-            self.gains = (kp, ki, kd)
-        self.u = pid.step(e)
-        return self.u
+            surf = self.surface
+            if surf is not None:
+                g = surf.gains(self.e_scale * e, self.ec_scale * pid.deriv, self._g)
+            else:
+                g = self.schedule(self.e_scale * e, self.ec_scale * pid.deriv)
+            pid.kp, pid.ki, pid.kd = g
+            self.gains = g
+        u = self.u = pid.step(e)
+        return u
 
 
 class PlainPid:

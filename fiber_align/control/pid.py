@@ -49,9 +49,11 @@ class Pid:
         if not u_max > u_min:
             raise ConfigError('u_max (%g V) must exceed u_min (%g V)' % (u_max, u_min))
         self.period_s = float(period_s)
+        self._inv_t = 1.0 / self.period_s
         self.set_gains(kp, ki, kd)
         fd = float(derivative_filter_hz)
         self.deriv_pole = math.exp(-2.0 * math.pi * fd * self.period_s) if fd > 0 else 0.0
+        self._deriv_gain = 1.0 - self.deriv_pole
         self.u_min = float(u_min)
         self.u_max = float(u_max)
         self.anti_windup = anti_windup
@@ -91,34 +93,33 @@ class Pid:
 
     def step(self, e):
         """Advance one period with error ``e`` (m); return the output (V)."""
-        if not math.isfinite(e):
+        if e - e != 0.0:            # NaN or infinite
             self.nan_count += 1
             self.held = True
             return self.u
         self.held = False
-        t = self.period_s
-        if self.e_prev is None:
-            de = 0.0
-        else:
-            de = (e - self.e_prev) / t
+        ep = self.e_prev
+        de = 0.0 if ep is None else (e - ep) * self._inv_t
         self.e_prev = e
-        a = self.deriv_pole
-        self.deriv = a * self.deriv + (1.0 - a) * de
-        i_new = self.integral + self.ki * t * e
-        u = self.kp * e + i_new + self.kd * self.deriv
+        d = self.deriv_pole * self.deriv + self._deriv_gain * de
+        self.deriv = d
+        i_new = self.integral + self.ki * self.period_s * e
+        u = self.kp * e + i_new + self.kd * d
         if u > self.u_max:
             u_sat = self.u_max
         elif u < self.u_min:
             u_sat = self.u_min
         else:
-            u_sat = u
-        self.saturated = u_sat != u
-        if self.saturated:
-            self.saturation_count += 1
-            if self.anti_windup == 'back-calculation':
-                i_new += (u_sat - u) * self.tracking_gain
-            elif self.anti_windup == 'conditional' and (u - u_sat) * e > 0:
-                i_new = self.integral
+            self.saturated = False
+            self.integral = i_new
+            self.u = u
+            return u
+        self.saturated = True
+        self.saturation_count += 1
+        if self.anti_windup == 'back-calculation':
+            i_new += (u_sat - u) * self.tracking_gain
+        elif self.anti_windup == 'conditional' and (u - u_sat) * e > 0:
+            i_new = self.integral
         self.integral = i_new
         self.u = u_sat
         return u_sat

@@ -6,6 +6,10 @@ Reference generators of the control scenarios (SEED-NOTES section 7), SI units.
 displacement (m) at time ``t`` (s). The actuator moves one way from rest (drive >= 0),
 so the paper's 82 um sine and triangle are read as spanning 0..82 um (bias 41 um).
 
+``staircase`` holds a sequence of levels (:data:`STAIRCASE_M`, ``STAIRCASE_HOLD_S``
+each): steps of several sizes, up and down, each from the non-rest hysteresis state the
+previous moves left (the alignment sequencer's switch and re-peak moves are such steps).
+
 ``hysteresis-experiment`` is open loop: ``drive(t)`` gives the voltage (V), a 0-72 V
 triangle at 0.1 Hz (paper Section 5.1), and there is no reference.
 """
@@ -13,12 +17,16 @@ triangle at 0.1 Hz (paper Section 5.1), and there is no reference.
 from dataclasses import dataclass
 import math
 
-NAMES = ('step', 'sine', 'triangle', 'hysteresis-experiment')
+NAMES = ('step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment')
 STEP_M = 82e-6
 SINE_HZ = 0.75
 TRIANGLE_HZ = 1.0
 HYST_HZ = 0.1
 HYST_VMAX = 72.0
+# staircase levels (m): up and down steps of 5-62 um from non-rest hysteresis states
+STAIRCASE_M = (45e-6, 82e-6, 20e-6, 60e-6, 45e-6, 10e-6, 45e-6, 70e-6, 35e-6, 40e-6,
+               0.0, 45e-6)
+STAIRCASE_HOLD_S = 0.025
 
 
 @dataclass
@@ -53,6 +61,9 @@ class Scenario:
             return 0.5 * a * (1.0 - math.cos(2.0 * math.pi * f * t))
         if self.name == 'triangle':
             return a * triangle_wave(f * t)
+        if self.name == 'staircase':
+            i = int(t / STAIRCASE_HOLD_S + 1e-9) if t > 0.0 else 0
+            return STAIRCASE_M[min(i, len(STAIRCASE_M) - 1)]
         return 0.0
 
     def drive(self, t):
@@ -74,6 +85,9 @@ def make(name):
         return Scenario('sine', 10.0, 1.0 / SINE_HZ, STEP_M, SINE_HZ)
     if name == 'triangle':
         return Scenario('triangle', 10.0, 1.0 / TRIANGLE_HZ, STEP_M, TRIANGLE_HZ)
+    if name == 'staircase':
+        return Scenario('staircase', STAIRCASE_HOLD_S * len(STAIRCASE_M), 0.0,
+                        max(STAIRCASE_M))
     if name == 'hysteresis-experiment':
         return Scenario('hysteresis-experiment', 1.0 / HYST_HZ, 0.0, 0.0, HYST_HZ)
     raise ValueError('unknown scenario %r (allowed: %s)' % (name, ', '.join(NAMES)))

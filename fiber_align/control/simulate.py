@@ -16,15 +16,29 @@ Controllers: ``open-loop`` (r times a linear gain, V/m), ``feedforward`` (invers
 ``pid`` (tuned plain PID), ``fuzzy`` (fuzzy PID), ``composite`` (inverse PI + fuzzy
 PID, paper Figure 21), ``composite-pid`` (inverse PI + plain PID). Composite and
 feedforward shape the reference (``config/compensator.yaml``) unless shaping is none.
+
+The feedforward's PI model is by default the one held in ``config/compensator.yaml``
+(the model the ROS compensator node uses), when it was identified on the simulated
+plant (``model_plant``); for another plant it is identified from that plant's
+hysteresis experiment (:func:`identified_model`). ``model=`` overrides both.
+
+Metrics (:func:`metrics`) are computed by
+:func:`fiber_align.analysis.report.loop_metrics`, the function ``fiber-align analyze``
+applies to a bag, on the measured displacement (what the graph publishes) with the
+``analyze`` settings of ``config/recorder.yaml``, so a lockstep bag of the same run
+gives the same numbers (``analyze --skip`` = the run's ``tracking_skip_s``). The same
+figures of the true tip position are reported under ``true_*`` keys.
 """
 
+import copy
 from dataclasses import dataclass, field
+import itertools
 import math
+import os
 
 import numpy as np
 
-from fiber_align.analysis.metrics import step_metrics, tracking_metrics
-from fiber_align.config import ConfigError, load_params
+from fiber_align.config import config_path, ConfigError, load_params
 from fiber_align.control import scenarios as scen
 from fiber_align.control.driver import DriverCore
 from fiber_align.control.feedforward import Feedforward
@@ -38,7 +52,11 @@ PLANTS = ('default', 'paper', 'linear', 'dense-pi', 'bouc-wen')
 COMPENSATOR_FILE = 'compensator.yaml'
 COMPENSATOR_NODE = 'hysteresis_compensator'
 IDENTIFY_RATE_HZ = 1000.0
+IDENTIFY_DURATION_S = 10.0
 _MODEL_CACHE = {}
+_PARAMS_CACHE = {}
+STEP_KEYS = ('settling_time_s', 'overshoot_pct', 'rise_time_s')
+TRACK_KEYS = ('rms_error_m', 'max_error_m')
 
 
 @dataclass
@@ -67,9 +85,27 @@ class SimResult:
                           'ki_v_per_m_s,kd_v_s_per_m')
 
 
+def cached_params(name, node):
+    """
+    Return :func:`fiber_align.config.load_params` of a params file, parsed once.
+
+    The parsed file is kept per process, keyed by its path, size and modification time
+    (an edited file is read again); a deep copy is returned.
+    """
+    try:
+        path = config_path(name)
+        st = os.stat(path)
+    except (ConfigError, OSError):
+        return load_params(name, node)
+    key = (str(path), st.st_mtime_ns, st.st_size, node)
+    if key not in _PARAMS_CACHE:
+        _PARAMS_CACHE[key] = load_params(str(path), node)
+    return copy.deepcopy(_PARAMS_CACHE[key])
+
+
 def compensator_params(path=COMPENSATOR_FILE):
     """Return the ``hysteresis_compensator`` parameters (shaping, gain, model)."""
-    return load_params(path, COMPENSATOR_NODE)
+    return cached_params(path, COMPENSATOR_NODE)
 
 
 def make_plant(plant, rate_hz, seed=0, noise=False, params=None):
@@ -80,7 +116,7 @@ def make_plant(plant, rate_hz, seed=0, noise=False, params=None):
     """
     if plant not in PLANTS:
         raise ValueError('unknown plant %r (allowed: %s)' % (plant, ', '.join(PLANTS)))
-    p = dict(load_params('plant.yaml', 'simulated_actuator') if params is None else params)
+    p = dict(cached_params('plant.yaml', 'simulated_actuator') if params is None else params)
     p['hysteresis'] = plant
     p['seed'] = int(seed)
     if not noise:
@@ -88,34 +124,101 @@ def make_plant(plant, rate_hz, seed=0, noise=False, params=None):
     return SimulatedActuator.from_params(p, period_s=1.0 / float(rate_hz))
 
 
-def hysteresis_experiment(plant='default', seed=0, noise=True, rate_hz=IDENTIFY_RATE_HZ):
-    """Run the open-loop 0-72 V, 0.1 Hz triangle on a plant; return ``(t, u, y_meas)``."""
-    res = run('hysteresis-experiment', 'open-loop', rate_hz=rate_hz, seed=seed, noise=noise,
-              plant=plant, model=None)
-    return res.t, res.v, res.y_meas
-
-
-def identified_model(plant='default', seed=0, noise=True):
+def hysteresis_experiment(plant='default', seed=0, noise=True, rate_hz=IDENTIFY_RATE_HZ,
+                          peak_v=None):
     """
-    Return the PI model identified (lsq, 10 operators) from the plant's experiment.
+    Run the open-loop 0.1 Hz triangle on a plant; return ``(t, u, y_meas)`` (s, V, m).
 
-    The experiment runs at 1 kHz for one 10 s period with the plant's sensor; results are
-    cached per (plant, seed, noise).
+    :param peak_v: top of the triangle (V); None is the paper's 72 V
+        (scenario ``hysteresis-experiment``).
     """
-    key = (plant, int(seed), bool(noise))
+    if peak_v is None:
+        res = run('hysteresis-experiment', 'open-loop', rate_hz=rate_hz, seed=seed,
+                  noise=noise, plant=plant, model=None)
+        return res.t, res.v, res.y_meas
+    p = make_plant(plant, rate_hz, seed, noise)
+    n = int(round(IDENTIFY_DURATION_S * rate_hz))
+    t = np.arange(n) / float(rate_hz)
+    u = [float(peak_v) * scen.triangle_wave(scen.HYST_HZ * tk) for tk in t.tolist()]
+    y = [p.reset()]
+    step = p.step
+    for uk in u[:-1]:
+        y.append(step(uk))
+    return t, np.array(u), np.array(y)
+
+
+def identified_model(plant='default', seed=0, noise=True, peak_v=None, n_operators=10):
+    """
+    Return the PI model identified (lsq) from the plant's hysteresis experiment.
+
+    The experiment (:func:`hysteresis_experiment`, 0.1 Hz triangle up to ``peak_v``, V)
+    runs at 1 kHz for one 10 s period with the plant's sensor (noise on by default, as
+    a measurement would be); thresholds by the identification's rule
+    ``r_i = i / n max(u)``. Results are cached per argument set.
+    """
+    key = (plant, int(seed), bool(noise), peak_v, int(n_operators))
     if key not in _MODEL_CACHE:
         from fiber_align.hysteresis.identify import identify
-        t, u, y = hysteresis_experiment(plant, seed, noise)
-        _MODEL_CACHE[key] = identify(t, u, y, method='lsq', n_operators=10).model
+        t, u, y = hysteresis_experiment(plant, seed, noise, peak_v=peak_v)
+        _MODEL_CACHE[key] = identify(t, u, y, method='lsq',
+                                     n_operators=int(n_operators)).model
     return _MODEL_CACHE[key]
 
 
-def _load_model(model, plant, seed, noise):
+def compensator_model(comp=None):
+    """
+    Return the PI model of the compensator parameters (``model_file`` or inline).
+
+    :param comp: the ``hysteresis_compensator`` parameters (default
+        ``config/compensator.yaml``).
+    """
+    comp = compensator_params() if comp is None else comp
+    path = str(comp.get('model_file', '') or '')
+    if path:
+        return PIModel.load(path)
+    return PIModel.from_params(comp)
+
+
+def default_model(plant='default', comp=None):
+    """
+    Return the feedforward model used when none is given (see the module docstring).
+
+    ``compensator.yaml``'s model when its ``model_plant`` is ``plant``; otherwise the
+    model identified from ``plant``'s experiment with the same settings
+    (:func:`compensator_identified_model`).
+    """
+    comp = compensator_params() if comp is None else comp
+    if str(comp.get('model_plant', 'default')) == plant:
+        return compensator_model(comp)
+    return compensator_identified_model(plant, comp)
+
+
+def identification_settings(comp=None):
+    """
+    Return ``(peak_v, n_operators)`` of the compensator's identification experiment.
+
+    From ``identification_peak_v`` (V; None: the paper's 72 V) and
+    ``identification_operators`` of the compensator parameters.
+    """
+    comp = compensator_params() if comp is None else comp
+    v = comp.get('identification_peak_v')
+    return (None if v is None else float(v)), int(comp.get('identification_operators', 10))
+
+
+def compensator_identified_model(plant='default', comp=None):
+    """Return the model identified on ``plant`` with the compensator's settings."""
+    peak, n_ops = identification_settings(comp)
+    return identified_model(plant, seed=0, noise=True, peak_v=peak, n_operators=n_ops)
+
+
+def _load_model(model, plant, comp):
     """Resolve ``model`` (PIModel, path, ``'identify'`` or None) to a PIModel."""
     if isinstance(model, PIModel):
         return model
-    if model in (None, 'identify', 'identified'):
-        return identified_model(plant, seed, noise)
+    if model is None:
+        return default_model(plant, comp)
+    if model in ('identify', 'identified'):
+        return compensator_identified_model(plant, comp)
     return PIModel.load(model)
 
 
@@ -137,19 +240,21 @@ def build(controller, rate_hz, plant_obj, model=None, plant='default', seed=0, n
     Return ``(compensator, feedback)`` objects for a controller name.
 
     The compensator has ``step(r) -> V``; the feedback has ``step(r, y) -> V``
-    (or is None for open-loop controllers).
+    (or is None for open-loop controllers). ``model``: a PIModel, a params file,
+    ``'identify'`` or None (:func:`default_model`); ``seed`` and ``noise`` are kept
+    for compatibility and not used.
     """
     if controller not in CONTROLLERS:
         raise ValueError('unknown controller %r (allowed: %s)'
                          % (controller, ', '.join(CONTROLLERS)))
     comp = compensator_params() if comp_params is None else comp_params
-    ctl = (load_params('controller.yaml', 'fuzzy_pid_controller')
+    ctl = (cached_params('controller.yaml', 'fuzzy_pid_controller')
            if controller_params is None else controller_params)
     if controller == 'open-loop':
         return Feedforward(gain_v_per_m=float(comp['open_loop_gain_v_per_m'])), None
     if controller in ('feedforward', 'composite', 'composite-pid'):
         shaper = make_shaper(comp, rate_hz, plant_obj)
-        ff = Feedforward(_load_model(model, plant, seed, noise), shaper=shaper,
+        ff = Feedforward(_load_model(model, plant, comp), shaper=shaper,
                          lead=make_lead(comp, rate_hz, shaper))
     else:
         ff = Feedforward(gain_v_per_m=0.0)
@@ -181,12 +286,12 @@ def make_lead(comp, rate_hz, shaper):
         return None
     period = 1.0 / float(rate_hz)
     return Lead(period, shaper_delay_s(shaper, period) + period,
-                float(comp.get('delay_compensation_max_rate_m_per_s', 0.01)))
+                float(comp.get('delay_compensation_max_accel_m_per_s2', 0.01)))
 
 
 def run(scenario, controller, rate_hz=None, duration_s=None, seed=0, noise=False,
         plant='default', model=None, plant_obj=None, controller_params=None,
-        comp_params=None, driver_params=None, reference_scale=1.0):
+        comp_params=None, driver_params=None, reference_scale=1.0, analyze_params=None):
     """
     Simulate one scenario with one controller; return a :class:`SimResult`.
 
@@ -197,13 +302,15 @@ def run(scenario, controller, rate_hz=None, duration_s=None, seed=0, noise=False
     :param seed: seed of the plant's sensor noise.
     :param noise: sensor noise on (the plant.yaml value) or off.
     :param plant: plant kind (``default`` = dense-pi truth, ``paper``, ``linear``, ...).
-    :param model: feedforward PI model: a PIModel, a params file, or None to identify
-        it from the ``hysteresis-experiment`` run on the same plant.
+    :param model: feedforward PI model: a PIModel, a params file, ``'identify'``, or
+        None for :func:`default_model` (compensator.yaml's model on its plant).
     :param plant_obj: a ready plant (overrides ``plant``, ``seed``, ``noise``).
     :param reference_scale: multiplies the reference (to test unreachable targets).
+    :param analyze_params: metric settings (default the ``analyze`` node of
+        ``config/recorder.yaml``: ``step_min_m``, ``settling_band``).
     """
     sc = scen.make(scenario)
-    ctl_params = (load_params('controller.yaml', 'fuzzy_pid_controller')
+    ctl_params = (cached_params('controller.yaml', 'fuzzy_pid_controller')
                   if controller_params is None else controller_params)
     rate = float(ctl_params.get('rate_hz', 1000.0) if rate_hz is None else rate_hz)
     if not rate > 0:
@@ -214,56 +321,24 @@ def run(scenario, controller, rate_hz=None, duration_s=None, seed=0, noise=False
     n = int(round(dur * rate))
     period = 1.0 / rate
     p = plant_obj if plant_obj is not None else make_plant(plant, rate, seed, noise)
-    drv = DriverCore.from_params(load_params('driver.yaml', 'actuator_driver')
+    drv = DriverCore.from_params(cached_params('driver.yaml', 'actuator_driver')
                                  if driver_params is None else driver_params)
     reach = p.reachable_m()
     if sc.open_loop:
-        comp, fbc = None, None
+        loop = _run_open_loop(sc, n, period, p, drv)
+        clamped = held = 0
     else:
         comp, fbc = build(controller, rate, p, model, plant, seed, noise, ctl_params,
                           comp_params)
+        loop = _run_closed_loop(sc, n, period, p, drv, comp, fbc, reach, reference_scale)
+        clamped, held = loop[-2:]
     t = np.arange(n) * period
-    r = np.zeros(n)
-    ym = np.zeros(n)
-    yt = np.zeros(n)
-    v = np.zeros(n)
-    ffa = np.zeros(n)
-    fba = np.zeros(n)
-    gains = np.zeros((n, 3))
-    clamped = 0
-    held = 0
-    y = p.reset()
-    for k in range(n):
-        tk = k * period
-        if sc.open_loop:
-            rk = math.nan
-            ff = sc.drive(tk)
-            fb = 0.0
-        else:
-            rk = sc.reference(tk) * reference_scale
-            if rk > reach:
-                rk = reach
-                clamped += 1
-            elif rk < 0.0:
-                rk = 0.0
-                clamped += 1
-            ff = comp.step(rk)
-            if fbc is not None:
-                fb = fbc.step(rk, y)
-                held += fbc.held
-                gains[k] = fbc.gains
-            else:
-                fb = 0.0
-        vk = drv.command(ff, fb, tk)
-        r[k] = rk
-        ym[k] = y
-        yt[k] = p.x
-        v[k] = vk
-        ffa[k] = ff
-        fba[k] = fb
-        y = p.step(vk)
-    res = SimResult(scenario, controller, rate, t, r, ym, yt, v, ffa, fba, gains)
-    res.metrics = metrics(res, sc, reach)
+    r, ym, yt, v, ffa, fba = (np.array(a, dtype=float) for a in loop[:6])
+    gains = (np.fromiter(itertools.chain.from_iterable(loop[6]), float, 3 * n)
+             if loop[6] else np.zeros(3 * n))
+    res = SimResult(scenario, controller, rate, t, r, ym, yt, v, ffa, fba,
+                    gains.reshape(n, 3))
+    res.metrics = metrics(res, sc, (p.v_min, p.v_max), analyze_params)
     res.metrics.update({
         'scenario': scenario, 'controller': controller if not sc.open_loop else 'open-loop',
         'plant': plant, 'rate_hz': rate, 'duration_s': n * period, 'seed': int(seed),
@@ -273,30 +348,135 @@ def run(scenario, controller, rate_hz=None, duration_s=None, seed=0, noise=False
     return res
 
 
-def metrics(res, sc, reach):
-    """
-    Return the metrics dict of a run (true displacement against the reference).
+def _run_open_loop(sc, n, period, p, drv):
+    """Run an open-loop drive scenario; return the per-period lists (SI)."""
+    r, ym, yt, v, ffa = [math.nan] * n, [], [], [], []
+    y = p.reset()
+    for k in range(n):
+        tk = k * period
+        ff = sc.drive(tk)
+        vk = drv.command(ff, 0.0, tk)
+        ym.append(y)
+        yt.append(p.x)
+        v.append(vk)
+        ffa.append(ff)
+        y = p.step(vk)
+    return r, ym, yt, v, ffa, [0.0] * n, []
 
-    Step: settling (2 % band), overshoot, 10-90 % rise, and tracking errors over the
-    second half of the run. Sine and triangle: tracking errors after the first period.
-    ``max_voltage_v`` always. Keys that do not apply are None.
+
+def _run_closed_loop(sc, n, period, p, drv, comp, fbc, reach, scale):
     """
-    out = {'settling_time_s': None, 'overshoot_pct': None, 'rise_time_s': None,
-           'rms_error_m': None, 'max_error_m': None,
-           'max_voltage_v': float(np.max(res.v)) if res.v.size else 0.0}
-    if sc.open_loop or res.t.size < 2:
-        return out
-    if sc.name == 'step':
-        out.update({k: val for k, val in step_metrics(res.t, res.y_true, res.r[-1]).items()
-                    if k in ('settling_time_s', 'overshoot_pct', 'rise_time_s')})
-        skip = 0.5 * (res.t[-1] - res.t[0])
-    else:
-        skip = sc.skip_s if res.t[-1] > sc.skip_s else 0.0
-    out.update({k: val for k, val in tracking_metrics(res.t, res.r, res.y_true, skip).items()
-                if k in ('rms_error_m', 'max_error_m')})
-    for k, val in list(out.items()):
-        if isinstance(val, float) and math.isinf(val):
-            out[k] = None if k != 'settling_time_s' else val
+    Run the per-period loop of docs/CONTRACTS.md; return the lists and the counters.
+
+    The hot path of the offline simulation: bound methods and appends in locals, no
+    numpy on scalars; the arithmetic is that of the core objects the ROS nodes call.
+    """
+    ref = sc.reference
+    rs = [ref(k * period) * scale for k in range(n)]
+    clamped = 0
+    for k in range(n):
+        rk = rs[k]
+        if rk > reach:
+            rs[k] = reach
+            clamped += 1
+        elif rk < 0.0:
+            rs[k] = 0.0
+            clamped += 1
+    ym, yt, v, ffa, fba, gains = [], [], [], [], [], []
+    held = 0
+    comp_step = comp.step
+    drv_command = drv.command
+    p_step = p.step
+    ym_add, yt_add, v_add = ym.append, yt.append, v.append
+    ff_add, fb_add, g_add = ffa.append, fba.append, gains.append
+    y = p.reset()
+    if fbc is None:
+        zero = (0.0, 0.0, 0.0)
+        for k in range(n):
+            ff = comp_step(rs[k])
+            vk = drv_command(ff, 0.0, k * period)
+            ym_add(y)
+            yt_add(p.x)
+            v_add(vk)
+            ff_add(ff)
+            fb_add(0.0)
+            g_add(zero)
+            y = p_step(vk)
+        return rs, ym, yt, v, ffa, fba, gains, clamped, held
+    fb_step = fbc.step
+    nan0 = fbc.nan_count
+    for k in range(n):
+        rk = rs[k]
+        ff = comp_step(rk)
+        fb = fb_step(rk, y)
+        vk = drv_command(ff, fb, k * period)
+        ym_add(y)
+        yt_add(p.x)
+        v_add(vk)
+        ff_add(ff)
+        fb_add(fb)
+        g_add(fbc.gains)
+        y = p_step(vk)
+    held = fbc.nan_count - nan0      # periods whose output was held (NaN error)
+    return rs, ym, yt, v, ffa, fba, gains, clamped, held
+
+
+def tracking_skip_s(sc, t):
+    """
+    Return the leading time (s) left out of the tracking metrics of scenario ``sc``.
+
+    Step and staircase: the first half of the run (the settled part is scored); sine and
+    triangle: the first period (``sc.skip_s``) when the run is longer than that.
+    """
+    span = float(t[-1] - t[0]) if t.size else 0.0
+    if sc.name in ('step', 'staircase'):
+        return 0.5 * span
+    return sc.skip_s if span > sc.skip_s else 0.0
+
+
+def metrics(res, sc, v_limits=None, params=None):
+    """
+    Return the metrics dict of a run (SI keys; keys that do not apply are None).
+
+    All from :func:`fiber_align.analysis.report.loop_metrics` with the ``analyze``
+    settings (``step_min_m``, ``settling_band``; default ``config/recorder.yaml``) and
+    the tracking window :func:`tracking_skip_s`:
+
+    * on the measured displacement (what the graph publishes, so a lockstep bag gives
+      the same numbers): ``settling_time_s``, ``overshoot_pct``, ``rise_time_s`` (the
+      worst over the setpoint steps), ``rms_error_m``, ``max_error_m``, ``steps`` (one
+      dict per step), ``max_voltage_v``, ``saturation``, ``tracking_skip_s``;
+    * on the true tip position: ``true_`` + the same scalar keys.
+    """
+    from fiber_align.analysis.report import loop_metrics
+    if params is None:
+        params = cached_params('recorder.yaml', 'analyze')
+    kw = {'step_min_m': float(params.get('step_min_m', 1e-6)),
+          'band': float(params.get('settling_band', 0.02))}
+    skip = tracking_skip_s(sc, res.t) if res.t.size else 0.0
+    out = {'max_voltage_v': float(np.max(res.v)) if res.v.size else 0.0,
+           'tracking_skip_s': skip}
+    for prefix, y in (('', res.y_meas), ('true_', res.y_true)):
+        for k in STEP_KEYS + TRACK_KEYS:
+            out[prefix + k] = None
+        if res.t.size < 2:
+            continue
+        lm = loop_metrics(res.t, res.r, y, res.v if not prefix else None, v_limits,
+                          skip_s=skip, **kw)
+        steps = lm.get('steps', [])
+        for k in STEP_KEYS:
+            vals = [st[k] for st in steps]
+            out[prefix + k] = max(vals) if vals else None
+        tr = lm.get('tracking')
+        if tr:
+            for k in TRACK_KEYS:
+                out[prefix + k] = tr[k]
+        if not prefix:
+            out['steps'] = steps
+            if 'saturation' in lm:
+                out['saturation'] = lm['saturation']
+                out['max_voltage_v'] = lm['saturation'].get('v_max_seen_v',
+                                                            out['max_voltage_v'])
     return out
 
 

@@ -13,6 +13,10 @@ One call of :meth:`SimulatedActuator.step` is one control period ``T`` (s):
    1.4 kHz is close to the control rate);
 5. the sensor adds seeded Gaussian noise (m RMS) and rounds to its resolution (m).
 
+A Prandtl-Ishlinskii law (``dense-pi``, ``paper``) is stepped by a
+:class:`fiber_align.control.playbank.PlayBank` built from it (same output in amortised
+O(1) instead of O(n) per period); other laws by their own ``step``.
+
 The displacement per volt ``alpha`` is the slope of the hysteresis law (``linear`` law:
 ``alpha`` of the design model), the natural frequency ``wn`` comes from the design model
 (:func:`fiber_align.design.dynamics`) unless set. The noise comes from
@@ -21,11 +25,13 @@ deterministic for a seed and the ROS plant node reproduces it sample for sample.
 """
 
 import copy
+import functools
 import math
 
 import numpy as np
 
 from fiber_align.config import ConfigError, load_params
+from fiber_align.control.playbank import PlayBank
 
 CONFIG_FILE = 'plant.yaml'
 CONFIG_NODE = 'simulated_actuator'
@@ -34,8 +40,13 @@ FALLBACK_ALPHA_M_PER_V = 89e-6 / 72.0
 _NOISE_BLOCK = 4096
 
 
+@functools.lru_cache(maxsize=1)
 def design_dynamics():
-    """Return ``(omega_n_rad_s, alpha_m_per_v)`` of the design model (fallback 1.4 kHz)."""
+    """
+    Return ``(omega_n_rad_s, alpha_m_per_v)`` of the design model (fallback 1.4 kHz).
+
+    Computed once per process from ``config/actuator.yaml`` (beam FE model).
+    """
     try:
         from fiber_align.design import dynamics, load_actuator
         d = dynamics(load_actuator('actuator.yaml'))
@@ -48,24 +59,68 @@ def discretise(omega_n, zeta, period_s):
     """
     Return ``(Ad, Bd)`` of the exact ZOH discretisation of the 2nd-order mode.
 
-    State ``[x (m), x' (m/s)]``, input the quasi-static displacement ``h`` (m).
+    State ``[x (m), x' (m/s)]``, input the quasi-static displacement ``h`` (m). The
+    matrix exponential is taken in closed form for ``zeta < 1`` (with
+    ``s = zeta wn``, ``wd = wn sqrt(1 - zeta^2)``, ``E = exp(-s T)``:
+    ``Ad = E [[c + s/wd sn, sn/wd], [-wn^2 sn/wd, c - s/wd sn]]``, ``c = cos(wd T)``,
+    ``sn = sin(wd T)``, and ``Bd = [1 - Ad_11, -Ad_21]``), otherwise numerically.
 
     :param omega_n: natural frequency (rad/s).
     :param zeta: damping ratio (dimensionless).
     :param period_s: sample period (s).
     """
+    ad, bd = _discretise(float(omega_n), float(zeta), float(period_s))
+    return np.array(ad).reshape(2, 2), np.array(bd)
+
+
+@functools.lru_cache(maxsize=64)
+def _discretise(omega_n, zeta, period_s):
+    """Return ``(Ad as 4 floats row-major, Bd as 2 floats)`` (see :func:`discretise`)."""
+    if 0.0 <= zeta < 1.0:
+        s = zeta * omega_n
+        wd = omega_n * math.sqrt(1.0 - zeta * zeta)
+        e = math.exp(-s * period_s)
+        c = math.cos(wd * period_s)
+        sn = math.sin(wd * period_s) / wd
+        a11 = e * (c + s * sn)
+        a12 = e * sn
+        a21 = -omega_n * omega_n * e * sn
+        a22 = e * (c - s * sn)
+        return (a11, a12, a21, a22), (1.0 - a11, -a21)
     from scipy.linalg import expm
     a = np.array([[0.0, 1.0, 0.0],
                   [-omega_n ** 2, -2.0 * zeta * omega_n, omega_n ** 2],
                   [0.0, 0.0, 0.0]])
-    e = expm(a * period_s)
-    return e[:2, :2].copy(), e[:2, 2].copy()
+    m = expm(a * period_s)
+    return tuple(float(x) for x in m[:2, :2].ravel()), tuple(float(x) for x in m[:2, 2])
+
+
+_LAWS = {}
 
 
 def make_law(kind):
-    """Return the plant's hysteresis law for ``kind`` (``default`` = ``dense-pi``)."""
+    """
+    Return a new plant hysteresis law for ``kind`` (``default`` = ``dense-pi``), at rest.
+
+    Built by :func:`fiber_align.hysteresis.truth.make_hysteresis` once per process and
+    kind (and per modification time of its config files); later calls return copies.
+    """
     from fiber_align.hysteresis.truth import make_hysteresis
-    return make_hysteresis('dense-pi' if kind in (None, 'default') else kind)
+    kind = 'dense-pi' if kind in (None, 'default') else kind
+    stamp = []
+    for name in ('plant_hysteresis.yaml', 'hysteresis_paper.yaml', 'actuator.yaml'):
+        try:
+            from fiber_align.config import config_path
+            st = config_path(name).stat()
+            stamp.append((name, st.st_mtime_ns, st.st_size))
+        except (ConfigError, OSError):
+            stamp.append((name, None, None))
+    key = (kind, tuple(stamp))
+    if key not in _LAWS:
+        _LAWS[key] = make_hysteresis(kind)
+    law = copy.deepcopy(_LAWS[key])
+    law.reset()
+    return law
 
 
 class SimulatedActuator:
@@ -73,7 +128,10 @@ class SimulatedActuator:
     The plant: ``step(v)`` applies ``v`` (V) for one period and returns the measurement (m).
 
     :param period_s: control period ``T`` (s).
-    :param hysteresis: law with ``step(u_v) -> m`` and ``reset()``.
+    :param hysteresis: law with ``step(u_v) -> m`` and ``reset()``; a
+        :class:`~fiber_align.hysteresis.pi.PIModel` is stepped through a
+        :class:`~fiber_align.control.playbank.PlayBank` copy (the law object itself is
+        then only reset, not advanced; :attr:`h` is its output).
     :param omega_n_rad_s: natural frequency of the bending mode (rad/s).
     :param damping_ratio: modal damping ratio (dimensionless).
     :param v_min: amplifier lower limit (V).
@@ -115,6 +173,14 @@ class SimulatedActuator:
         ad, bd = discretise(self.omega_n_rad_s, self.damping_ratio, self.period_s)
         self._a = [float(x) for x in ad.ravel()]
         self._b = [float(x) for x in bd]
+        self._c = tuple(self._a + self._b)
+        from fiber_align.hysteresis.pi import PIModel
+        self._bank = None
+        if isinstance(hysteresis, PIModel):
+            try:
+                self._bank = PlayBank.from_model(hysteresis)
+            except ValueError:
+                self._bank = None
         self.reset()
 
     @classmethod
@@ -163,6 +229,11 @@ class SimulatedActuator:
         if seed is not None:
             self.seed = int(seed)
         self.hysteresis.reset()
+        if self._bank is not None:
+            self._bank.reset(self.hysteresis.state)
+            self._law_step = self._bank.step
+        else:
+            self._law_step = self.hysteresis.step
         self._rng = np.random.default_rng(self.seed)
         self._noise = []
         self._noise_i = 0
@@ -219,24 +290,39 @@ class SimulatedActuator:
         previous output.
         """
         v = float(v)
-        if not math.isfinite(v):
-            v = self.v_applied
+        va = self.v_applied
+        if v - v != 0.0:            # NaN or infinite
+            v = va
         if v > self.v_max:
             v = self.v_max
         elif v < self.v_min:
             v = self.v_min
-        dv = v - self.v_applied
-        if dv > self.max_dv:
-            v = self.v_applied + self.max_dv
-        elif dv < -self.max_dv:
-            v = self.v_applied - self.max_dv
+        dv = v - va
+        mdv = self.max_dv
+        if dv > mdv:
+            v = va + mdv
+        elif dv < -mdv:
+            v = va - mdv
         self.v_applied = v
-        h = self.hysteresis.step(v)
-        self.h = h
-        a, b = self._a, self._b
-        x, xd = self.x, self.xd
-        self.x = a[0] * x + a[1] * xd + b[0] * h
-        self.xd = a[2] * x + a[3] * xd + b[1] * h
-        self.k += 1
-        self.y_meas = self._measure()
-        return self.y_meas
+        h = self.h = self._law_step(v)
+        a0, a1, a2, a3, b0, b1 = self._c
+        x = self.x
+        xd = self.xd
+        y = self.x = a0 * x + a1 * xd + b0 * h
+        self.xd = a2 * x + a3 * xd + b1 * h
+        k = self.k = self.k + 1
+        # the sensor, as in _measure
+        if self.noise_rms_m > 0:
+            i = self._noise_i
+            if i >= len(self._noise):
+                self._noise = self._rng.standard_normal(_NOISE_BLOCK).tolist()
+                i = 0
+            y += self.noise_rms_m * self._noise[i]
+            self._noise_i = i + 1
+        res = self.resolution_m
+        if res > 0:
+            y = round(y / res) * res
+        if self.nan_samples and k in self.nan_samples:
+            y = math.nan
+        self.y_meas = y
+        return y
