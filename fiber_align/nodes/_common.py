@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Shared plumbing of the fiber_align nodes: QoS, defaults, parameters, health, setpoints.
+"""
+Shared plumbing of the fiber_align nodes: QoS, defaults, parameters, health, setpoints.
 
 Nothing here computes control: the nodes only turn messages into calls of the pure core
 (:mod:`fiber_align.control`, :mod:`fiber_align.plant`) and back. Units are SI throughout
@@ -38,6 +39,22 @@ CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                        reliability=ReliabilityPolicy.RELIABLE)
 DIAG_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                       reliability=ReliabilityPolicy.RELIABLE)
+#: Realtime subscriptions of the per-sample topics (``displacement``,
+#: ``feedforward_voltage``, ``feedback_voltage``, ``drive_voltage``): only the newest
+#: message matters, so a node that fell behind skips stale samples instead of working
+#: through a backlog. Reliable, so it matches the reliable publishers above.
+REALTIME_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                          reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.VOLATILE)
+#: State topics published on change only (``drive_held``): a late joiner (e.g. a restarted
+#: controller) gets the present state at once.
+LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: ``setpoint`` subscriptions in both modes: deep (every setpoint is checked, so each bad
+#: one is reported), volatile and reliable, so a default rclpy publisher (reliable,
+#: depth 10) matches.
+SETPOINT_QOS = CONTROL_QOS
 
 SYNC_MODES = ('realtime', 'lockstep')
 
@@ -59,7 +76,8 @@ def _section(data, name):
 
 
 def normalize(value):
-    """Return ``value`` with ROS-compatible types: numeric lists become float lists.
+    """
+    Return ``value`` with ROS-compatible types: numeric lists become float lists.
 
     ROS parameters need homogeneous arrays; ``[0, 80.9]`` in a YAML file is made
     ``[0.0, 80.9]`` (recursively through mappings).
@@ -75,7 +93,8 @@ def normalize(value):
 
 
 def node_defaults(node_name, area_files=()):
-    """Return the default parameter mapping of ``node_name``.
+    """
+    Return the default parameter mapping of ``node_name``.
 
     :param node_name: node name as in the params files (no namespace).
     :param area_files: per-area params files (names in ``config/``), read in order.
@@ -106,7 +125,8 @@ def flatten_defaults(defaults, key):
 
 
 def descriptor(description, lo=None, hi=None, read_only=False, step=0.0):
-    """Return a ParameterDescriptor with a floating-point or integer range.
+    """
+    Return a ParameterDescriptor with a floating-point or integer range.
 
     :param description: text, stating the unit.
     :param lo: lower bound (``None``: no range).
@@ -125,7 +145,8 @@ def descriptor(description, lo=None, hi=None, read_only=False, step=0.0):
 
 def declare(node, defaults, name, description, lo=None, hi=None, read_only=False,
             choices=None):
-    """Declare parameter ``name`` with its default from ``defaults``; return its value.
+    """
+    Declare parameter ``name`` with its default from ``defaults``; return its value.
 
     :param choices: for string parameters, the allowed values (checked at start-up and
         by :func:`check_parameters`).
@@ -149,7 +170,8 @@ def declare(node, defaults, name, description, lo=None, hi=None, read_only=False
 
 
 def check_parameters(params, ranges, choices=None):
-    """Check a parameter update against ranges; return a SetParametersResult.
+    """
+    Check a parameter update against ranges; return a SetParametersResult.
 
     :param params: the rclpy Parameters being set.
     :param ranges: name -> (lo, hi) inclusive, SI units.
@@ -173,7 +195,8 @@ def check_parameters(params, ranges, choices=None):
 
 
 def check_setpoint(value, lo, hi):
-    """Return ``None`` when the setpoint ``value`` (m) is usable, else the reason (str).
+    """
+    Return ``None`` when the setpoint ``value`` (m) is usable, else the reason (str).
 
     :param lo: lowest allowed setpoint (m).
     :param hi: highest allowed setpoint (m).
@@ -192,7 +215,8 @@ def check_setpoint(value, lo, hi):
 
 
 class Health:
-    """Publish the node's health on ``/diagnostics`` (diagnostic_msgs/DiagnosticArray).
+    """
+    Publish the node's health on ``/diagnostics`` (diagnostic_msgs/DiagnosticArray).
 
     One DiagnosticStatus named after the node's fully qualified name. ``warn``/``error``
     latch their level for ``hold_s`` seconds (wall time) so a short event is seen by
@@ -262,7 +286,8 @@ def _fmt(v):
 
 
 def report_sent(node, counts):
-    """Print the exit report of published message counts (one JSON line on stdout).
+    """
+    Print the exit report of published message counts (one JSON line on stdout).
 
     :param counts: topic name -> number of messages published.
     """
@@ -284,13 +309,164 @@ def s_to_stamp(t_s):
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
+#: Periods of delay the realtime loop adds to the lockstep loop: the plant latches the
+#: drive at its next tick (``simulated_actuator``), so the command computed from y_k
+#: first acts over [t_k+1, t_k+2] instead of [t_k, t_k+1].
+REALTIME_EXTRA_DELAY_PERIODS = 1
+
+
+def extend_lead(obj, period_s, periods=REALTIME_EXTRA_DELAY_PERIODS):
+    """
+    Lengthen the delay compensation of ``obj`` by the realtime loop's extra delay.
+
+    ``obj`` is a :class:`~fiber_align.control.feedforward.Feedforward` or a
+    :class:`~fiber_align.control.shaping.ReferenceModel`; its ``lead``
+    (:class:`~fiber_align.control.shaping.Lead`, if any) predicts smooth references over
+    the shaper delay plus one period; in realtime the drive acts ``periods`` periods
+    later still, so the horizon grows by ``periods * period_s`` (s). Returns ``obj``.
+    """
+    lead = getattr(obj, 'lead', None) if obj is not None else None
+    if lead is not None:
+        lead.lead_s += periods * float(period_s)
+    return obj
+
+
+#: Realtime: default rate limit (m/s) of the setpoint trajectory (see
+#: :class:`SetpointTrajectory`). Used when the params files do not set
+#: ``realtime_setpoint_rate_m_per_s``; 2 mm/s moves 50 um in 25 ms and leaves the paper's
+#: references (0.75 Hz sine, 1 Hz triangle over 82 um: at most 0.19 mm/s) untouched.
+REALTIME_SETPOINT_RATE_M_PER_S = 2e-3
+#: Realtime: at most this many skipped samples are caught up one by one; a node that
+#: finds a longer gap between the samples it processes (it was stalled for more than
+#: 50 ms at 1 kHz, as long as the driver's default watchdog timeout) cannot know what
+#: the output did meanwhile and restarts at rest at the measured position.
+MAX_CATCH_UP = 50
+
+
+class SetpointTrajectory:
+    """
+    Realtime setpoint trajectory, advanced by sample index (m, m/s, s).
+
+    A rate-limited path from the present value to the latest setpoint: each sample it
+    moves at most ``rate_m_per_s * period_s`` towards the target (a step becomes a ramp;
+    ``rate_m_per_s`` <= 0: no limit). The compensator and the controller run the same
+    trajectory and advance it by the number of sample periods between the stamps of the
+    displacement samples they process (:meth:`periods`), so a node that skipped a sample
+    catches up instead of falling behind the other: their feedforward and reference
+    model stay on one time line. A ramp also keeps each missed cycle of a non-realtime OS
+    a small disturbance; a step through the resonance shaper is a 2-3 sample burst that
+    a missed cycle turns into an unshaped jump (the bending mode has 3 % damping).
+    """
+
+    def __init__(self, period_s, rate_m_per_s):
+        """Store the period (s) and the rate limit (m/s); start at rest at 0 m."""
+        self.period_ns = int(round(float(period_s) * 1e9))
+        rate = float(rate_m_per_s)
+        self.step_m = rate * float(period_s) if rate > 0 and math.isfinite(rate) else math.inf
+        self.value = 0.0
+        self.last_ns = None
+
+    def reset(self, value):
+        """Rest at ``value`` (m)."""
+        self.value = float(value)
+
+    def periods(self, stamp):
+        """Return how many sample periods, at least 1, lie between the last two stamps."""
+        ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+        last, self.last_ns = self.last_ns, ns
+        if last is None:
+            return 1
+        n = int(round((ns - last) / self.period_ns))
+        return n if n >= 1 else 1
+
+    def advance(self, target, n=1):
+        """
+        Advance ``n`` periods towards ``target`` (m); return the values (m).
+
+        One value per period, at most :data:`MAX_CATCH_UP` (the last ones).
+        """
+        out = []
+        v, d = self.value, self.step_m
+        if n > MAX_CATCH_UP:        # a long gap: jump over the first periods at once
+            gap = d * (n - MAX_CATCH_UP)
+            v = min(target, v + gap) if target >= v else max(target, v - gap)
+            n = MAX_CATCH_UP
+        for _ in range(n):
+            if target > v + d:
+                v += d
+            elif target < v - d:
+                v -= d
+            else:
+                v = target
+            out.append(v)
+        self.value = v
+        return out
+
+
+def declare_graph(node, defaults, name, fallback, description, lo=None, hi=None,
+                  read_only=False):
+    """
+    Declare a graph-level parameter whose default may not be in config/ yet; return it.
+
+    The default comes from the params files when they set ``name`` and from
+    ``fallback`` (a documented module constant) otherwise.
+    """
+    d = dict(defaults)
+    d.setdefault(name, fallback)
+    return declare(node, d, name, description, lo, hi, read_only)
+
+
+def sample_qos(lockstep):
+    """
+    Return the subscription QoS of a per-sample topic for the sync mode.
+
+    :param lockstep: True in lockstep (deep queue: index pairing needs every message),
+        False in realtime (newest message only, see :data:`REALTIME_QOS`).
+    """
+    return CONTROL_QOS if lockstep else REALTIME_QOS
+
+
+def spin(node, realtime=False):
+    """
+    Spin ``node`` until the context shuts down (Ctrl-C, SIGTERM, ``rclpy.shutdown``).
+
+    Realtime nodes run on rclpy's C++ ``EventsExecutor`` when this rclpy has it (less
+    overhead per callback than the Python wait-set loop); others use ``rclpy.spin``.
+    The loop wakes at least every 0.1 s (wall) to notice a shutdown.
+
+    :param realtime: choose the events executor when available.
+    """
+    import rclpy
+    executor = None
+    if realtime:
+        try:
+            from rclpy.experimental import EventsExecutor
+            executor = EventsExecutor()
+        except ImportError:
+            executor = None
+    if executor is None:
+        rclpy.spin(node)
+        return
+    executor.add_node(node)
+    try:
+        while executor.context.ok():
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        try:
+            executor.remove_node(node)
+        except Exception:  # noqa: BLE001 - context already shut down
+            pass
+        executor.shutdown(timeout_sec=1.0)
+
+
 def is_param_type_numeric(ptype):
     """Return True for rcl_interfaces double/integer parameter types."""
     return ptype in (ParameterType.PARAMETER_DOUBLE, ParameterType.PARAMETER_INTEGER)
 
 
 def run(node_factory, args=None):
-    """Run one node in the demo_nodes_py idiom; print its sent counts on exit.
+    """
+    Run one node in the demo_nodes_py idiom; print its sent counts on exit.
 
     :param node_factory: callable returning the node (after ``rclpy.init``).
     """

@@ -1,22 +1,47 @@
 # SPDX-License-Identifier: Apache-2.0
-"""``actuator_driver``: a managed (lifecycle) node around :class:`DriverCore`.
+"""
+``actuator_driver``: a managed (lifecycle) node around :class:`DriverCore`.
 
 Topics (relative names, SI units):
 
 - sub ``feedforward_voltage`` (std_msgs/Float64, V) and ``feedback_voltage`` (V).
 - pub ``drive_voltage`` (std_msgs/Float64, V): ``clamp(ff + fb, v_min, v_max)``,
   slew-limited; published only while the node is active (output is 0 V before).
-- srv ``enable`` (std_srvs/SetBool): false ramps the output to the safe voltage (0 V,
+- srv ``~/enable`` (std_srvs/SetBool): false ramps the output to the safe voltage (0 V,
   the switch's light-off state) and keeps it there; true resumes.
 - lifecycle services (``change_state``, ``get_state``, ...) from rclpy.lifecycle.
 
 Pairing: in ``lockstep`` the i-th feedforward is summed with the i-th feedback and the
 command time is ``i / rate_hz`` (the plant's sample time), so the output does not depend
 on message timing. In ``realtime`` each feedback message (one per displacement sample)
-produces one drive with the latest feedforward, and a wall-clock timer at ``rate_hz``
-runs the watchdog: no feedback for ``watchdog_timeout_s`` ramps the output to the safe
-voltage at the slew limit and reports ERROR on ``/diagnostics``. After the ramp ends
-the node stops publishing until input returns.
+produces one drive with the latest feedforward (both subscriptions keep the newest
+message only).
+
+Watchdog (``realtime``; a steady wall-clock timer every ``watchdog_timeout_s`` / 10,
+between one control period and 10 ms): when no ``feedback_voltage`` has arrived for
+``watchdog_timeout_s`` the node ramps the output to ``safe_voltage_v`` at the slew limit,
+publishing the ramp, logs an error and reports ERROR on ``/diagnostics``; once the ramp
+ends it stops publishing (the plant holds the safe voltage). A feedback that arrives
+while the feedforward is stale (no ``feedforward_voltage`` within ``watchdog_timeout_s``,
+e.g. the compensator died) is not used, so a silent compensator trips the watchdog too.
+Recovery rule: once ``feedback_voltage`` arrives again with a fresh feedforward, the
+driver keeps holding for :data:`RECOVERY_S` of uninterrupted fresh input (no gap over
+five periods), so that every node has seen ``drive_held`` true (below) and parked,
+also one that was stalled through the whole trip; the next feedback then ends the trip:
+the output moves from where the ramp left it to ff + fb at the slew limit, ``drive_held``
+turns false and the status returns to OK (``watchdog_count`` keeps the number of
+trips).
+
+``drive_held`` (std_msgs/Bool, reliable, transient local, depth 1; published on change
+only) tells the other nodes whether the output is held instead of following ff + fb:
+true while inactive, disabled (``~/enable`` false) or tripped. While it is true the
+controller (realtime) outputs 0 V with its integral cleared and its reference model at
+rest at the measured position, and the compensator rests at the measured position: no
+integral winds up against an output that cannot move, and after the recovery the first
+commands are bumpless (ff of the present position, fb 0); the two nodes then move the
+actuator back to the setpoint through the shaper. A controller that restarts without a
+setpoint publishes 0 V feedback (see ``fuzzy_pid_controller``), so the drive then
+resumes at the feedforward of the held setpoint.
 
 ``v_max`` is checked at configure time against the field limit of the design model
 (``max_field_v_per_m * piezo_thickness_m`` of ``config/actuator.yaml``).
@@ -29,7 +54,7 @@ import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
-from std_msgs.msg import Float64
+from std_msgs.msg import Bool, Float64
 from std_srvs.srv import SetBool
 
 from fiber_align.config import ConfigError, load_params
@@ -38,6 +63,8 @@ from fiber_align.nodes import _common as c
 
 NODE_NAME = 'actuator_driver'
 AREA_FILES = ('driver.yaml',)
+#: Uninterrupted fresh input (s, wall) the driver waits for before it ends a trip.
+RECOVERY_S = 0.02
 CORE_KEYS = ('v_min', 'v_max', 'slew_rate_v_per_s', 'watchdog_timeout_s', 'safe_voltage_v')
 RANGES = {'v_min': (-200.0, 200.0), 'v_max': (-200.0, 200.0),
           'slew_rate_v_per_s': (-1.0, 1e12), 'watchdog_timeout_s': (0.0, 60.0),
@@ -82,11 +109,18 @@ class ActuatorDriverNode(LifecycleNode):
         self.n_drive = 0
         self.ff_q = []
         self.fb_q = []
+        self._msg = Float64()
         self.ff_latest = 0.0
+        self.t_ff = None                # realtime: wall time (s) of the latest feedforward
         self.i = 0
         self._subs = []
         self._timer = None
         self._srv = None
+        self._t_fresh = None            # realtime: start (s) of fresh input after a trip
+        self._t_fresh_last = 0.0
+        self.held = None                # last value published on drive_held
+        self.pub_held = self.create_publisher(Bool, 'drive_held', c.LATCHED_QOS)
+        self._set_held(True, 'unconfigured')
         self.health = c.Health(self, self.get_parameter('diagnostics_period_s').value)
         self.health.status(c.WARN, 'unconfigured: output 0 V')
         self.field_limit_v = field_limit_v()
@@ -144,22 +178,27 @@ class ActuatorDriverNode(LifecycleNode):
         self.period_s = 1.0 / float(self.get_parameter('rate_hz').value)
         self.lockstep = self.get_parameter('sync_mode').value == 'lockstep'
         self.pub = self.create_publisher(Float64, 'drive_voltage', c.CONTROL_QOS)
+        qos = c.sample_qos(self.lockstep)
         self._subs = [
-            self.create_subscription(Float64, 'feedforward_voltage', self._on_ff,
-                                     c.CONTROL_QOS),
-            self.create_subscription(Float64, 'feedback_voltage', self._on_fb,
-                                     c.CONTROL_QOS)]
+            self.create_subscription(Float64, 'feedforward_voltage', self._on_ff, qos),
+            self.create_subscription(Float64, 'feedback_voltage', self._on_fb, qos)]
         self._srv = self.create_service(SetBool, '~/enable', self._on_enable)
         if not self.lockstep:
-            self._timer = self.create_timer(self.period_s, self._on_tick,
+            self._timer = self.create_timer(self.watchdog_period_s(), self._on_tick,
                                             clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.health.status(c.OK, 'configured (inactive): output 0 V')
         self._update_values()
         return TransitionCallbackReturn.SUCCESS
 
+    def watchdog_period_s(self):
+        """Return the realtime watchdog timer period (s): timeout / 10 in [T, 10 ms]."""
+        t = self.core.timeout / 10.0 if self.core.timeout > 0 else 0.01
+        return max(self.period_s, min(t, 0.01))
+
     def on_activate(self, state):
         """Start publishing drive commands."""
         self.active = True
+        self._set_held(not self.enabled or self.core.tripped, 'activated')
         self.health.status(c.OK, 'active')
         self.get_logger().info('active: %s pairing, %g..%g V'
                                % ('lockstep' if self.lockstep else 'latest',
@@ -171,6 +210,7 @@ class ActuatorDriverNode(LifecycleNode):
         if self.pub is not None and self.core is not None:
             self._publish(self.core.safe)
         self.active = False
+        self._set_held(True, 'deactivated')
         safe = self.core.safe if self.core else 0.0
         self.health.status(c.OK, 'inactive: output %g V' % safe)
         return super().on_deactivate(state)
@@ -201,11 +241,14 @@ class ActuatorDriverNode(LifecycleNode):
             self.pub = None
         self.core = None
         self.active = False
+        self._set_held(True, 'unconfigured')
 
     # -- control --------------------------------------------------------------------
     def _on_enable(self, request, response):
         """Enable (true) or disable (false: ramp to the safe voltage) the output."""
         self.enabled = bool(request.data)
+        self._set_held(not self.enabled or not self.active or (
+            self.core is not None and self.core.tripped), 'enable %s' % self.enabled)
         response.success = True
         response.message = 'output %s' % ('enabled' if self.enabled else
                                           'disabled: ramping to the safe voltage')
@@ -221,13 +264,43 @@ class ActuatorDriverNode(LifecycleNode):
             self._pair()
         else:
             self.ff_latest = msg.data
+            self.t_ff = self._now()
 
     def _on_fb(self, msg):
         if self.lockstep:
             self.fb_q.append(msg.data)
             self._pair()
             return
-        self._command(self.ff_latest, msg.data, self._now())
+        now = self._now()
+        core = self.core
+        if core is not None and core.timeout > 0 and (
+                self.t_ff is None or now - self.t_ff > core.timeout):
+            return      # stale feedforward: leave it to the watchdog (docstring)
+        if core is not None and core.tripped and self.enabled and not self._recovered(now):
+            return      # hold until the input has been fresh for RECOVERY_S (docstring)
+        self._command(self.ff_latest, msg.data, now)
+
+    def _recovered(self, now):
+        """Return True once fresh input has flowed for ``RECOVERY_S`` after a trip."""
+        if self._t_fresh is None or now - self._t_fresh_last > 5.0 * self.period_s:
+            if self._t_fresh is None:
+                self.get_logger().info('input is back: holding %g s before resuming'
+                                       % RECOVERY_S)
+            self._t_fresh = now
+        self._t_fresh_last = now
+        if now - self._t_fresh < RECOVERY_S:
+            return False
+        self._t_fresh = None
+        return True
+
+    def _set_held(self, held, reason):
+        """Publish ``drive_held`` (bool) when it changes; ``reason`` goes to the log."""
+        held = bool(held)
+        if held == self.held:
+            return
+        self.held = held
+        self.pub_held.publish(Bool(data=held))
+        self.get_logger().info('drive_held %s (%s)' % (str(held).lower(), reason))
 
     def _pair(self):
         while self.ff_q and self.fb_q:
@@ -245,8 +318,11 @@ class ActuatorDriverNode(LifecycleNode):
             was_tripped = core.tripped
             v = core.command(ff, fb, t)
             if was_tripped:
+                msg = 'input is back: watchdog cleared after trip %d' % core.watchdog_count
+                self._set_held(not self.active, 'input is back')
                 self.health.status(c.OK, 'active')
-                self.get_logger().info('input is back: watchdog cleared')
+                self.health.set_values(watchdog_count=core.watchdog_count)
+                self.get_logger().info(msg)
         else:
             v = core._limit(core.safe, t)
         if self.active:
@@ -266,19 +342,28 @@ class ActuatorDriverNode(LifecycleNode):
         was_at = core.v
         v = core.tick(t)
         if core.watchdog_count > before:
-            msg = ('no feedback_voltage for %.3g s: ramping to %g V'
-                   % (core.timeout, core.safe))
+            msg = ('watchdog: no fresh feedback_voltage and feedforward_voltage for %.3g s: '
+                   'ramping to %g V' % (core.timeout, core.safe))
             self.get_logger().error(msg)
             self.health.status(c.ERROR, msg)
+            self.health.set_values(watchdog_count=core.watchdog_count)
+            self.health.error(msg)
+            self._set_held(True, 'watchdog')
+            self._t_fresh = None
         if core.tripped and (v != was_at or self._last_pub != v):
             self._publish(v)
-        if self.n_drive and self.n_drive % 500 == 0:
+        self._ticks += 1
+        if self._ticks % 20 == 0:
             self._update_values()
+
+    _ticks = 0
 
     _last_pub = None
 
     def _publish(self, v):
-        self.pub.publish(Float64(data=float(v)))
+        msg = self._msg
+        msg.data = float(v)
+        self.pub.publish(msg)
         self._last_pub = float(v)
         self.n_drive += 1
 
@@ -303,7 +388,7 @@ def main(args=None):
     node = None
     try:
         node = ActuatorDriverNode()
-        rclpy.spin(node)
+        c.spin(node, realtime=node.get_parameter('sync_mode').value == 'realtime')
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

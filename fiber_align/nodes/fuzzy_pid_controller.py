@@ -1,5 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
-"""``fuzzy_pid_controller``: the feedback law of the control core as a ROS 2 node.
+"""
+``fuzzy_pid_controller``: the feedback law of the control core as a ROS 2 node.
 
 Runs once per ``displacement`` sample: ``fb_k = controller.step(r_k, y_k)``, built by
 :func:`fiber_align.control.simulate.build` for the graph's ``controller`` (``composite``
@@ -13,12 +14,54 @@ Topics (relative names, SI units):
 - pub ``controller_state`` (std_msgs/Float64MultiArray): labelled layout, one dimension
   per value: ``error_m``, ``error_rate_m_per_s``, ``kp_v_per_m``, ``ki_v_per_m_s``,
   ``kd_v_s_per_m``, ``output_v``.
-- srv ``reset`` (std_srvs/Trigger): clear the integral and filters.
+- sub ``drive_held`` (std_msgs/Bool, latched; realtime), see below.
+- srv ``~/reset`` (std_srvs/Trigger): clear the integral and filters (realtime: the
+  reference model and the setpoint trajectory restart at rest at the latest
+  measurement).
 
-Pairing: ``lockstep`` pairs the i-th displacement with the i-th setpoint; ``realtime``
-uses the latest valid setpoint (0 m until one arrives). A NaN, infinite or out-of-range
-setpoint is rejected with a logged reason and a WARN on ``/diagnostics``; the last valid
-setpoint is kept (in lockstep it takes the rejected one's place, so pairing holds).
+Pairing: ``lockstep`` pairs the i-th displacement with the i-th setpoint. ``realtime``
+steps once per displacement sample (newest sample only: QoS depth 1):
+
+- **one period of delay**: the plant latches the drive at its next tick (see
+  ``simulated_actuator``), so the realtime loop has one period more delay than lockstep.
+  The composite controller's reference model is fed the setpoint **one sample old**, so
+  that its prediction lines up with the measurement again (fed the latest setpoint, a
+  50 um step overshoots to ~70 um even with perfect timing), and its lead (as the
+  compensator's) predicts one period further. The feedback gains need no change for the
+  delay: the linearised loop with one extra period of delay is stable over the whole
+  gain box the fuzzy layer can reach for plant slopes 0.5-2 alpha (largest pole 0.91,
+  ``test/test_nodes_timing.py``), so one gain set serves both modes.
+- **one time line with the compensator**: the setpoint goes through the realtime
+  setpoint trajectory (:class:`fiber_align.nodes._common.SetpointTrajectory`, a rate
+  limit, ``realtime_setpoint_rate_m_per_s``, 2 mm/s unless the params files set it),
+  advanced by the number of sample periods between the stamps of consecutive samples;
+  for periods whose sample this node skipped the reference model advances alone. On a
+  non-realtime OS a node skips samples and the plant misses cycles; with a step through
+  the 2-3 sample resonance shaper each of those is an unshaped jump into the 3 %-damped
+  mode, and the integral winds up on the mismatch (offline, 20 % skipped and 30 %
+  missed: 50 um steps peak at 68 um on average, 129 um at worst; along the 2 mm/s
+  trajectory 53 um and 63 um). The trajectory leaves the paper's sine and triangle
+  (<= 0.19 mm/s) untouched.
+
+While the newest ``drive_voltage`` (sub, newest only) is more than
+:data:`DRIVE_STALE_PERIODS` periods old, the loop is open (the driver is stalled, or not
+publishing yet): a realtime controller then holds its output and integrates nothing,
+and only its reference model advances.
+
+While the driver reports ``drive_held`` true (output inactive, disabled or tripped by its
+watchdog), a realtime controller outputs 0 V with its integral cleared and its reference
+model and trajectory at rest at the measured position, so nothing winds up against an
+output that cannot move and the loop resumes without a bump. After a gap of more than
+``_common.MAX_CATCH_UP`` sample periods in its input (the node itself was stalled and
+may have missed ``drive_held``) it restarts in the same way.
+
+Setpoints (m) are events (volatile QoS). A realtime controller that has not received a
+valid setpoint since it started outputs 0 V feedback (feedback off: the drive is the
+feedforward alone); with its first setpoint it starts from rest with its reference
+model at the latest measurement, so a restarted controller takes over without a jump.
+A NaN, infinite or out-of-range setpoint is rejected with a logged reason and a WARN on
+``/diagnostics``; the last valid setpoint is kept (in lockstep it takes the rejected
+one's place, so pairing holds).
 
 Every parameter of ``config/controller.yaml`` is a ROS parameter (nested keys become
 dotted names). Gains, scale factors and limits can be changed live; an update that is out
@@ -27,13 +70,14 @@ accepted one keeps the controller's state (integral, filter) so the output does 
 """
 
 import math
+import time
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
+from std_msgs.msg import Bool, Float64, Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import Trigger
 
 from fiber_align.config import ConfigError, flatten
@@ -42,14 +86,19 @@ from fiber_align.nodes import _common as c
 NODE_NAME = 'fuzzy_pid_controller'
 AREA_FILES = ('controller.yaml',)
 MODES = ('composite', 'composite-pid', 'fuzzy', 'pid', 'feedforward', 'open-loop')
+#: Realtime: the controller holds its output while the newest ``drive_voltage`` is older
+#: than this many periods (the loop is open: nothing may wind up).
+DRIVE_STALE_PERIODS = 3
 STATE_LABELS = ('error_m', 'error_rate_m_per_s', 'kp_v_per_m', 'ki_v_per_m_s',
                 'kd_v_s_per_m', 'output_v')
 GRAPH_KEYS = ('controller', 'sync_mode', 'rate_hz', 'diagnostics_period_s', 'setpoint_min_m',
-              'setpoint_max_m')
-#: Live-update rules by the last part of a parameter name: (lo, hi) for every value.
+              'setpoint_max_m', 'realtime_setpoint_rate_m_per_s')
+#: Live-update rules by the last part of a parameter name: (lo, hi) for every value, SI.
+#: kp may be negative (the tuned 1 kHz loop uses kp = -0.1 / alpha, docs/control.md);
+#: ki and kd may not (a negative integral or derivative gain destabilises the loop).
 VALUE_RANGES = {
-    'kp0': (0.0, 1e12), 'ki0': (0.0, 1e15), 'kd0': (0.0, 1e9),
-    'kp': (0.0, 1e12), 'ki': (0.0, 1e15), 'kd': (0.0, 1e9),
+    'kp0': (-1e12, 1e12), 'ki0': (0.0, 1e15), 'kd0': (0.0, 1e9),
+    'kp': (-1e12, 1e12), 'ki': (0.0, 1e15), 'kd': (0.0, 1e9),
     'kp_unit': (0.0, 1e12), 'ki_unit': (0.0, 1e15), 'kd_unit': (0.0, 1e9),
     'e_scale_per_m': (1e-3, 1e12), 'ec_scale_s_per_m': (1e-6, 1e9),
     'output_scale': (0.0, 10.0), 'derivative_filter_hz': (0.0, 1e6),
@@ -71,7 +120,8 @@ def unflatten(flat):
 
 
 def make_controller(controller, params, rate_hz):
-    """Build the feedback law exactly as the offline simulation does.
+    """
+    Build the feedback law exactly as the offline simulation does.
 
     :param controller: a controller name of ``fiber-align simulate`` (composite,
         composite-pid, fuzzy, pid, feedforward, open-loop); the last two have no feedback.
@@ -125,6 +175,11 @@ class FuzzyPidControllerNode(Node):
                                -1e-3, 1e-3)
         self.sp_hi = c.declare(self, d, 'setpoint_max_m', 'highest accepted setpoint (m)',
                                -1e-3, 1e-3)
+        rate = c.declare_graph(self, d, 'realtime_setpoint_rate_m_per_s',
+                               c.REALTIME_SETPOINT_RATE_M_PER_S,
+                               'realtime: rate limit of the setpoint trajectory (m/s); '
+                               '<= 0: none', -1.0, 10.0, True)
+        self.traj = c.SetpointTrajectory(1.0 / self.rate_hz, rate)
         core = {k: v for k, v in d.items() if k not in GRAPH_KEYS}
         self.core_names = []
         for name, value in flatten(core).items():
@@ -134,29 +189,51 @@ class FuzzyPidControllerNode(Node):
             c.declare(self, {name: value}, name, 'controller parameter (SI, see '
                       'controller.yaml)', lo if scalar else None, hi if scalar else None)
             self.core_names.append(name)
-        self.ctl = make_controller(self.mode, self._core_params(), self.rate_hz)
+        self.ctl = self._make(self.mode, self._core_params())
         self.add_on_set_parameters_callback(self._on_set)
 
         self.pub_fb = self.create_publisher(Float64, 'feedback_voltage', c.CONTROL_QOS)
         self.pub_state = self.create_publisher(Float64MultiArray, 'controller_state',
                                                c.CONTROL_QOS)
-        self.create_subscription(JointState, 'displacement', self._on_disp, c.CONTROL_QOS)
-        self.create_subscription(Float64, 'setpoint', self._on_setpoint, c.CONTROL_QOS)
+        self._fb_msg = Float64()
+        self._state_msg = Float64MultiArray()
+        self._state_msg.layout.dim = [MultiArrayDimension(label=lab, size=1, stride=1)
+                                      for lab in STATE_LABELS]
+        self.create_subscription(JointState, 'displacement', self._on_disp,
+                                 c.sample_qos(self.lockstep))
+        self.create_subscription(Float64, 'setpoint', self._on_setpoint, c.SETPOINT_QOS)
+        self.held = False               # realtime: the driver holds its output
+        self.t_drive = None             # realtime: wall time (s) of the newest drive
+        if not self.lockstep:
+            self.create_subscription(Bool, 'drive_held', self._on_held, c.LATCHED_QOS)
+            self.create_subscription(Float64, 'drive_voltage', self._on_drive,
+                                     c.REALTIME_QOS)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.health = c.Health(self, diag)
         self.r = 0.0
+        self.r_prev = 0.0               # realtime: latest setpoint at the previous sample
+        self.has_setpoint = False       # realtime: feedback off until the first setpoint
+        self.y_latest = 0.0
         self.sp_q = []
         self.y_q = []
         self.n_fb = 0
         self.n_state = 0
         self.rejected = 0
         self.n_y = 0
-        self.health.status(c.OK, 'running (%s)' % self.mode)
+        self.health.status(c.OK, 'running (%s)' % self.mode if self.lockstep else
+                           'waiting for a setpoint: feedback off (%s)' % self.mode)
         self.get_logger().info('controller ready: mode %s at %g Hz, %s pairing'
                                % (self.mode, self.rate_hz,
                                   'index' if self.lockstep else 'latest-setpoint'))
 
     # -- parameters -----------------------------------------------------------------
+    def _make(self, mode, params):
+        """Build the feedback law; realtime: its reference model's lead covers one more T."""
+        ctl = make_controller(mode, params, self.rate_hz)
+        if ctl is not None and not self.lockstep:
+            c.extend_lead(getattr(ctl, 'reference_filter', None), 1.0 / self.rate_hz)
+        return ctl
+
     def _core_params(self, changes=None):
         flat = {n: self.get_parameter(n).value for n in self.core_names}
         flat.update(changes or {})
@@ -189,7 +266,7 @@ class FuzzyPidControllerNode(Node):
                     self.sp_hi = float(p.value)
             return SetParametersResult(successful=True)
         try:
-            new = make_controller(mode, self._core_params(changes), self.rate_hz)
+            new = self._make(mode, self._core_params(changes))
         except (ConfigError, ValueError, KeyError, TypeError) as exc:
             return SetParametersResult(successful=False, reason='rejected: %s' % exc)
         if new is not None and self.ctl is not None and mode == self.mode:
@@ -214,11 +291,30 @@ class FuzzyPidControllerNode(Node):
         """Clear the controller's integral and filters."""
         if self.ctl is not None:
             self.ctl.reset()
+            if not self.lockstep:
+                self._park()
         response.success = True
         response.message = 'controller reset'
         return response
 
+    def _park(self):
+        """Realtime: rest at the latest measured position (reference model, trajectory)."""
+        y = self.y_latest
+        y = max(0.0, float(y)) if math.isfinite(y) else 0.0
+        self.traj.reset(y)
+        self.r_prev = y         # the setpoint one sample old
+        rf = getattr(self.ctl, 'reference_filter', None)
+        if rf is None:
+            return
+        rf.reset()
+        if rf.shaper is not None:
+            rf.shaper.reset(y)
+        if rf.lead is not None:
+            rf.lead.reset(y)
+        rf.x, rf.xd = y, 0.0
+
     def _valid(self, value):
+        """Return ``value`` as a float (m), or ``None`` after reporting why it is rejected."""
         why = c.check_setpoint(value, self.sp_lo, self.sp_hi)
         if why is None:
             return float(value)
@@ -226,15 +322,36 @@ class FuzzyPidControllerNode(Node):
         msg = 'rejected %s; holding %.6g m' % (why, self.r)
         self.get_logger().warn(msg)
         self.health.warn(msg)
-        self.health.set_values(rejected_setpoints=self.rejected)
-        return self.r
+        self.health.set_values(rejected_setpoints=self.rejected, setpoint_m=self.r)
+        return None
 
     def _on_setpoint(self, msg):
         r = self._valid(msg.data)
-        self.r = r
         if self.lockstep:
-            self.sp_q.append(r)
+            self.r = self.r if r is None else r
+            self.sp_q.append(self.r)
             self._pair()
+        elif r is not None:
+            if not self.has_setpoint:
+                # first setpoint of this controller: start from rest at the present
+                # position, which is also the "setpoint one sample old"
+                self.has_setpoint = True
+                if self.ctl is not None:
+                    self.ctl.reset()
+                self._park()
+                self.health.status(c.OK, 'running (%s)' % self.mode)
+            self.r = r
+
+    def _on_held(self, msg):
+        """Realtime: the driver holds (true) or passes (false) its output."""
+        held = bool(msg.data)
+        if held and not self.held and self.ctl is not None:
+            self.ctl.reset()            # nothing may wind up while the output is held
+        self.held = held
+
+    def _on_drive(self, msg):
+        """Realtime: note when the newest drive command arrived (wall time)."""
+        self.t_drive = time.monotonic()
 
     def _on_disp(self, msg):
         y = msg.position[0] if len(msg.position) else math.nan
@@ -242,8 +359,40 @@ class FuzzyPidControllerNode(Node):
         if self.lockstep:
             self.y_q.append(y)
             self._pair()
-        else:
-            self._step(self.r, y)
+            return
+        self.y_latest = y
+        n = self.traj.periods(msg.header.stamp)
+        if n > c.MAX_CATCH_UP and self.ctl is not None:
+            self.ctl.reset()            # stalled: the integral is stale (docstring)
+            self._park()
+            n = 1
+        if self.held or not self.has_setpoint:
+            if self.held:
+                # park at the present position (integral already cleared): after the
+                # driver resumes, trajectory and reference model start from here
+                self._park()
+            self._publish(0.0, math.nan, 0.0, (0.0, 0.0, 0.0))
+            return
+        # realtime: the trajectory's value one sample old for each period since the last
+        # sample (one period of delay, see the docstring); periods whose sample this node
+        # skipped advance the reference model only
+        seq = [self.r_prev] + self.traj.advance(self.r, n)
+        self.r_prev = seq[-1]
+        rf = getattr(self.ctl, 'reference_filter', None)
+        t_drive = self.t_drive
+        if t_drive is None or time.monotonic() - t_drive > DRIVE_STALE_PERIODS / self.rate_hz:
+            # no fresh drive: the loop is open (driver stalled or not publishing): hold
+            # the output, keep the reference model on the time line, integrate nothing
+            if rf is not None:
+                for r in seq[:-1]:
+                    rf.step(r)
+            u = self.ctl.u if self.ctl is not None else 0.0
+            self._publish(u, math.nan, 0.0, getattr(self.ctl, 'gains', (0.0, 0.0, 0.0)))
+            return
+        if rf is not None:
+            for r in seq[:-2]:
+                rf.step(r)
+        self._step(seq[-2], y)
 
     def _pair(self):
         while self.sp_q and self.y_q:
@@ -257,11 +406,15 @@ class FuzzyPidControllerNode(Node):
             e = r - y
             de = self.ctl.pid.deriv
             gains = self.ctl.gains
-        self.pub_fb.publish(Float64(data=float(fb)))
+        self._publish(fb, e, de, gains)
+
+    def _publish(self, fb, e, de, gains):
+        """Publish the feedback (V) and the controller state (SI)."""
+        msg = self._fb_msg
+        msg.data = float(fb)
+        self.pub_fb.publish(msg)
         self.n_fb += 1
-        st = Float64MultiArray()
-        st.layout.dim = [MultiArrayDimension(label=lab, size=1, stride=1)
-                         for lab in STATE_LABELS]
+        st = self._state_msg
         st.data = [float(e), float(de), float(gains[0]), float(gains[1]), float(gains[2]),
                    float(fb)]
         self.pub_state.publish(st)
@@ -283,7 +436,7 @@ def main(args=None):
     node = None
     try:
         node = FuzzyPidControllerNode()
-        rclpy.spin(node)
+        c.spin(node, realtime=not node.lockstep)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

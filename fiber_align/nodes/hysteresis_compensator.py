@@ -1,28 +1,58 @@
 # SPDX-License-Identifier: Apache-2.0
-"""``hysteresis_compensator``: the feedforward (inverse PI model) as a ROS 2 node.
+"""
+``hysteresis_compensator``: the feedforward (inverse PI model) as a ROS 2 node.
 
-One ``feedforward_voltage`` (std_msgs/Float64, V) per ``setpoint`` (std_msgs/Float64, m):
-``ff = Feedforward.step(r)`` of :mod:`fiber_align.control.feedforward`, the exact inverse
-of the Prandtl-Ishlinskii model, after the optional resonance-suppression shaper
+``ff = Feedforward.step(r)`` (V from m) of :mod:`fiber_align.control.feedforward`, the
+exact inverse of the Prandtl-Ishlinskii model, after the optional resonance-suppression shaper
 (``shaping``: none | zv | zvd, :mod:`fiber_align.control.shaping`), built by
 :func:`fiber_align.control.simulate.build` for the graph's ``controller`` so that it is
 exactly the offline loop's feedforward (``fuzzy``/``pid``: 0 V; ``open-loop``: linear).
 
+When it steps (the shaper and the inverse model advance once per step, so they must
+step once per control period):
+
+- ``lockstep``: one ``feedforward_voltage`` (std_msgs/Float64, V) per ``setpoint``
+  (std_msgs/Float64, m), so index pairing holds (the setpoint source publishes one
+  setpoint per sample);
+- ``realtime``: one ``feedforward_voltage`` per ``displacement`` sample (sensor_msgs/
+  JointState, newest only; its stamp counts the sample periods), towards the latest
+  valid setpoint along the realtime setpoint trajectory
+  (:class:`fiber_align.nodes._common.SetpointTrajectory`: rate limit
+  ``realtime_setpoint_rate_m_per_s``, 2 mm/s unless the params files set it), stepped
+  once per sample period, also for periods whose sample this node skipped. The
+  controller runs the same trajectory, so both stay on one time line. A setpoint alone
+  publishes nothing: a single setpoint from an outside client is thus followed over the
+  next samples instead of stopping at the shaper's first tap. The delay compensation
+  (``delay_compensation``: a lead over the shaper delay plus one period) predicts one
+  period further, the extra delay of the realtime loop (``simulated_actuator``).
+
 Parameters: the model (``thresholds_v``, ``weights_m_per_v``) inline or in
 ``model_file`` (a params file written by ``PIModel.save``), the shaping, and
-``controller`` (graph-wide, see above). Service ``reload_model`` (std_srvs/Trigger)
-reads the model again (e.g. after ``fiber-align identify`` wrote a new file); it keeps the
-old model when the new one cannot be loaded or inverted.
+``controller`` (graph-wide, see above). Services (std_srvs/Trigger): ``~/reload_model``
+reads the model again (e.g. after ``fiber-align identify`` wrote a new file), keeping the
+old model when the new one cannot be loaded or inverted; ``~/reset`` restarts the
+feedforward at rest at the present position (realtime: the latest measurement; lockstep:
+the held setpoint), so that it moves to the held setpoint through the shaper again.
+While the driver reports ``drive_held`` true (std_msgs/Bool, latched; realtime), and
+after a gap of more than ``_common.MAX_CATCH_UP`` sample periods in its input (it was
+stalled and may have missed ``drive_held``), the compensator rests at the measured
+position in the same way, so that when
+the driver resumes the drive returns to the setpoint through the shaper instead of as a
+jump that rings the bending mode.
 
-A NaN, infinite or out-of-range setpoint is rejected with a logged reason and a WARN on
-``/diagnostics``; the last valid setpoint is used in its place, so exactly one output is
-published per input (lockstep pairing holds) and the actuator stays where it was.
+A NaN, infinite or out-of-range setpoint (outside ``[setpoint_min_m, setpoint_max_m]``)
+is rejected with a logged reason and a WARN on ``/diagnostics``; the last valid setpoint
+is used in its place (in lockstep exactly one output is still published per input, so
+pairing holds) and the actuator stays where it was.
 """
+
+import math
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from std_msgs.msg import Float64
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool, Float64
 from std_srvs.srv import Trigger
 
 from fiber_align.config import ConfigError
@@ -54,6 +84,11 @@ class HysteresisCompensatorNode(Node):
                                -1e-3, 1e-3, True)
         c.declare(self, d, 'controller', 'control law (as in fiber-align simulate)',
                   read_only=True, choices=CONTROLLERS)
+        rate = c.declare_graph(self, d, 'realtime_setpoint_rate_m_per_s',
+                               c.REALTIME_SETPOINT_RATE_M_PER_S,
+                               'realtime: rate limit of the setpoint trajectory (m/s); '
+                               '<= 0: none', -1.0, 10.0, True)
+        self.traj = c.SetpointTrajectory(1.0 / self.rate_hz, rate)
         self.comp_defaults = {k: v for k, v in d.items()}
         c.declare(self, d, 'model_file', 'PI model params file; empty: the inline model')
         c.declare(self, d, 'model_source', 'where the inline model comes from')
@@ -68,10 +103,18 @@ class HysteresisCompensatorNode(Node):
         c.declare(self, d, 'open_loop_gain_v_per_m', 'linear feedforward gain (V/m)', 0.0,
                   1e9, True)
         self.pub = self.create_publisher(Float64, 'feedforward_voltage', c.CONTROL_QOS)
-        self.create_subscription(Float64, 'setpoint', self._on_setpoint, c.CONTROL_QOS)
+        self._msg = Float64()
+        self.create_subscription(Float64, 'setpoint', self._on_setpoint, c.SETPOINT_QOS)
+        self.held = False               # realtime: the driver holds its output
+        if not self.lockstep:
+            self.create_subscription(JointState, 'displacement', self._on_sample,
+                                     c.REALTIME_QOS)
+            self.create_subscription(Bool, 'drive_held', self._on_held, c.LATCHED_QOS)
         self.create_service(Trigger, '~/reload_model', self._on_reload)
+        self.create_service(Trigger, '~/reset', self._on_reset)
         self.health = c.Health(self, diag)
         self.r = 0.0
+        self.y_latest = 0.0
         self.n_ff = 0
         self.rejected = 0
         self.ff = self.build()
@@ -98,8 +141,11 @@ class HysteresisCompensatorNode(Node):
         comp.update({k: self.get_parameter(k).value for k in
                      ('shaping', 'shaping_omega_n_rad_s', 'shaping_damping_ratio',
                       'open_loop_gain_v_per_m')})
-        return build(self.get_parameter('controller').value, self.rate_hz, None,
-                     model=self.load_model(), comp_params=comp)[0]
+        ff = build(self.get_parameter('controller').value, self.rate_hz, None,
+                   model=self.load_model(), comp_params=comp)[0]
+        if not self.lockstep:
+            c.extend_lead(ff, 1.0 / self.rate_hz)    # the realtime loop's extra period
+        return ff
 
     def _on_reload(self, request, response):
         """Reload the model; keep the old one if the new one fails."""
@@ -111,7 +157,7 @@ class HysteresisCompensatorNode(Node):
             self.get_logger().error(response.message)
             self.health.warn(response.message)
             return response
-        ff.step(self.r)   # start the new inverse at the present setpoint
+        ff.start_at(self.r)   # the new inverse settled at the present setpoint
         self.ff = ff
         response.success = True
         response.message = 'model reloaded from %s' % self.model_name()
@@ -127,12 +173,61 @@ class HysteresisCompensatorNode(Node):
             text = 'rejected %s; holding %.6g m' % (why, self.r)
             self.get_logger().warn(text)
             self.health.warn(text)
-        self.pub.publish(Float64(data=float(self.ff.step(self.r))))
+            self._update_values()
+        if self.lockstep:
+            self._publish(self.ff.step(self.r))
+
+    def _on_sample(self, msg):
+        """Realtime: step the feedforward through every sample period since the last one."""
+        if len(msg.position):
+            self.y_latest = msg.position[0]
+        n = self.traj.periods(msg.header.stamp)
+        if self.held or n > c.MAX_CATCH_UP:
+            # the driver holds its output (or this node was stalled and cannot know):
+            # rest at the present position, so that after the resume the feedforward
+            # returns to the setpoint along the trajectory
+            y = self._present()
+            self.traj.reset(y)
+            self._publish(self.ff.start_at(y))
+            return
+        v = 0.0
+        for r in self.traj.advance(self.r, n):
+            v = self.ff.step(r)
+        self._publish(v)
+
+    def _present(self):
+        """Return the latest measured position (m), at least 0 m."""
+        y = self.y_latest
+        return max(0.0, float(y)) if math.isfinite(y) else 0.0
+
+    def _on_held(self, msg):
+        """Realtime: the driver holds (true) or passes (false) its output."""
+        self.held = bool(msg.data)
+
+    def _on_reset(self, request, response):
+        """Restart the feedforward at rest at the present position (m)."""
+        y = max(0.0, self.r) if self.lockstep else self._present()
+        self.ff.start_at(y)
+        self.traj.reset(y)
+        response.success = True
+        response.message = 'feedforward restarted at %.6g m' % y
+        self.get_logger().info(response.message)
+        return response
+
+    def _publish(self, v):
+        """Publish the feedforward voltage ``v`` (V)."""
+        msg = self._msg
+        msg.data = float(v)
+        self.pub.publish(msg)
         self.n_ff += 1
-        if self.n_ff % 500 == 0 or why is not None:
-            self.health.set_values(**{'sent.feedforward_voltage': self.n_ff,
-                                      'rejected_setpoints': self.rejected,
-                                      'setpoint_m': self.r})
+        if self.n_ff % 500 == 0:
+            self._update_values()
+
+    def _update_values(self):
+        """Report counts and the held setpoint (m) on ``/diagnostics``."""
+        self.health.set_values(**{'sent.feedforward_voltage': self.n_ff,
+                                  'rejected_setpoints': self.rejected,
+                                  'setpoint_m': self.r})
 
     def sent_counts(self):
         """Return published message counts per topic."""
@@ -145,7 +240,7 @@ def main(args=None):
     node = None
     try:
         node = HysteresisCompensatorNode()
-        rclpy.spin(node)
+        c.spin(node, realtime=not node.lockstep)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

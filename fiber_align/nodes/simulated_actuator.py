@@ -1,30 +1,50 @@
 # SPDX-License-Identifier: Apache-2.0
-"""``simulated_actuator``: the plant and sensor of the control core as a ROS 2 node.
+"""
+``simulated_actuator``: the plant and sensor of the control core as a ROS 2 node.
 
 Wraps :class:`fiber_align.plant.actuator.SimulatedActuator` (one ``step(v)`` = one control
 period). Topics (relative names, SI units):
 
-- sub ``drive_voltage`` (std_msgs/Float64, V): the amplifier input, held for one period.
+- sub ``drive_voltage`` (std_msgs/Float64, V): the amplifier input, held for one period
+  (QoS: reliable, deep in lockstep; newest only in realtime).
 - pub ``displacement`` (sensor_msgs/JointState, joint ``bimorph_tip``): position = the
   sensor reading (m), velocity = the model's tip velocity (m/s); header stamp = the sample
   time t_k (sim time in lockstep, wall time in realtime).
 - pub ``optical_power`` (std_msgs/Float64, W): coupled power at the detector, when the
   optics model (:mod:`fiber_align.plant.optics`) is installed.
 - pub ``/clock`` (rosgraph_msgs/Clock) in lockstep mode.
-- srv ``run`` (std_srvs/SetBool): start (true) or hold (false) the sample clock.
+- srv ``~/run`` (std_srvs/SetBool): start (true) or hold (false) the sample clock; a held
+  plant is frozen (realtime: the clock restarts on the next run).
 
-Modes (parameter ``sync_mode``): ``realtime`` publishes a sample on a wall-clock timer at
-``rate_hz``; the first drive that arrives after a sample is applied at once for the rest
-of that period (the plant advances then, as in the offline loop); when none arrives
-before the next tick the plant advances with the held drive (zero-order hold) and the
-period counts as missed; ``lockstep`` publishes sample k with
-``/clock`` = k T and advances to k + 1 only when the drive for sample k has arrived; if it
-does not arrive within ``lockstep_timeout_s`` (wall time) it warns and keeps holding.
+Modes (parameter ``sync_mode``):
+
+- ``lockstep`` publishes sample k with ``/clock`` = k T and advances to k + 1 only when
+  the drive for sample k has arrived; if it does not arrive within ``lockstep_timeout_s``
+  (wall time) it warns and keeps holding. The drive computed from y_k is applied over
+  [t_k, t_k+1]: exactly the offline loop of docs/CONTRACTS.md.
+- ``realtime`` runs a sample clock on the steady wall clock at ``rate_hz``, like a DAC and
+  an ADC clocked by one sample clock. At tick k (time t_k) the node
+
+  1. advances the plant over [t_k-1, t_k] with the drive latched at tick k-1 and
+     publishes the measurement y_k (stamp: the nominal time t_k = t_0 + k T on the
+     system clock, so stamps count sample periods exactly);
+  2. latches the newest drive received since then; it is held over [t_k, t_k+1].
+
+  The command computed from y_k arrives some 0.1-1 ms after t_k, is latched at t_k+1
+  and first shows in y_k+2: the realtime loop has exactly **one period more delay than
+  lockstep**, whatever the message latency is, as long as it is below one period. The
+  controller accounts for this delay (``fuzzy_pid_controller``). A tick at which no drive
+  has arrived since the previous tick is a **missed cycle**: the previous drive is held
+  again (zero-order hold). A tick that comes more than one period late advances the plant
+  by every elapsed period (the simulated plant keeps wall time) and counts the periods
+  it skipped as missed too.
 
 In realtime mode the node measures the loop latency: for each sample, the wall time from
-publishing the displacement to the arrival of the first drive command after it, and
-counts missed cycles (periods in which no drive arrived, plus timer ticks skipped).
-The statistics are on ``/diagnostics``.
+publishing the displacement to the arrival of the first drive command after it (the
+definition ``fiber-align analyze`` uses for sensor-to-command latency); with no missed
+cycle that drive is the one computed from the sample. Latency percentiles and the share
+of missed cycles are on ``/diagnostics`` (``latency_p50_s``, ``latency_p99_s``,
+``latency_max_s``, ``missed_share``) and in :meth:`SimulatedActuatorNode.latency_stats`.
 """
 
 import time
@@ -47,12 +67,13 @@ AREA_FILES = ('plant.yaml', 'optics.yaml')
 JOINT_NAME = 'bimorph_tip'
 PLANT_KEYS = ('rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min', 'v_max',
               'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m', 'seed')
-LATENCY_BUFFER = 200_000
-WARMUP_SAMPLES = 1000  # realtime: drives before latency statistics start
+LATENCY_BUFFER = 200_000   # realtime: latencies kept (200 s at 1 kHz), then not recorded
+WARMUP_SAMPLES = 1000      # realtime: samples before the statistics start (1 s at 1 kHz)
 
 
 def make_optics(params, seed):
-    """Return the optical link (coupling + detector), or ``None`` without the optics model.
+    """
+    Return the optical link (coupling + detector), or ``None`` without the optics model.
 
     :param params: the node's ``optics.*`` parameters (ROS dotted names, SI units).
     :param seed: detector noise seed.
@@ -113,7 +134,10 @@ class SimulatedActuatorNode(Node):
         self.pub_clock = None
         if self.sync_mode == 'lockstep':
             self.pub_clock = self.create_publisher(ClockMsg, '/clock', c.CLOCK_QOS)
-        self.create_subscription(Float64, 'drive_voltage', self._on_drive, c.CONTROL_QOS)
+        self._js = JointState(name=[JOINT_NAME], position=[0.0], velocity=[0.0])
+        self._power = Float64()
+        self.create_subscription(Float64, 'drive_voltage', self._on_drive,
+                                 c.sample_qos(self.sync_mode == 'lockstep'))
         self.create_service(SetBool, '~/run', self._on_run)
         self.health = c.Health(self, diag_period)
 
@@ -128,23 +152,24 @@ class SimulatedActuatorNode(Node):
         self.pending = []               # lockstep: drives not yet applied
         self.wait_since = None
         self.holds = 0
-        # realtime latency bookkeeping (perf_counter seconds)
+        # realtime: sample clock and latency bookkeeping (perf_counter seconds)
+        self.u_latched = 0.0            # drive held over the present period (V)
+        self.period_ns = int(round(self.period_s * 1e9))
+        self.wall0_ns = 0               # system time (ns) of the nominal tick 0
+        self.m0 = None                  # scheduled time (s) of the first tick
+        self.drives_in_period = 0
         self.t_pub = None
         self.drive_seen = True
-        self.stepped = False
         self.lat = np.empty(LATENCY_BUFFER)
-        self.n_lat = 0
-        self.missed = 0
-        self.skipped = 0
-        self.t0_rt = None
-        self.ticks = 0
+        self.reset_stats()
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         if self.sync_mode == 'realtime':
             self.timer = self.create_timer(self.period_s, self._on_tick, clock=steady)
+            self.create_timer(diag_period, self._update_values, clock=steady)
         else:
             self.timer = self.create_timer(min(0.1, self.timeout_s / 2), self._on_watch,
                                            clock=steady)
-        self.create_timer(0.05, self._maybe_autostart, clock=steady)
+        self._autostart_timer = self.create_timer(0.05, self._maybe_autostart, clock=steady)
         self.health.status(0, 'ready, waiting for run' if not self.autostart else 'ready')
         self.get_logger().info('plant ready: %s mode at %g Hz, optics %s'
                                % (self.sync_mode, self.rate_hz,
@@ -175,6 +200,7 @@ class SimulatedActuatorNode(Node):
             response.message = 'running'
         else:
             self.running = False
+            self.m0 = None
             self.health.status(0, 'held at sample %d' % self.k)
             response.message = 'held at sample %d' % self.k
         response.success = True
@@ -183,6 +209,7 @@ class SimulatedActuatorNode(Node):
     def _start(self):
         if self.running:
             return
+        self._autostart_timer.cancel()
         self.running = True
         self.health.status(0, 'running')
         if not self.started:
@@ -197,41 +224,47 @@ class SimulatedActuatorNode(Node):
 
     # -- publishing -----------------------------------------------------------------
     def _publish_sample(self, t_s):
-        """Publish /clock (lockstep), displacement and optical power for sample ``self.k``."""
-        stamp = c.s_to_stamp(t_s) if self.sync_mode == 'lockstep' else \
-            self.get_clock().now().to_msg()
+        """
+        Publish /clock (lockstep), displacement and optical power for sample ``self.k``.
+
+        :param t_s: lockstep sample time (s); realtime stamps with the nominal time of
+            the tick on the system clock (the ROS clock of a realtime graph), so that the
+            stamps of samples k and j differ by exactly (k - j) periods.
+        """
+        js = self._js
+        stamp = js.header.stamp
+        if self.sync_mode == 'lockstep':
+            ns = int(round(t_s * 1e9))
+        else:
+            ns = self.wall0_ns + self.k * self.period_ns
+        stamp.sec, stamp.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
         if self.pub_clock is not None:
             self.pub_clock.publish(ClockMsg(clock=stamp))
             self.n_clock += 1
-        js = JointState()
-        js.header.stamp = stamp
-        js.name = [JOINT_NAME]
-        js.position = [float(self.plant.y_meas)]
-        js.velocity = [float(self.plant.velocity_m_per_s)]
+        plant = self.plant
+        js.position[0] = float(plant.y_meas)
+        js.velocity[0] = float(plant.velocity_m_per_s)
         self.pub_disp.publish(js)
         self.n_disp += 1
         if self.optics is not None:
-            p_w = self.optics.measure(self.k * self.period_s, self.plant.position_m,
-                                      self.period_s)
-            self.pub_power.publish(Float64(data=float(p_w)))
+            msg = self._power
+            msg.data = float(self.optics.measure(self.k * self.period_s, plant.position_m,
+                                                 self.period_s))
+            self.pub_power.publish(msg)
             self.n_power += 1
 
     # -- drive ----------------------------------------------------------------------
     def _on_drive(self, msg):
-        """Take a drive command (V)."""
+        """Take a drive command (V); realtime: keep the newest for the next tick."""
         self.n_drive += 1
         if self.sync_mode == 'realtime':
             self.v_latest = msg.data
-            if not self.drive_seen and self.t_pub is not None:
-                if self.n_lat < LATENCY_BUFFER and self.n_drive > WARMUP_SAMPLES:
+            self.drives_in_period += 1
+            if not self.drive_seen:
+                self.drive_seen = True
+                if self.k >= self.stats_from and self.n_lat < LATENCY_BUFFER:
                     self.lat[self.n_lat] = time.perf_counter() - self.t_pub
                     self.n_lat += 1
-                self.drive_seen = True
-                if self.running:
-                    # the command for sample k arrived within its period: apply it now
-                    # for this period (as the offline loop does); the next tick publishes
-                    self.plant.step(msg.data)
-                    self.stepped = True
             return
         self.pending.append(msg.data)
         if self.running:
@@ -262,41 +295,65 @@ class SimulatedActuatorNode(Node):
             self.wait_since = time.monotonic()
 
     def _on_tick(self):
-        """Realtime: one control period on the wall clock."""
-        if not self.running or not self.context.ok():
+        """Realtime: one tick of the sample clock (see the module docstring)."""
+        if not self.running:
             return
+        period = self.period_s
+        until = self.timer.time_until_next_call()
         now = time.perf_counter()
-        if not self.started or self.t0_rt is None:
-            self.started = True
-            self.t0_rt = now
-            self.ticks = 0
-            self._publish_sample(0.0)
+        # scheduled time of this tick: the timer's next call minus one period
+        sched = now + (until * 1e-9 if until is not None else 0.0) - period
+        fresh = self.n_disp == 0
+        if self.m0 is None:
+            # first tick after a start: sample 0 (plant at rest) or the next sample
+            k_next = self.k + (0 if fresh else 1)
+            self.m0 = sched - k_next * period
+            self.wall0_ns = time.time_ns() - int(round((now - sched) * 1e9)) \
+                - k_next * self.period_ns
+        steps = int(round((sched - self.m0) / period)) - self.k
+        if fresh:
+            steps = 0
         else:
-            if not self.stepped:
-                if self.n_drive > 0:
-                    self.missed += 1
-                self.plant.step(self.v_latest)     # no command this period: hold (ZOH)
-            self.stepped = False
-            self.k += 1
-            self._publish_sample(0.0)
-        self.ticks += 1
-        expected = int((now - self.t0_rt) / self.period_s) + 1
-        if expected > self.ticks:
-            self.skipped += expected - self.ticks
-            self.ticks = expected
+            steps = max(1, steps)
+            if self.drives_in_period == 0 and self.n_drive > 0 \
+                    and self.k >= self.stats_from:
+                self.missed += 1
+            if self.k >= self.stats_from:
+                self.skipped += steps - 1
+            self.plant.step(self.u_latched)
+            for _ in range(steps - 1):
+                self.plant.step(self.v_latest)      # periods this late tick skipped
+        self.k += steps
+        self._publish_sample(0.0)
         self.t_pub = time.perf_counter()
         self.drive_seen = False
-        if self.k % 200 == 0:
-            self._update_values()
+        self.u_latched = self.v_latest
+        self.drives_in_period = 0
+
+    def reset_stats(self, warmup=WARMUP_SAMPLES):
+        """Restart the realtime statistics ``warmup`` samples from now (0: at once)."""
+        self.stats_from = self.k + int(warmup)
+        self.n_lat = 0
+        self.missed = 0
+        self.skipped = 0
 
     def latency_stats(self):
-        """Return realtime loop statistics: latencies (s) and missed-cycle share."""
+        """
+        Return the realtime loop statistics since :meth:`reset_stats`.
+
+        :returns: dict with ``periods`` (sample periods counted), ``latency_n``,
+            ``missed_cycles`` (ticks with no new drive, ``missed_no_drive``, plus periods
+            skipped by late ticks, ``missed_late_tick``), ``missed_share`` (1), and
+            ``latency_p50_s``, ``latency_p99_s``, ``latency_max_s`` (s) when there is a
+            latency.
+        """
         lat = self.lat[:self.n_lat]
-        n = max(1, self.ticks)
-        out = {'samples': int(self.k + 1 if self.started else 0),
-               'latency_n': int(lat.size),
-               'missed_cycles': int(self.missed + self.skipped),
-               'missed_share': float(self.missed + self.skipped) / n}
+        periods = max(0, self.k - self.stats_from)
+        missed = self.missed + self.skipped
+        out = {'samples': int(self.k + 1 if self.started else 0), 'periods': int(periods),
+               'latency_n': int(lat.size), 'missed_cycles': int(missed),
+               'missed_no_drive': int(self.missed), 'missed_late_tick': int(self.skipped),
+               'missed_share': float(missed) / periods if periods else 0.0}
         if lat.size:
             out.update(latency_p50_s=float(np.percentile(lat, 50)),
                        latency_p99_s=float(np.percentile(lat, 99)),
@@ -325,7 +382,7 @@ def main(args=None):
     node = None
     try:
         node = SimulatedActuatorNode()
-        rclpy.spin(node)
+        c.spin(node, realtime=node.sync_mode == 'realtime')
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -1,0 +1,193 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The realtime graph's timing model, checked offline (no ROS processes).
+
+In ``realtime`` the plant node latches the newest drive at each tick, so the command
+computed from y_k acts over [t_k+1, t_k+2]: one period more delay than lockstep
+(``fiber_align.nodes.simulated_actuator``). The controller node feeds the composite
+reference model the setpoint one sample old and both nodes lengthen their lead by one
+period (``_common.extend_lead``). These tests run that loop with the control core and
+check that the 1 kHz gains stay stable with the delay (no separate realtime gain set)
+and that a 50 um step settles cleanly, also with missed cycles.
+"""
+
+import numpy as np
+import pytest
+
+RATE_HZ = 1000.0
+T = 1.0 / RATE_HZ
+
+
+def delayed_loop_radius(kp, ki, slope, delay, omega_n, zeta, alpha):
+    """
+    Return the largest pole magnitude of the linearised PI loop with ``delay`` periods.
+
+    Plant: ``slope * alpha`` (m/V) times the exactly discretised mode; controller: the
+    PI law of :class:`fiber_align.control.pid.Pid` (kd = 0 at 1 kHz); the drive computed
+    from y_k is applied ``delay`` periods later than in the offline loop.
+    """
+    from fiber_align.plant.actuator import discretise
+    ad, bd = discretise(omega_n, zeta, T)
+    n = 3 + delay
+
+    def f(z):
+        x, xd, integ = z[:3]
+        hist = list(z[3:])
+        e = -x
+        i2 = integ + ki * T * e
+        u = kp * e + i2
+        if delay:
+            ua, hist = hist[0], hist[1:] + [u]
+        else:
+            ua = u
+        xn = ad @ np.array([x, xd]) + bd * alpha * slope * ua
+        return np.array([xn[0], xn[1], i2] + hist)
+    m = np.column_stack([f(col) for col in np.eye(n)])
+    return float(np.max(np.abs(np.linalg.eigvals(m))))
+
+
+def test_one_period_delay_keeps_the_fuzzy_gain_box_stable():
+    """Every gain the fuzzy layer can reach at 1 kHz is stable with the realtime delay."""
+    from fiber_align.config import load_params
+    from fiber_align.control.fuzzy_pid import FuzzyPid
+    from fiber_align.nodes import _common as c
+    from fiber_align.plant.actuator import design_dynamics
+    wn, alpha = design_dynamics()
+    fz = FuzzyPid.from_params(load_params('controller.yaml', 'fuzzy_pid_controller'),
+                              RATE_HZ)
+    (kp_lo, kp_hi), (ki_lo, ki_hi), (kd_lo, kd_hi) = fz.gain_bounds()
+    assert kd_lo == kd_hi == 0.0
+    delay = c.REALTIME_EXTRA_DELAY_PERIODS
+    worst = max(delayed_loop_radius(kp, ki, s, delay, wn, 0.03, alpha)
+                for kp in (kp_lo, 0.5 * (kp_lo + kp_hi), kp_hi)
+                for ki in (ki_lo, 0.5 * (ki_lo + ki_hi), ki_hi)
+                for s in (0.5, 0.75, 1.0, 1.5, 2.0))
+    assert worst < 0.95, worst
+
+
+def run_realtime_step(target_m=50e-6, n=200, missed_share=0.0, setpoint_one_old=True,
+                      seed=1):
+    """
+    Simulate the realtime graph for a step to ``target_m`` (m); return y (m) per sample.
+
+    Each period: the compensator steps with the latest setpoint, the controller with the
+    setpoint one sample old (or the latest), the driver sums and limits; the plant
+    advances with the drive latched at the previous tick, then latches the new one,
+    except in a missed cycle (probability ``missed_share``), where it holds the old one.
+    """
+    from fiber_align.config import load_params
+    from fiber_align.control import simulate
+    from fiber_align.control.driver import DriverCore
+    from fiber_align.nodes import _common as c
+    rng = np.random.default_rng(seed)
+    plant = simulate.make_plant('default', RATE_HZ, seed=0, noise=True)
+    comp, fbc = simulate.build('composite', RATE_HZ, plant)
+    c.extend_lead(comp, T)
+    c.extend_lead(fbc.reference_filter, T)
+    drv = DriverCore.from_params(load_params('driver.yaml', 'actuator_driver'))
+    y = plant.reset()
+    latched, r_prev, out = 0.0, 0.0, []
+    for k in range(n):
+        r = target_m if k >= 5 else 0.0
+        ff = comp.step(r)
+        fb = fbc.step(r_prev if setpoint_one_old else r, y)
+        r_prev = r
+        v = drv.command(ff, fb, k * T)
+        out.append(plant.x)
+        y = plant.step(latched)
+        if rng.random() >= missed_share:
+            latched = v
+    return np.array(out)
+
+
+@pytest.mark.parametrize('missed_share', [0.0, 0.1])
+def test_realtime_step_settles_without_overshoot(missed_share):
+    """50 um: within 0.5 um in 20 ms, overshoot < 1 um, also with 10 % missed cycles."""
+    y = run_realtime_step(missed_share=missed_share)
+    err = np.abs(y - 50e-6)
+    assert np.all(err[5 + 20:] < 0.5e-6)
+    assert y.max() < 51e-6
+
+
+def test_setpoint_one_sample_old_is_what_avoids_the_overshoot():
+    """Feeding the reference model the latest setpoint makes the delayed loop overshoot."""
+    y_old = run_realtime_step(setpoint_one_old=True)
+    y_new = run_realtime_step(setpoint_one_old=False)
+    assert y_new.max() - 50e-6 > 5.0 * (y_old.max() - 50e-6 + 0.1e-6)
+
+
+def stamp(ns):
+    """Return a builtin_interfaces/Time for ``ns`` nanoseconds."""
+    from builtin_interfaces.msg import Time
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def test_trajectory_counts_periods_from_stamps_and_limits_the_rate():
+    """Periods come from stamp differences; the value moves at most rate * T per period."""
+    from fiber_align.nodes import _common as c
+    tr = c.SetpointTrajectory(T, 2e-3)
+    t0 = 1_700_000_000_123_000_000
+    assert tr.periods(stamp(t0)) == 1
+    assert tr.periods(stamp(t0 + 1_000_000)) == 1
+    assert tr.periods(stamp(t0 + 4_000_000)) == 3         # two samples skipped
+    assert tr.periods(stamp(t0 + 4_000_000)) == 1         # a repeated stamp still steps
+    vals = tr.advance(50e-6, 3)
+    np.testing.assert_allclose(vals, [2e-6, 4e-6, 6e-6], rtol=1e-12)
+    assert tr.advance(50e-6, 30)[-1] == pytest.approx(50e-6)
+    assert tr.advance(10e-6, 1)[0] == pytest.approx(48e-6)
+    long = tr.advance(0.0, 1000)                          # a long gap: capped, exact end
+    assert len(long) == c.MAX_CATCH_UP and long[-1] == 0.0
+    free = c.SetpointTrajectory(T, 0.0)                   # no limit
+    assert free.advance(80e-6, 1) == [80e-6]
+
+
+def run_disturbed_step(rate_m_per_s, seed, skip=0.2, missed=0.3, n=200):
+    """
+    Return y (m) of a realtime 50 um step with timing faults of a non-realtime OS.
+
+    The compensator skips a share ``skip`` of the samples (the driver then reuses its last
+    feedforward) and catches the trajectory and shaper up on the next one; the plant
+    misses a share ``missed`` of the cycles (holds the previous drive).
+    """
+    from fiber_align.config import load_params
+    from fiber_align.control import simulate
+    from fiber_align.control.driver import DriverCore
+    from fiber_align.nodes import _common as c
+    rng = np.random.default_rng(seed)
+    plant = simulate.make_plant('default', RATE_HZ, seed=0, noise=True)
+    comp, fbc = simulate.build('composite', RATE_HZ, plant)
+    c.extend_lead(comp, T)
+    c.extend_lead(fbc.reference_filter, T)
+    drv = DriverCore.from_params(load_params('driver.yaml', 'actuator_driver'))
+    tr_c = c.SetpointTrajectory(T, rate_m_per_s)
+    tr_f = c.SetpointTrajectory(T, rate_m_per_s)
+    y = plant.reset()
+    latched, ff, pending, r_prev, out = 0.0, 0.0, 0, 0.0, []
+    for k in range(n):
+        target = 50e-6 if k >= 5 else 0.0
+        pending += 1
+        if rng.random() >= skip:
+            for r in tr_c.advance(target, pending):
+                ff = comp.step(r)
+            pending = 0
+        r_now = tr_f.advance(target, 1)[0]
+        fb = fbc.step(r_prev, y)
+        r_prev = r_now
+        v = drv.command(ff, fb, k * T)
+        out.append(plant.x)
+        y = plant.step(latched)
+        if rng.random() >= missed:
+            latched = v
+    return np.array(out)
+
+
+def test_trajectory_makes_skipped_samples_and_missed_cycles_benign():
+    """With 20 % skipped samples and 30 % missed cycles the 2 mm/s ramp barely overshoots."""
+    from fiber_align.nodes import _common as c
+    seeds = range(8)
+    step = [run_disturbed_step(0.0, s).max() for s in seeds]
+    ramp = [run_disturbed_step(c.REALTIME_SETPOINT_RATE_M_PER_S, s).max() for s in seeds]
+    assert np.mean(ramp) < 56e-6
+    assert np.mean(ramp) - 50e-6 < 0.5 * (np.mean(step) - 50e-6)
+    y = run_disturbed_step(c.REALTIME_SETPOINT_RATE_M_PER_S, 0, skip=0.0, missed=0.0)
+    assert abs(y[-1] - 50e-6) < 0.1e-6 and y.max() < 50.5e-6
