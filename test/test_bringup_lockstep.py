@@ -3,12 +3,13 @@
 
 import json
 import os
-import signal
 import subprocess
 import sys
 
 import numpy as np
 import pytest
+
+from procs import run_bounded
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -28,19 +29,8 @@ def run_bringup(tmp_path, tag, *args, timeout=120):
     summary = tmp_path / ('%s.json' % tag)
     cmd = [sys.executable, '-m', 'fiber_align.nodes.bringup', '--sync', 'lockstep',
            '--trace', str(trace), '--summary', str(summary), '--quiet'] + list(args)
-    proc = subprocess.Popen(cmd, env=dict(os.environ), stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)
-    try:
-        out, _ = proc.communicate(timeout=timeout)
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)     # bringup stops its nodes within 5 s
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=5)
-    assert proc.returncode == 0, out
+    code, out = run_bounded(cmd, timeout)
+    assert code == 0, out
     return (np.loadtxt(trace, delimiter=',', skiprows=1),
             json.loads(summary.read_text(encoding='utf-8')))
 

@@ -2,13 +2,12 @@
 """Hysteresis experiment on the graph -> fiber-align identify -> bringup --model."""
 
 import json
-import os
-import signal
-import subprocess
 import sys
 
 import numpy as np
 import pytest
+
+from procs import run_bounded
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -18,19 +17,8 @@ SINE_S = 0.2
 
 
 def _run(cmd, timeout=150):
-    proc = subprocess.Popen(cmd, env=dict(os.environ), stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)
-    try:
-        out, _ = proc.communicate(timeout=timeout)
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)     # bringup stops its nodes within 5 s
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=5)
-    return proc.returncode, out
+    """Run ``cmd`` bounded by ``timeout`` (s); return ``(returncode, output)``."""
+    return run_bounded(cmd, timeout)
 
 
 def _bringup(*args):
