@@ -6,12 +6,23 @@ import signal
 import subprocess
 
 
-def run_bounded(cmd, timeout):
+def stop(proc, grace_s=10.0):
+    """SIGINT ``proc`` if it still runs, then SIGKILL after ``grace_s`` (s)."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=grace_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=5)
+
+
+def run_bounded(cmd, timeout, grace_s=10.0):
     """
     Run ``cmd`` with a timeout (s); return ``(returncode, combined output)``.
 
-    On a timeout the process gets SIGINT first (``bringup`` stops its nodes within 5 s),
-    then SIGKILL, so no child outlives the test.
+    On a timeout the process gets SIGINT first (``bringup`` and the demo stop their
+    nodes cleanly), then SIGKILL after ``grace_s``, so no child outlives the test.
     """
     proc = subprocess.Popen(cmd, env=dict(os.environ), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
@@ -19,11 +30,5 @@ def run_bounded(cmd, timeout):
     try:
         out, _ = proc.communicate(timeout=timeout)
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=5)
+        stop(proc, grace_s)
     return proc.returncode, out

@@ -2,12 +2,11 @@
 """``python -m fiber_align.demo --quick``: scenarios run, are recorded and analysed."""
 
 import json
-import os
-import signal
-import subprocess
 import sys
 
 import pytest
+
+from procs import run_bounded
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -21,21 +20,10 @@ def test_quick_demo_records_analyses_and_aligns(tmp_path):
     ``--composed`` in test_bringup_lockstep.py, so two scenarios keep the test short.
     """
     out = tmp_path / 'demo'
-    proc = subprocess.Popen([sys.executable, '-m', 'fiber_align.demo', '--quick', '--out',
-                             str(out), '--scenarios', 'sine,align', '--multi-process'],
-                            env=dict(os.environ), stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)
-    try:
-        text, _ = proc.communicate(timeout=180)
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)     # the demo stops its bringup cleanly
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(timeout=5)
-    assert proc.returncode == 0, text
+    code, text = run_bounded([sys.executable, '-m', 'fiber_align.demo', '--quick', '--out',
+                              str(out), '--scenarios', 'sine,align', '--multi-process'],
+                             timeout=180, grace_s=20.0)
+    assert code == 0, text
     rows = {r['scenario']: r for r in json.loads(
         (out / 'summary.json').read_text(encoding='utf-8'))['rows']}
     assert list(rows) == ['sine', 'align']

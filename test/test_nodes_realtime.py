@@ -23,6 +23,8 @@ import time
 
 import pytest
 
+import procs
+
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 NODES = ('simulated_actuator', 'hysteresis_compensator', 'fuzzy_pid_controller',
@@ -45,13 +47,7 @@ def spawn(name, log_dir):
 
 def stop(proc):
     """SIGINT, then SIGKILL after 5 s."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=5)
+    procs.stop(proc, grace_s=5.0)
 
 
 class Client:
