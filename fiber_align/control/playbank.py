@@ -128,6 +128,7 @@ class PlayBank:
         if m:
             d = self._dir
             ul = self._u
+            scan = True
             if (d > 0 and u < ul) or (d < 0 and u > ul):
                 # reversal: the prefix operators that do not follow the new direction
                 # keep their last lazy state ul - d r_i; write those back
@@ -144,38 +145,26 @@ class PlayBank:
                     s[i] = si
                     tail += w[i] * si
                     i += 1
-                full = k == m
+                # only a prefix that turned whole can absorb further operators
+                scan = k == m
                 m = k
                 d = -d
-                if not m:
-                    d = 0
-                elif full:
-                    if d > 0:
-                        while m < n and s[m] < u - r[m]:
-                            tail -= w[m] * s[m]
-                            m += 1
-                    else:
-                        while m < n and s[m] > u + r[m]:
-                            tail -= w[m] * s[m]
-                            m += 1
-            elif d > 0:
+        if not m:
+            scan = True
+            if s[0] < u - r[0]:
+                d = 1
+            elif s[0] > u + r[0]:
+                d = -1
+            else:
+                d = 0
+                scan = False
+        if scan:
+            # extend the prefix over the operators the input now drives in direction d
+            if d > 0:
                 while m < n and s[m] < u - r[m]:
                     tail -= w[m] * s[m]
                     m += 1
             else:
-                while m < n and s[m] > u + r[m]:
-                    tail -= w[m] * s[m]
-                    m += 1
-        else:
-            d = 0
-        if not m:
-            if s[0] < u - r[0]:
-                d = 1
-                while m < n and s[m] < u - r[m]:
-                    tail -= w[m] * s[m]
-                    m += 1
-            elif s[0] > u + r[0]:
-                d = -1
                 while m < n and s[m] > u + r[m]:
                     tail -= w[m] * s[m]
                     m += 1
