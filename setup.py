@@ -16,6 +16,7 @@ NODES = [
     'alignment_sequencer',
     'bag_recorder',
     'bringup',
+    'control_graph',
 ]
 
 setup(

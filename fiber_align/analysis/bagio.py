@@ -34,6 +34,7 @@ STRING = 'std_msgs/msg/String'
 #: The graph's streams: last name component -> message type.
 GRAPH_TOPICS = {
     'setpoint': FLOAT64,
+    'reference': FLOAT64,
     'displacement': JOINT_STATE,
     'feedforward_voltage': FLOAT64,
     'feedback_voltage': FLOAT64,
@@ -400,7 +401,8 @@ def discover(connections):
     Map graph stream keys to connections, whatever the namespace.
 
     A topic matches a key when its last name component equals the key and its type is
-    the key's type. A ``std_msgs/String`` topic whose last name contains ``state`` or
+    the key's type. Without a ``setpoint`` topic, ``reference`` (what the graph records)
+    is read as the setpoint. A ``std_msgs/String`` topic whose last name contains ``state`` or
     ``alignment`` is taken as ``alignment_state`` if no topic is named so. When several
     topics match a key (several namespaces), the one with most messages wins.
     """
@@ -411,6 +413,10 @@ def discover(connections):
             prev = found.get(key)
             if prev is None or c.msgcount > prev.msgcount:
                 found[key] = c
+    if 'setpoint' not in found and 'reference' in found:
+        # the graph records ``reference``, the setpoint its loop accepted and followed
+        # (the compensator is the only consumer of ``setpoint``): the r of every metric
+        found['setpoint'] = found['reference']
     if 'alignment_state' not in found:
         for c in connections:
             nm = last_name(c.topic)

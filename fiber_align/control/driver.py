@@ -9,6 +9,12 @@ command has arrived for longer than ``watchdog_timeout_s`` it ramps the output (
 slew limit) to ``safe_voltage_v`` and counts the event. NaN inputs hold the previous
 output. Counters: ``saturation_count``, ``slew_count``, ``watchdog_count``,
 ``nan_count``.
+
+The watchdog **latches** after ``latch_trips`` trips within ``latch_window_s`` seconds:
+the output then stays at (ramps to) the safe voltage whatever commands arrive, until
+:meth:`DriverCore.rearm` (the driver node's ``~/enable`` or a lifecycle deactivate /
+activate). A loop that keeps losing its input thus stops instead of cycling between
+the safe voltage and an overshooting resume.
 """
 
 import math
@@ -31,8 +37,15 @@ class DriverCore:
     """
 
     def __init__(self, v_min=0.0, v_max=100.0, slew_rate_v_per_s=math.inf,
-                 watchdog_timeout_s=0.0, safe_voltage_v=0.0):
-        """Check and store the limits; start at ``safe_voltage_v``."""
+                 watchdog_timeout_s=0.0, safe_voltage_v=0.0, latch_trips=3,
+                 latch_window_s=10.0):
+        """
+        Check and store the limits; start at ``safe_voltage_v``.
+
+        :param latch_trips: trips within ``latch_window_s`` that latch the safe state
+            (0: never latch).
+        :param latch_window_s: window (s) of that count.
+        """
         if not v_max > v_min:
             raise ConfigError('v_max (%g V) must exceed v_min (%g V)' % (v_max, v_min))
         if not v_min <= safe_voltage_v <= v_max:
@@ -44,14 +57,21 @@ class DriverCore:
         self.slew = s if s > 0 and math.isfinite(s) else math.inf
         self.timeout = float(watchdog_timeout_s)
         self.safe = float(safe_voltage_v)
+        if int(latch_trips) < 0 or not float(latch_window_s) >= 0.0:
+            raise ConfigError('latch_trips must be >= 0 and latch_window_s >= 0 s')
+        self.latch_trips = int(latch_trips)
+        self.latch_window_s = float(latch_window_s)
         self.reset()
 
     @classmethod
     def from_params(cls, p):
         """Build from the ``actuator_driver`` parameters (see ``config/driver.yaml``)."""
         known = {'v_min', 'v_max', 'slew_rate_v_per_s', 'watchdog_timeout_s',
-                 'safe_voltage_v'}
-        return cls(**{k: float(v) for k, v in p.items() if k in known})
+                 'safe_voltage_v', 'latch_window_s'}
+        kw = {k: float(v) for k, v in p.items() if k in known}
+        if 'latch_trips' in p:
+            kw['latch_trips'] = int(p['latch_trips'])
+        return cls(**kw)
 
     @classmethod
     def from_config(cls, path=CONFIG_FILE):
@@ -69,6 +89,8 @@ class DriverCore:
         self.slew_count = 0
         self.watchdog_count = 0
         self.nan_count = 0
+        self.latched = False
+        self.trip_times = []
 
     def _limit(self, target, t):
         """Slew-limit the move from the present output to ``target`` at time ``t`` (s)."""
@@ -90,6 +112,8 @@ class DriverCore:
         """Return the drive (V) for feedforward ``ff`` and feedback ``fb`` (V) at ``t`` (s)."""
         u = ff + fb
         self.t_last_cmd = t
+        if self.latched:            # latched safe state: only rearm() ends it
+            return self._limit(self.safe, t)
         if u - u != 0.0:            # NaN or infinite
             self.nan_count += 1
             return self.v
@@ -114,11 +138,22 @@ class DriverCore:
         command the driver enters the safe state (counted once per silence) and ramps
         to ``safe_voltage_v``.
         """
+        if self.latched:
+            return self._limit(self.safe, t)
         if self.timeout <= 0 or self.t_last_cmd is None:
             return self.v
         if t - self.t_last_cmd > self.timeout:
             if not self.tripped:
                 self.tripped = True
                 self.watchdog_count += 1
+                self.trip_times = [x for x in self.trip_times
+                                   if t - x <= self.latch_window_s] + [t]
+                if self.latch_trips and len(self.trip_times) >= self.latch_trips:
+                    self.latched = True
             return self._limit(self.safe, t)
         return self.v
+
+    def rearm(self):
+        """End a latched safe state and forget the trip history (output unchanged)."""
+        self.latched = False
+        self.trip_times = []

@@ -43,8 +43,16 @@ actuator back to the setpoint through the shaper. A controller that restarts wit
 setpoint publishes 0 V feedback (see ``fuzzy_pid_controller``), so the drive then
 resumes at the feedforward of the held setpoint.
 
-``v_max`` is checked at configure time against the field limit of the design model
-(``max_field_v_per_m * piezo_thickness_m`` of ``config/actuator.yaml``).
+Field limits: ``v_max``, ``v_min`` and ``safe_voltage_v`` are checked at start-up, at
+configure and on every live update against both field limits of the PZT layers:
+``field_limit_v`` (forward: ``max_field_v_per_m * piezo_thickness_m`` of
+``config/actuator.yaml``, 150 V) and ``-depoling_fraction * coercive_field_v`` (a
+reverse field beyond a fraction of the coercive field depoles PZT; -39.6 V by default).
+A value beyond either is refused with the reason.
+
+Latch: after ``latch_trips`` watchdog trips within ``latch_window_s`` the driver stays at
+the safe voltage (ERROR on ``/diagnostics`` with the trip count, ``drive_held`` true)
+until ``~/enable`` true or a lifecycle deactivate/activate re-arms it.
 """
 
 import math
@@ -57,50 +65,87 @@ from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from std_msgs.msg import Bool, Float64
 from std_srvs.srv import SetBool
 
-from fiber_align.config import ConfigError, load_params
+from fiber_align.config import ConfigError
 from fiber_align.control.driver import DriverCore
 from fiber_align.nodes import _common as c
 
 NODE_NAME = 'actuator_driver'
+#: Topics this node publishes (relative names; see ``_common.LocalBus``).
+PUBLISHES = ('drive_voltage', 'drive_held')
 AREA_FILES = ('driver.yaml',)
 #: Uninterrupted fresh input (s, wall) the driver waits for before it ends a trip.
 RECOVERY_S = 0.02
-CORE_KEYS = ('v_min', 'v_max', 'slew_rate_v_per_s', 'watchdog_timeout_s', 'safe_voltage_v')
-RANGES = {'v_min': (-200.0, 200.0), 'v_max': (-200.0, 200.0),
+CORE_KEYS = ('v_min', 'v_max', 'slew_rate_v_per_s', 'watchdog_timeout_s', 'safe_voltage_v',
+             'latch_trips', 'latch_window_s')
+LIMIT_KEYS = ('field_limit_v', 'coercive_field_v', 'depoling_fraction')
+RANGES = {'v_min': (-1000.0, 1000.0), 'v_max': (-1000.0, 1000.0),
           'slew_rate_v_per_s': (-1.0, 1e12), 'watchdog_timeout_s': (0.0, 60.0),
-          'safe_voltage_v': (-200.0, 200.0)}
+          'safe_voltage_v': (-1000.0, 1000.0), 'latch_trips': (0, 1000),
+          'latch_window_s': (0.0, 3600.0)}
+UNITS = {'v_min': 'lowest drive (V)', 'v_max': 'highest drive (V)',
+         'slew_rate_v_per_s': 'slew limit (V/s); <= 0: none',
+         'watchdog_timeout_s': 'silence before the safe ramp (s); 0: off',
+         'safe_voltage_v': 'safe (light-off) drive (V)',
+         'latch_trips': 'watchdog trips within latch_window_s that latch the safe '
+                        'voltage (0: never)',
+         'latch_window_s': 'window of the latch count (s)'}
 
 
-def field_limit_v(path='actuator.yaml'):
-    """Return the largest drive (V) the design model allows, or ``inf`` if unknown."""
-    try:
-        a = load_params(path, 'actuator')
-        return float(a['max_field_v_per_m']) * float(a['piezo_thickness_m'])
-    except (ConfigError, KeyError, TypeError, ValueError):
-        return math.inf
+def check_field_limits(p):
+    """
+    Return ``None`` or why the drive limits in ``p`` break a field limit (V).
+
+    :param p: mapping with ``v_min``, ``v_max``, ``safe_voltage_v``, ``field_limit_v``,
+        ``coercive_field_v`` and ``depoling_fraction`` (V, V, V, V, V, 1).
+    """
+    fwd = float(p['field_limit_v'])
+    rev = -float(p['depoling_fraction']) * float(p['coercive_field_v'])
+    for k in ('v_max', 'v_min', 'safe_voltage_v'):
+        v = float(p[k])
+        if not math.isfinite(v):
+            return '%s=%r is not finite' % (k, v)
+        if v > fwd:
+            return ('%s %g V exceeds the field limit %g V (field_limit_v)' % (k, v, fwd))
+        if v < rev:
+            return ('%s %g V is below the depoling limit %g V (-depoling_fraction %g * '
+                    'coercive_field_v %g V)' % (k, v, rev, float(p['depoling_fraction']),
+                                                 float(p['coercive_field_v'])))
+    return None
 
 
 class ActuatorDriverNode(LifecycleNode):
     """Lifecycle transport around :class:`DriverCore`."""
 
-    def __init__(self, **kwargs):
-        """Declare parameters (defaults from config/); nothing is created until configure."""
+    def __init__(self, bus=None, **kwargs):
+        """
+        Declare parameters (defaults from config/); nothing is created until configure.
+
+        :param bus: the :class:`~fiber_align.nodes._common.LocalBus` of a composed
+            process, or ``None``.
+        """
         super().__init__(NODE_NAME, **kwargs)
+        self.bus = bus
         d = c.node_defaults(NODE_NAME, AREA_FILES)
-        d = {k: v for k, v in d.items() if k in CORE_KEYS + (
-            'rate_hz', 'sync_mode', 'diagnostics_period_s')}
+        d = {k: v for k, v in d.items() if k in CORE_KEYS + LIMIT_KEYS + (
+            'rate_hz', 'sync_mode', 'diagnostics_period_s', 'realtime_priority')}
         c.declare(self, d, 'rate_hz', 'control rate (Hz)', 1.0, 20000.0, True)
         c.declare(self, d, 'sync_mode', 'message pairing', read_only=True,
                   choices=c.SYNC_MODES)
         c.declare(self, d, 'diagnostics_period_s', '/diagnostics period (s)', 0.01, 60.0,
                   True)
-        units = {'v_min': 'lowest drive (V)', 'v_max': 'highest drive (V)',
-                 'slew_rate_v_per_s': 'slew limit (V/s); <= 0: none',
-                 'watchdog_timeout_s': 'silence before the safe ramp (s); 0: off',
-                 'safe_voltage_v': 'safe (light-off) drive (V)'}
+        c.declare(self, d, 'field_limit_v', 'forward field limit of the PZT layers (V)',
+                  0.0, 1000.0, True)
+        c.declare(self, d, 'coercive_field_v', 'coercive field times layer thickness (V)',
+                  0.0, 10000.0, True)
+        c.declare(self, d, 'depoling_fraction', 'reverse drive allowed, as a fraction of '
+                  'coercive_field_v (1)', 0.0, 1.0, True)
+        c.declare_priority(self, d)
         for k in CORE_KEYS:
             lo, hi = RANGES[k]
-            c.declare(self, d, k, units[k], lo, hi)
+            c.declare(self, d, k, UNITS[k], lo, hi)
+        why = check_field_limits(self._core_params())
+        if why:
+            raise ConfigError('actuator_driver: %s' % why)
         self.add_on_set_parameters_callback(self._on_set)
         self.core = None
         self.pub = None
@@ -119,23 +164,22 @@ class ActuatorDriverNode(LifecycleNode):
         self._t_fresh = None            # realtime: start (s) of fresh input after a trip
         self._t_fresh_last = 0.0
         self.held = None                # last value published on drive_held
-        self.pub_held = self.create_publisher(Bool, 'drive_held', c.LATCHED_QOS)
+        self.pub_held = c.Pub(self, Bool, 'drive_held', c.LATCHED_QOS, bus, latched=True)
         self._set_held(True, 'unconfigured')
         self.health = c.Health(self, self.get_parameter('diagnostics_period_s').value)
         self.health.status(c.WARN, 'unconfigured: output 0 V')
-        self.field_limit_v = field_limit_v()
 
     # -- parameters -----------------------------------------------------------------
     def _core_params(self, overrides=None):
-        p = {k: self.get_parameter(k).value for k in CORE_KEYS}
+        p = {k: self.get_parameter(k).value for k in CORE_KEYS + LIMIT_KEYS}
         p.update(overrides or {})
         return p
 
     def _check_core(self, p):
         """Return ``None`` or the reason why ``p`` is not a valid driver set-up."""
-        if p['v_max'] > self.field_limit_v:
-            return ('v_max %g V exceeds the field limit %g V of the design model'
-                    % (p['v_max'], self.field_limit_v))
+        why = check_field_limits(p)
+        if why:
+            return why
         try:
             DriverCore.from_params(p)
         except (ConfigError, ValueError) as exc:
@@ -148,6 +192,8 @@ class ActuatorDriverNode(LifecycleNode):
         if not res.successful:
             return res
         new = {p.name: float(p.value) for p in params if p.name in CORE_KEYS}
+        if 'latch_trips' in new:
+            new['latch_trips'] = int(new['latch_trips'])
         if new:
             why = self._check_core(self._core_params(new))
             if why:
@@ -160,6 +206,8 @@ class ActuatorDriverNode(LifecycleNode):
                 core.v_max = new.get('v_max', core.v_max)
                 core.timeout = new.get('watchdog_timeout_s', core.timeout)
                 core.safe = new.get('safe_voltage_v', core.safe)
+                core.latch_trips = new.get('latch_trips', core.latch_trips)
+                core.latch_window_s = new.get('latch_window_s', core.latch_window_s)
                 if 'slew_rate_v_per_s' in new:
                     s = new['slew_rate_v_per_s']
                     core.slew = s if s > 0 and math.isfinite(s) else math.inf
@@ -177,11 +225,11 @@ class ActuatorDriverNode(LifecycleNode):
         self.core = DriverCore.from_params(p)
         self.period_s = 1.0 / float(self.get_parameter('rate_hz').value)
         self.lockstep = self.get_parameter('sync_mode').value == 'lockstep'
-        self.pub = self.create_publisher(Float64, 'drive_voltage', c.CONTROL_QOS)
+        self.pub = c.Pub(self, Float64, 'drive_voltage', c.CONTROL_QOS, self.bus)
         qos = c.sample_qos(self.lockstep)
         self._subs = [
-            self.create_subscription(Float64, 'feedforward_voltage', self._on_ff, qos),
-            self.create_subscription(Float64, 'feedback_voltage', self._on_fb, qos)]
+            c.subscription(self, Float64, 'feedforward_voltage', self._on_ff, qos, self.bus),
+            c.subscription(self, Float64, 'feedback_voltage', self._on_fb, qos, self.bus)]
         self._srv = self.create_service(SetBool, '~/enable', self._on_enable)
         if not self.lockstep:
             self._timer = self.create_timer(self.watchdog_period_s(), self._on_tick,
@@ -196,7 +244,10 @@ class ActuatorDriverNode(LifecycleNode):
         return max(self.period_s, min(t, 0.01))
 
     def on_activate(self, state):
-        """Start publishing drive commands."""
+        """Start publishing drive commands (a lifecycle cycle re-arms a latched watchdog)."""
+        if self.core.latched:
+            self.core.rearm()
+            self.get_logger().info('watchdog latch re-armed by activate')
         self.active = True
         self._set_held(not self.enabled or self.core.tripped, 'activated')
         self.health.status(c.OK, 'active')
@@ -228,7 +279,7 @@ class ActuatorDriverNode(LifecycleNode):
 
     def _teardown(self):
         for s in self._subs:
-            self.destroy_subscription(s)
+            c.unsubscribe(self, s)
         self._subs = []
         if self._timer is not None:
             self.destroy_timer(self._timer)
@@ -237,7 +288,7 @@ class ActuatorDriverNode(LifecycleNode):
             self.destroy_service(self._srv)
             self._srv = None
         if self.pub is not None:
-            self.destroy_publisher(self.pub)
+            self.pub.destroy(self)
             self.pub = None
         self.core = None
         self.active = False
@@ -247,6 +298,10 @@ class ActuatorDriverNode(LifecycleNode):
     def _on_enable(self, request, response):
         """Enable (true) or disable (false: ramp to the safe voltage) the output."""
         self.enabled = bool(request.data)
+        if self.enabled and self.core is not None and self.core.latched:
+            self.core.rearm()
+            self.get_logger().info('watchdog latch re-armed by ~/enable')
+            self.health.status(c.OK, 'active' if self.active else 'inactive')
         self._set_held(not self.enabled or not self.active or (
             self.core is not None and self.core.tripped), 'enable %s' % self.enabled)
         response.success = True
@@ -276,6 +331,8 @@ class ActuatorDriverNode(LifecycleNode):
         if core is not None and core.timeout > 0 and (
                 self.t_ff is None or now - self.t_ff > core.timeout):
             return      # stale feedforward: leave it to the watchdog (docstring)
+        if core is not None and core.latched:
+            return      # latched: only ~/enable or a lifecycle cycle ends it
         if core is not None and core.tripped and self.enabled and not self._recovered(now):
             return      # hold until the input has been fresh for RECOVERY_S (docstring)
         self._command(self.ff_latest, msg.data, now)
@@ -350,6 +407,13 @@ class ActuatorDriverNode(LifecycleNode):
             self.health.error(msg)
             self._set_held(True, 'watchdog')
             self._t_fresh = None
+            if core.latched:
+                msg = ('watchdog latched after %d trips within %g s: output held at %g V '
+                       'until ~/enable true or a lifecycle deactivate/activate'
+                       % (len(core.trip_times), core.latch_window_s, core.safe))
+                self.get_logger().error(msg)
+                self.health.status(c.ERROR, msg)
+                self.health.error(msg)
         if core.tripped and (v != was_at or self._last_pub != v):
             self._publish(v)
         self._ticks += 1
@@ -375,6 +439,7 @@ class ActuatorDriverNode(LifecycleNode):
             'drive_v': core.v, 'enabled': self.enabled, 'active': self.active,
             'saturation_count': core.saturation_count, 'slew_count': core.slew_count,
             'watchdog_count': core.watchdog_count, 'nan_count': core.nan_count,
+            'watchdog_latched': core.latched,
             'sent.drive_voltage': self.n_drive})
 
     def sent_counts(self):
@@ -388,7 +453,8 @@ def main(args=None):
     node = None
     try:
         node = ActuatorDriverNode()
-        c.spin(node, realtime=node.get_parameter('sync_mode').value == 'realtime')
+        c.spin(node, realtime=node.get_parameter('sync_mode').value == 'realtime',
+               priority=c.node_priority(node))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -42,6 +42,8 @@ from fiber_align.nodes import _common as c
 NODE_NAME = 'alignment_sequencer'
 AREA_FILES = ('sequencer.yaml',)
 POWER_QUEUE_LIMIT = 5
+#: Topics this node publishes (relative names; see ``_common.LocalBus``).
+PUBLISHES = ('setpoint',)
 STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                        reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -50,24 +52,31 @@ STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
 class AlignmentSequencerNode(Node):
     """Transport, services and health around the pure :class:`~sq.Sequencer`."""
 
-    def __init__(self, **kwargs):
-        """Declare the parameters (defaults from config/), build the core, wire topics."""
+    def __init__(self, bus=None, **kwargs):
+        """
+        Declare the parameters (defaults from config/), build the core, wire topics.
+
+        :param bus: the :class:`~fiber_align.nodes._common.LocalBus` of a composed
+            process, or ``None``.
+        """
         super().__init__(NODE_NAME, **kwargs)
         d = c.node_defaults(NODE_NAME, AREA_FILES)
         self.lockstep = c.declare(self, d, 'sync_mode', 'message pairing', read_only=True,
                                   choices=c.SYNC_MODES) == 'lockstep'
         diag = c.declare(self, d, 'diagnostics_period_s', '/diagnostics period (s)', 0.01,
                          60.0, True)
+        c.declare_priority(self, d)
         core = {}
         for name in list(sq.DEFAULTS) + ['control_period_s']:
             if name in d:
                 core[name] = c.declare(self, d, name, 'sequencer parameter (SI, see '
                                        'sequencer.yaml)', read_only=True)
         self.seq = sq.Sequencer({k: v for k, v in core.items()})
-        self.pub_sp = self.create_publisher(Float64, 'setpoint', c.CONTROL_QOS)
+        self.pub_sp = c.Pub(self, Float64, 'setpoint', c.CONTROL_QOS, bus)
         self.pub_state = self.create_publisher(String, 'alignment_state', STATE_QOS)
-        self.create_subscription(JointState, 'displacement', self._on_disp, c.CONTROL_QOS)
-        self.create_subscription(Float64, 'optical_power', self._on_power, c.CONTROL_QOS)
+        qos = c.sample_qos(self.lockstep)
+        c.subscription(self, JointState, 'displacement', self._on_disp, qos, bus)
+        c.subscription(self, Float64, 'optical_power', self._on_power, qos, bus)
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, c.DIAG_QOS)
         self.create_service(Trigger, 'align', self._on_align)
         self.create_service(Trigger, 'release', self._on_release)

@@ -36,7 +36,7 @@ from fiber_align.analysis import bagio
 from fiber_align.config import ConfigError
 
 NODE_NAME = 'bag_recorder'
-DEFAULT_TOPICS = ['setpoint', 'displacement', 'feedforward_voltage', 'feedback_voltage',
+DEFAULT_TOPICS = ['reference', 'displacement', 'feedforward_voltage', 'feedback_voltage',
                   'drive_voltage', 'optical_power', 'controller_state', 'alignment_state',
                   '/diagnostics', '/clock']
 

@@ -158,28 +158,40 @@ def graph_nodes(scenario):
     return NODES
 
 
-def expected_endpoints(scenario, lockstep, record):
+def expected_endpoints(scenario, lockstep, record, composed=False):
     """
-    Return ``{topic: (publishers, subscribers)}`` the running graph must have.
+    Return ``{topic: (publishers, subscribers)}`` (at least) the running graph must have.
 
     :param scenario: a name in :data:`SCENARIOS`.
     :param lockstep: the plant publishes ``/clock``.
-    :param record: a recorder subscribes to every topic too.
+    :param record: a recorder subscribes to every recorded topic too.
+    :param composed: the control nodes share one process: their readers of each other's
+        topics are in-process (``_common.LocalBus``) and not DDS subscriptions.
     """
+    from fiber_align.nodes.bag_recorder import DEFAULT_TOPICS
     rec = 1 if record else 0
+    inner = 0 if composed else 1
     if scenario == 'hysteresis-experiment':
+        # bringup publishes feedforward and feedback itself: the driver reads them
+        # through DDS in both layouts
         out = {'displacement': (1, 1), 'feedforward_voltage': (1, 1),
-               'feedback_voltage': (1, 1), 'drive_voltage': (1, 2), 'optical_power': (1, 0)}
+               'feedback_voltage': (1, 1), 'drive_voltage': (1, 1 + inner),
+               'optical_power': (1, 0)}
     else:
-        out = {'displacement': (1, 2), 'setpoint': (0 if scenario == 'none' else 1, 2),
-               'feedforward_voltage': (1, 1), 'feedback_voltage': (1, 1),
-               'controller_state': (1, 0), 'drive_voltage': (1, 2), 'optical_power': (1, 0)}
+        out = {'displacement': (1, 1 + inner),
+               'setpoint': (0 if scenario == 'none' else 1, 1),
+               'reference': (1, inner), 'feedforward_voltage': (1, inner),
+               'feedback_voltage': (1, inner), 'controller_state': (1, 0),
+               'drive_voltage': (1, 1 + inner), 'optical_power': (1, 0)}
     if scenario == 'align':
-        out.update({'displacement': (1, 3), 'setpoint': (1, 3), 'optical_power': (1, 2),
+        out.update({'displacement': (1, 1 + 2 * inner), 'setpoint': (1, inner),
+                    'reference': (1, 1 + inner), 'optical_power': (1, 1 + inner),
                     'alignment_state': (1, 1)})
     if lockstep:
         out['/clock'] = (1, 0)
-    return {k: (p, s + (rec if p else 0)) for k, (p, s) in out.items()}
+    recorded = {t.lstrip('/') for t in DEFAULT_TOPICS}
+    return {k: (p, s + (rec if p and k.lstrip('/') in recorded else 0))
+            for k, (p, s) in out.items()}
 
 
 class Reference:
@@ -257,7 +269,8 @@ class Runner:
             state_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                                    reliability=ReliabilityPolicy.RELIABLE,
                                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
-            self.node.create_subscription(Float64, 'setpoint', self._on_setpoint,
+            # the reference the loop follows: what the compensator accepted
+            self.node.create_subscription(Float64, 'reference', self._on_setpoint,
                                           CONTROL_QOS)
             self.node.create_subscription(Float64, 'optical_power', self._on_power,
                                           CONTROL_QOS)
@@ -515,7 +528,7 @@ class Child:
     def __init__(self, name, cmd, env, quiet):
         """Start the process in its own session (a terminal Ctrl-C reaches bringup only)."""
         self.name = name
-        self.sent = None
+        self.sent = {}               # node name -> {topic: count} (exit reports)
         self.quiet = quiet
         self.proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True, bufsize=1,
@@ -527,8 +540,9 @@ class Child:
         for line in self.proc.stdout:
             if line.startswith(SENT_PREFIX):
                 try:
-                    self.sent = json.loads(line[len(SENT_PREFIX):])['sent']
-                except (ValueError, KeyError):
+                    rep = json.loads(line[len(SENT_PREFIX):])
+                    self.sent[rep['node'].rsplit('/', 1)[-1]] = rep['sent']
+                except (ValueError, KeyError, AttributeError):
                     pass
                 continue
             if not self.quiet:
@@ -678,8 +692,8 @@ class Bringup:
             out += ['-r', '__ns:=/' + self.args.namespace.strip('/')]
         return out
 
-    def _spawn(self, module, name, extra=()):
-        cmd = [sys.executable, '-m', module] + self._ros_args(name) + list(extra)
+    def _spawn(self, module, name, extra=(), pre=()):
+        cmd = [sys.executable, '-m', module] + list(pre) + self._ros_args(name) + list(extra)
         ch = Child(name, cmd, dict(os.environ), self.args.quiet)
         self.children.append(ch)
         print('bringup: started %s (pid %d)' % (name, ch.proc.pid), flush=True)
@@ -791,7 +805,8 @@ class Bringup:
             self._spawn('fiber_align.nodes.bag_recorder', 'bag_recorder',
                         self._recorder_args())
         if self.args.composed:
-            self._compose(self.names)
+            self._spawn('fiber_align.nodes.control_graph', 'control_graph',
+                        pre=['--nodes', ','.join(self.names)])
         else:
             for n in self.names:
                 self._spawn('fiber_align.nodes.' + n, n)
@@ -800,7 +815,8 @@ class Bringup:
         all_names = list(self.names) + (['bag_recorder'] if self.args.record else [])
         self.runner.wait_nodes(all_names, timeout, self._alive)
         self.runner.activate_driver(timeout)
-        want = expected_endpoints(self.scenario, lockstep, bool(self.args.record))
+        want = expected_endpoints(self.scenario, lockstep, bool(self.args.record),
+                                  bool(self.args.composed))
         self.runner.wait_matched(want, timeout, self._alive)
         self.endpoints = want
         self._alive()
@@ -819,19 +835,6 @@ class Bringup:
             self.executor.spin()
         except Exception:  # noqa: BLE001 - executor shut down at exit
             pass
-
-    def _compose(self, names):
-        # One SingleThreadedExecutor (not the EventsExecutor: a service call from another
-        # thread while it spins can deadlock in rclpy Jazzy).
-        import importlib
-        for n in names:
-            mod = importlib.import_module('fiber_align.nodes.' + n)
-            cls = getattr(mod, CLASSES.get(n, ''), None)
-            if cls is None:
-                raise BringupError('%s cannot be composed' % n)
-            node = cls(cli_args=self._ros_args(n))
-            self.nodes.append(node)
-            self.executor.add_node(node)
 
     def _run_scenario(self):
         r = self.runner
@@ -965,8 +968,7 @@ class Bringup:
             self.summary.setdefault('sent', {})['bringup'] = dict(r.n_sent)
             r.destroy()
         for ch in self.children:
-            if ch.sent is not None:
-                self.summary.setdefault('sent', {})[ch.name] = ch.sent
+            self.summary.setdefault('sent', {}).update(ch.sent)
         self.summary['children'] = {ch.name: {'pid': ch.proc.pid,
                                               'exit_code': ch.proc.returncode}
                                     for ch in self.children}

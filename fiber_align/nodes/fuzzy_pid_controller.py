@@ -9,7 +9,8 @@ and ``fuzzy``: :class:`~fiber_align.control.fuzzy_pid.FuzzyPid`; ``composite-pid
 ``open-loop``: 0 V), so the node computes exactly what the offline loop computes.
 Topics (relative names, SI units):
 
-- sub ``setpoint`` (std_msgs/Float64, m), ``displacement`` (sensor_msgs/JointState, m).
+- sub ``reference`` (std_msgs/Float64, m: the setpoint the compensator accepted; it is
+  the only consumer of ``setpoint``), ``displacement`` (sensor_msgs/JointState, m).
 - pub ``feedback_voltage`` (std_msgs/Float64, V).
 - pub ``controller_state`` (std_msgs/Float64MultiArray): labelled layout, one dimension
   per value: ``error_m``, ``error_rate_m_per_s``, ``kp_v_per_m``, ``ki_v_per_m_s``,
@@ -92,7 +93,10 @@ DRIVE_STALE_PERIODS = 3
 STATE_LABELS = ('error_m', 'error_rate_m_per_s', 'kp_v_per_m', 'ki_v_per_m_s',
                 'kd_v_s_per_m', 'output_v')
 GRAPH_KEYS = ('controller', 'sync_mode', 'rate_hz', 'diagnostics_period_s', 'setpoint_min_m',
-              'setpoint_max_m', 'realtime_setpoint_rate_m_per_s')
+              'setpoint_max_m', 'realtime_setpoint_rate_m_per_s', 'controller_state_every',
+              'realtime_priority')
+#: Topics this node publishes (relative names; see ``_common.LocalBus``).
+PUBLISHES = ('feedback_voltage', 'controller_state')
 #: Live-update rules by the last part of a parameter name: (lo, hi) for every value, SI.
 #: kp may be negative (the tuned 1 kHz loop uses kp = -0.1 / alpha, docs/control.md);
 #: ki and kd may not (a negative integral or derivative gain destabilises the loop).
@@ -160,8 +164,13 @@ def check_values(name, value):
 class FuzzyPidControllerNode(Node):
     """Transport and parameters around the fuzzy PID of the control core."""
 
-    def __init__(self, **kwargs):
-        """Declare parameters (defaults from config/), build the controller, wire topics."""
+    def __init__(self, bus=None, **kwargs):
+        """
+        Declare parameters (defaults from config/), build the controller, wire topics.
+
+        :param bus: the :class:`~fiber_align.nodes._common.LocalBus` of a composed
+            process, or ``None``.
+        """
         super().__init__(NODE_NAME, **kwargs)
         d = c.node_defaults(NODE_NAME, AREA_FILES)
         self.mode = c.declare(self, d, 'controller', 'control law (as in fiber-align simulate)',
@@ -179,7 +188,11 @@ class FuzzyPidControllerNode(Node):
                                c.REALTIME_SETPOINT_RATE_M_PER_S,
                                'realtime: rate limit of the setpoint trajectory (m/s); '
                                '<= 0: none', -1.0, 10.0, True)
+        c.declare_priority(self, d)
         self.traj = c.SetpointTrajectory(1.0 / self.rate_hz, rate)
+        self.state_every = c.declare(self, d, 'controller_state_every',
+                                     'publish controller_state every N samples (1); 0: off',
+                                     0, 1000000)
         core = {k: v for k, v in d.items() if k not in GRAPH_KEYS}
         self.core_names = []
         for name, value in flatten(core).items():
@@ -192,22 +205,25 @@ class FuzzyPidControllerNode(Node):
         self.ctl = self._make(self.mode, self._core_params())
         self.add_on_set_parameters_callback(self._on_set)
 
-        self.pub_fb = self.create_publisher(Float64, 'feedback_voltage', c.CONTROL_QOS)
-        self.pub_state = self.create_publisher(Float64MultiArray, 'controller_state',
-                                               c.CONTROL_QOS)
+        self.pub_fb = c.Pub(self, Float64, 'feedback_voltage', c.CONTROL_QOS, bus)
+        self.pub_state = c.Pub(self, Float64MultiArray, 'controller_state', c.CONTROL_QOS,
+                               bus)
         self._fb_msg = Float64()
         self._state_msg = Float64MultiArray()
         self._state_msg.layout.dim = [MultiArrayDimension(label=lab, size=1, stride=1)
                                       for lab in STATE_LABELS]
-        self.create_subscription(JointState, 'displacement', self._on_disp,
-                                 c.sample_qos(self.lockstep))
-        self.create_subscription(Float64, 'setpoint', self._on_setpoint, c.SETPOINT_QOS)
+        c.subscription(self, JointState, 'displacement', self._on_disp,
+                       c.sample_qos(self.lockstep), bus)
+        # the reference is the setpoint the compensator accepted (it is the only consumer
+        # of ``setpoint``); realtime reads it latched, so a restarted controller has it
+        c.subscription(self, Float64, 'reference', self._on_setpoint,
+                       c.LOCKSTEP_QOS if self.lockstep else c.REFERENCE_LATCHED_QOS, bus)
         self.held = False               # realtime: the driver holds its output
         self.t_drive = None             # realtime: wall time (s) of the newest drive
         if not self.lockstep:
-            self.create_subscription(Bool, 'drive_held', self._on_held, c.LATCHED_QOS)
-            self.create_subscription(Float64, 'drive_voltage', self._on_drive,
-                                     c.REALTIME_QOS)
+            c.subscription(self, Bool, 'drive_held', self._on_held, c.LATCHED_QOS, bus)
+            c.subscription(self, Float64, 'drive_voltage', self._on_drive, c.REALTIME_QOS,
+                           bus)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.health = c.Health(self, diag)
         self.r = 0.0
@@ -414,11 +430,12 @@ class FuzzyPidControllerNode(Node):
         msg.data = float(fb)
         self.pub_fb.publish(msg)
         self.n_fb += 1
-        st = self._state_msg
-        st.data = [float(e), float(de), float(gains[0]), float(gains[1]), float(gains[2]),
-                   float(fb)]
-        self.pub_state.publish(st)
-        self.n_state += 1
+        if self.state_every and self.n_fb % self.state_every == 0:
+            st = self._state_msg
+            st.data = [float(e), float(de), float(gains[0]), float(gains[1]),
+                       float(gains[2]), float(fb)]
+            self.pub_state.publish(st)
+            self.n_state += 1
         if self.n_fb % 500 == 0:
             self.health.set_values(**{'sent.feedback_voltage': self.n_fb,
                                       'sent.controller_state': self.n_state,
@@ -436,7 +453,7 @@ def main(args=None):
     node = None
     try:
         node = FuzzyPidControllerNode()
-        c.spin(node, realtime=not node.lockstep)
+        c.spin(node, realtime=not node.lockstep, priority=c.node_priority(node))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

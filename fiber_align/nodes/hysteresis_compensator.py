@@ -64,13 +64,20 @@ NODE_NAME = 'hysteresis_compensator'
 AREA_FILES = ('compensator.yaml',)
 CONTROLLERS = ('composite', 'composite-pid', 'fuzzy', 'pid', 'feedforward', 'open-loop')
 SHAPING = ('none', 'zv', 'zvd')
+#: Topics this node publishes (relative names; see ``_common.LocalBus``).
+PUBLISHES = ('feedforward_voltage', 'reference')
 
 
 class HysteresisCompensatorNode(Node):
     """Transport, parameters and the reload service around :class:`Feedforward`."""
 
-    def __init__(self, **kwargs):
-        """Declare parameters (defaults from config/), load the model, wire topics."""
+    def __init__(self, bus=None, **kwargs):
+        """
+        Declare parameters (defaults from config/), load the model, wire topics.
+
+        :param bus: the :class:`~fiber_align.nodes._common.LocalBus` of a composed
+            process, or ``None``.
+        """
         super().__init__(NODE_NAME, **kwargs)
         d = c.node_defaults(NODE_NAME, AREA_FILES)
         self.rate_hz = c.declare(self, d, 'rate_hz', 'control rate (Hz)', 1.0, 20000.0, True)
@@ -88,6 +95,7 @@ class HysteresisCompensatorNode(Node):
                                c.REALTIME_SETPOINT_RATE_M_PER_S,
                                'realtime: rate limit of the setpoint trajectory (m/s); '
                                '<= 0: none', -1.0, 10.0, True)
+        c.declare_priority(self, d)
         self.traj = c.SetpointTrajectory(1.0 / self.rate_hz, rate)
         self.comp_defaults = {k: v for k, v in d.items()}
         c.declare(self, d, 'model_file', 'PI model params file; empty: the inline model')
@@ -102,14 +110,22 @@ class HysteresisCompensatorNode(Node):
                   0.999, True)
         c.declare(self, d, 'open_loop_gain_v_per_m', 'linear feedforward gain (V/m)', 0.0,
                   1e9, True)
-        self.pub = self.create_publisher(Float64, 'feedforward_voltage', c.CONTROL_QOS)
+        self.pub = c.Pub(self, Float64, 'feedforward_voltage', c.CONTROL_QOS, bus)
+        # the accepted setpoint for the controller (one consumer of ``setpoint``)
+        self.pub_ref = c.Pub(self, Float64, 'reference', c.CONTROL_QOS, bus,
+                             latched=not self.lockstep)
         self._msg = Float64()
-        self.create_subscription(Float64, 'setpoint', self._on_setpoint, c.SETPOINT_QOS)
+        self._ref_msg = Float64()
+        self.n_ref = 0
+        # lockstep: transient local, so the first setpoint of the source (published as
+        # soon as it matched) is not lost if this reader matched a moment later
+        c.subscription(self, Float64, 'setpoint', self._on_setpoint,
+                       c.LOCKSTEP_QOS if self.lockstep else c.SETPOINT_QOS, bus)
         self.held = False               # realtime: the driver holds its output
         if not self.lockstep:
-            self.create_subscription(JointState, 'displacement', self._on_sample,
-                                     c.REALTIME_QOS)
-            self.create_subscription(Bool, 'drive_held', self._on_held, c.LATCHED_QOS)
+            c.subscription(self, JointState, 'displacement', self._on_sample,
+                           c.REALTIME_QOS, bus)
+            c.subscription(self, Bool, 'drive_held', self._on_held, c.LATCHED_QOS, bus)
         self.create_service(Trigger, '~/reload_model', self._on_reload)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.health = c.Health(self, diag)
@@ -165,6 +181,14 @@ class HysteresisCompensatorNode(Node):
         return response
 
     def _on_setpoint(self, msg):
+        """
+        Take the user's setpoint (m): this node is its only consumer.
+
+        An accepted setpoint is passed on as ``reference`` for the controller, so the
+        feedforward and the feedback always follow the same reference (a setpoint either
+        reaches the whole loop or none of it). Lockstep passes one ``reference`` per
+        setpoint (the held one in place of a rejected one, so pairing holds).
+        """
         why = c.check_setpoint(msg.data, self.sp_lo, self.sp_hi)
         if why is None:
             self.r = float(msg.data)
@@ -174,6 +198,12 @@ class HysteresisCompensatorNode(Node):
             self.get_logger().warn(text)
             self.health.warn(text)
             self._update_values()
+            if not self.lockstep:
+                return
+        ref = self._ref_msg
+        ref.data = self.r
+        self.pub_ref.publish(ref)
+        self.n_ref += 1
         if self.lockstep:
             self._publish(self.ff.step(self.r))
 
@@ -231,7 +261,7 @@ class HysteresisCompensatorNode(Node):
 
     def sent_counts(self):
         """Return published message counts per topic."""
-        return {'feedforward_voltage': self.n_ff}
+        return {'feedforward_voltage': self.n_ff, 'reference': self.n_ref}
 
 
 def main(args=None):
@@ -240,7 +270,7 @@ def main(args=None):
     node = None
     try:
         node = HysteresisCompensatorNode()
-        c.spin(node, realtime=not node.lockstep)
+        c.spin(node, realtime=not node.lockstep, priority=c.node_priority(node))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -65,6 +65,8 @@ from fiber_align.plant.actuator import SimulatedActuator
 NODE_NAME = 'simulated_actuator'
 AREA_FILES = ('plant.yaml', 'optics.yaml')
 JOINT_NAME = 'bimorph_tip'
+#: Topics this node publishes (relative names; see ``_common.LocalBus``).
+PUBLISHES = ('displacement', 'optical_power')
 PLANT_KEYS = ('rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min', 'v_max',
               'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m', 'seed')
 LATENCY_BUFFER = 200_000   # realtime: latencies kept (200 s at 1 kHz), then not recorded
@@ -90,8 +92,13 @@ def make_optics(params, seed):
 class SimulatedActuatorNode(Node):
     """Transport, parameters and health around :class:`SimulatedActuator`."""
 
-    def __init__(self, **kwargs):
-        """Declare the parameters (defaults from config/), build the plant, wire topics."""
+    def __init__(self, bus=None, **kwargs):
+        """
+        Declare the parameters (defaults from config/), build the plant, wire topics.
+
+        :param bus: the :class:`~fiber_align.nodes._common.LocalBus` of a composed
+            process (``control_graph``), or ``None``.
+        """
         super().__init__(NODE_NAME, **kwargs)
         d = c.node_defaults(NODE_NAME, AREA_FILES)
         ro = True
@@ -117,6 +124,10 @@ class SimulatedActuatorNode(Node):
                                    'start the sample clock without a run call', read_only=ro)
         diag_period = c.declare(self, d, 'diagnostics_period_s',
                                 '/diagnostics period (s)', 0.01, 60.0, ro)
+        self.power_every = c.declare(self, d, 'optical_power_every',
+                                     'publish optical_power every N samples (1); 0: off '
+                                     '(the alignment sequencer needs 1)', 0, 1000000)
+        c.declare_priority(self, d)
         self.add_on_set_parameters_callback(self._on_set)
 
         params = {k: self.get_parameter(k).value for k in PLANT_KEYS}
@@ -129,15 +140,15 @@ class SimulatedActuatorNode(Node):
                                             read_only=ro)
         self.optics = make_optics(optics_params, int(params['seed']))
 
-        self.pub_disp = self.create_publisher(JointState, 'displacement', c.CONTROL_QOS)
-        self.pub_power = self.create_publisher(Float64, 'optical_power', c.CONTROL_QOS)
+        self.pub_disp = c.Pub(self, JointState, 'displacement', c.CONTROL_QOS, bus)
+        self.pub_power = c.Pub(self, Float64, 'optical_power', c.CONTROL_QOS, bus)
         self.pub_clock = None
         if self.sync_mode == 'lockstep':
             self.pub_clock = self.create_publisher(ClockMsg, '/clock', c.CLOCK_QOS)
         self._js = JointState(name=[JOINT_NAME], position=[0.0], velocity=[0.0])
         self._power = Float64()
-        self.create_subscription(Float64, 'drive_voltage', self._on_drive,
-                                 c.sample_qos(self.sync_mode == 'lockstep'))
+        c.subscription(self, Float64, 'drive_voltage', self._on_drive,
+                       c.sample_qos(self.sync_mode == 'lockstep'), bus)
         self.create_service(SetBool, '~/run', self._on_run)
         self.health = c.Health(self, diag_period)
 
@@ -150,6 +161,7 @@ class SimulatedActuatorNode(Node):
         self.n_drive = 0
         self.v_latest = 0.0
         self.pending = []               # lockstep: drives not yet applied
+        self._advancing = False         # lockstep: _advance is on the stack (local bus)
         self.wait_since = None
         self.holds = 0
         # realtime: sample clock and latency bookkeeping (perf_counter seconds)
@@ -177,12 +189,15 @@ class SimulatedActuatorNode(Node):
 
     # -- parameters -----------------------------------------------------------------
     def _on_set(self, params):
-        """Check live updates (only ``lockstep_timeout_s`` may change)."""
-        res = c.check_parameters(params, {'lockstep_timeout_s': (0.001, 3600.0)})
+        """Check live updates (``lockstep_timeout_s`` and ``optical_power_every``)."""
+        res = c.check_parameters(params, {'lockstep_timeout_s': (0.001, 3600.0),
+                                          'optical_power_every': (0, 1000000)})
         if res.successful:
             for p in params:
                 if p.name == 'lockstep_timeout_s':
                     self.timeout_s = float(p.value)
+                elif p.name == 'optical_power_every':
+                    self.power_every = int(p.value)
         return res
 
     # -- start / hold ---------------------------------------------------------------
@@ -216,8 +231,8 @@ class SimulatedActuatorNode(Node):
             self.started = True
             self.get_logger().info('sample clock started (%s)' % self.sync_mode)
             if self.sync_mode == 'lockstep':
-                self._publish_sample(0.0)
                 self.wait_since = time.monotonic()
+                self._publish_sample(0.0)
         elif self.sync_mode == 'lockstep':
             self.wait_since = time.monotonic()
             self._advance()
@@ -246,7 +261,7 @@ class SimulatedActuatorNode(Node):
         js.velocity[0] = float(plant.velocity_m_per_s)
         self.pub_disp.publish(js)
         self.n_disp += 1
-        if self.optics is not None:
+        if self.optics is not None and self.power_every and self.k % self.power_every == 0:
             msg = self._power
             msg.data = float(self.optics.measure(self.k * self.period_s, plant.position_m,
                                                  self.period_s))
@@ -272,13 +287,19 @@ class SimulatedActuatorNode(Node):
 
     def _advance(self):
         """Lockstep: apply the drive of sample k, publish sample k + 1."""
-        while self.pending and self.running:
-            v = self.pending.pop(0)
-            self.v_latest = v
-            self.plant.step(v)
-            self.k += 1
-            self._publish_sample(self.k * self.period_s)
-            self.wait_since = time.monotonic()
+        if self._advancing:
+            return      # in-process delivery: the loop below takes the new drive
+        self._advancing = True
+        try:
+            while self.pending and self.running:
+                v = self.pending.pop(0)
+                self.v_latest = v
+                self.plant.step(v)
+                self.k += 1
+                self.wait_since = time.monotonic()
+                self._publish_sample(self.k * self.period_s)
+        finally:
+            self._advancing = False
 
     def _on_watch(self):
         """Lockstep: warn (and keep holding) when the drive is late."""
@@ -324,11 +345,13 @@ class SimulatedActuatorNode(Node):
             for _ in range(steps - 1):
                 self.plant.step(self.v_latest)      # periods this late tick skipped
         self.k += steps
-        self._publish_sample(0.0)
-        self.t_pub = time.perf_counter()
-        self.drive_seen = False
+        # latch first: in a composed process the drive computed from this sample
+        # arrives inside _publish_sample (in-process delivery) and is for the next tick
         self.u_latched = self.v_latest
         self.drives_in_period = 0
+        self.drive_seen = False
+        self.t_pub = time.perf_counter()
+        self._publish_sample(0.0)
 
     def reset_stats(self, warmup=WARMUP_SAMPLES):
         """Restart the realtime statistics ``warmup`` samples from now (0: at once)."""
@@ -382,7 +405,7 @@ def main(args=None):
     node = None
     try:
         node = SimulatedActuatorNode()
-        c.spin(node, realtime=node.sync_mode == 'realtime')
+        c.spin(node, realtime=node.sync_mode == 'realtime', priority=c.node_priority(node))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -1,0 +1,120 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+``control_graph``: several fiber_align nodes in one process (the composed graph).
+
+The analogue of a component container for a pip-installed rclpy, which has no
+``rclcpp_components``: ``control_graph --nodes simulated_actuator,hysteresis_compensator,
+fuzzy_pid_controller,actuator_driver --ros-args --params-file F ...`` builds each named
+node (each keeps its own name and reads its own params-file section) and spins them on
+one executor. Messages between the hosted nodes go through a
+:class:`~fiber_align.nodes._common.LocalBus`: a direct call instead of a round trip
+through DDS serialisation and the executor, while every message is still published to
+DDS for outside subscribers (the recorder, ``ros2 topic echo``). A realtime control
+period is then one timer callback of the plant that runs the compensator, the
+controller and the driver in turn (docs/ros_interface.md, "Composed graph").
+
+Remapping of the hosted nodes' topics is not supported (the bus matches relative names);
+a namespace (``-r __ns:=/name``) is.
+"""
+
+import argparse
+import importlib
+import sys
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.utilities import remove_ros_args
+
+from fiber_align.config import ConfigError
+from fiber_align.nodes import _common as c
+
+#: Nodes a composed process can host: name -> (module, class). The order in which they
+#: are built (and so the order of in-process delivery) follows this table.
+HOSTABLE = {
+    'simulated_actuator': ('fiber_align.nodes.simulated_actuator', 'SimulatedActuatorNode'),
+    'hysteresis_compensator': ('fiber_align.nodes.hysteresis_compensator',
+                               'HysteresisCompensatorNode'),
+    'fuzzy_pid_controller': ('fiber_align.nodes.fuzzy_pid_controller',
+                             'FuzzyPidControllerNode'),
+    'actuator_driver': ('fiber_align.nodes.actuator_driver', 'ActuatorDriverNode'),
+    'alignment_sequencer': ('fiber_align.nodes.alignment_sequencer',
+                            'AlignmentSequencerNode'),
+}
+DEFAULT_NODES = ('simulated_actuator', 'hysteresis_compensator', 'fuzzy_pid_controller',
+                 'actuator_driver')
+
+
+def parse_nodes(argv):
+    """
+    Return the node names of the command line (ROS arguments removed).
+
+    :raises SystemExit: (exit 2) an unknown node name, with the allowed ones.
+    """
+    ap = argparse.ArgumentParser(prog='control_graph', description=__doc__.strip().split(
+        '\n')[0])
+    ap.add_argument('--nodes', default=','.join(DEFAULT_NODES),
+                    help='comma-separated node names, from: %s' % ', '.join(HOSTABLE))
+    a = ap.parse_args(argv)
+    names = [n.strip() for n in a.nodes.split(',') if n.strip()]
+    bad = [n for n in names if n not in HOSTABLE]
+    if bad or not names or len(set(names)) != len(names):
+        ap.error('--nodes %r: give each of %s at most once' % (a.nodes, ', '.join(HOSTABLE)))
+    return [n for n in HOSTABLE if n in names]
+
+
+def build(names, bus=None):
+    """
+    Build the named nodes on one :class:`~fiber_align.nodes._common.LocalBus`.
+
+    :param names: node names from :data:`HOSTABLE` (after ``rclpy.init``).
+    :returns: ``(nodes, bus)``.
+    """
+    bus = bus if bus is not None else c.LocalBus()
+    mods = [importlib.import_module(HOSTABLE[n][0]) for n in names]
+    for m in mods:
+        bus.provide(*m.PUBLISHES)
+    nodes = []
+    try:
+        for n, m in zip(names, mods):
+            nodes.append(getattr(m, HOSTABLE[n][1])(bus=bus))
+    except Exception:
+        for node in nodes:
+            node.destroy_node()
+        raise
+    return nodes, bus
+
+
+def is_realtime(nodes):
+    """Return True unless the hosted nodes run in lockstep."""
+    for node in nodes:
+        if node.has_parameter('sync_mode'):
+            return node.get_parameter('sync_mode').value == 'realtime'
+    return True
+
+
+def main(args=None):
+    """Run the composed graph (demo_nodes_py idiom)."""
+    argv = sys.argv if args is None else ['control_graph'] + list(args)
+    names = parse_nodes(remove_ros_args(argv)[1:])
+    rclpy.init(args=argv)
+    nodes = []
+    code = 0
+    try:
+        nodes, _ = build(names)
+        c.spin(nodes, realtime=is_realtime(nodes), priority=c.node_priority(nodes))
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ConfigError as exc:
+        print('control_graph: error: %s' % exc, file=sys.stderr, flush=True)
+        code = 2
+    finally:
+        for node in nodes:
+            if hasattr(node, 'sent_counts'):
+                c.report_sent(node, node.sent_counts())
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())
