@@ -17,6 +17,7 @@ NODES = [
     'bag_recorder',
     'bringup',
     'control_graph',
+    'scenario_runner',
 ]
 
 setup(
@@ -26,7 +27,8 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        (os.path.join('share', package_name, 'config'), glob('config/*.yaml')),
+        (os.path.join('share', package_name, 'config'),
+         glob('config/*.yaml') + glob('config/*.xml')),
     ],
     python_requires='>=3.10',
     # The ROS 2 client libraries are deliberately not here: a real Jazzy workspace

@@ -395,7 +395,10 @@ class Health:
         self.values.update(values)
 
     def publish(self):
-        """Publish the current status once."""
+        """Publish the current status once (with the node's fresh ``sent.<topic>`` counts)."""
+        counts = getattr(self._node, 'sent_counts', None)
+        if counts is not None:
+            self.values.update({'sent.' + k.lstrip('/'): v for k, v in counts().items()})
         if time.monotonic() < self._until and self._level >= self._base_level:
             level, message = self._level, self._message
         else:

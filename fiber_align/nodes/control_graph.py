@@ -32,13 +32,16 @@ from fiber_align.nodes import _common as c
 #: are built (and so the order of in-process delivery) follows this table.
 HOSTABLE = {
     'simulated_actuator': ('fiber_align.nodes.simulated_actuator', 'SimulatedActuatorNode'),
+    # the setpoint sources first: their answer to a sample reaches the compensator and
+    # the controller within the same control period
+    'scenario_runner': ('fiber_align.nodes.scenario_runner', 'ScenarioRunnerNode'),
+    'alignment_sequencer': ('fiber_align.nodes.alignment_sequencer',
+                            'AlignmentSequencerNode'),
     'hysteresis_compensator': ('fiber_align.nodes.hysteresis_compensator',
                                'HysteresisCompensatorNode'),
     'fuzzy_pid_controller': ('fiber_align.nodes.fuzzy_pid_controller',
                              'FuzzyPidControllerNode'),
     'actuator_driver': ('fiber_align.nodes.actuator_driver', 'ActuatorDriverNode'),
-    'alignment_sequencer': ('fiber_align.nodes.alignment_sequencer',
-                            'AlignmentSequencerNode'),
 }
 DEFAULT_NODES = ('simulated_actuator', 'hysteresis_compensator', 'fuzzy_pid_controller',
                  'actuator_driver')

@@ -1,0 +1,493 @@
+# SPDX-License-Identifier: Apache-2.0
+"""One bring-up: start the processes, run the scenario, stop in order, summarise."""
+
+import json
+import os
+from pathlib import Path
+import signal
+import sys
+import tempfile
+import threading
+import time
+
+import numpy as np
+import yaml
+
+from fiber_align.nodes.bringup import summary as sm
+from fiber_align.nodes.bringup.children import Child, cpu_time_s, rss_bytes
+from fiber_align.nodes.bringup.cli import param_overrides, TRACKING_SCENARIOS
+from fiber_align.nodes.bringup.observer import BringupError, Runner, StartStall
+from fiber_align.nodes.bringup.params import compose, namespaced, node_params
+
+CONTROL_NODES = ('simulated_actuator', 'hysteresis_compensator', 'fuzzy_pid_controller',
+                 'actuator_driver')
+EXIT_OK, EXIT_FAIL, EXIT_INTERRUPTED = 0, 1, 130
+#: realtime goals ``--strict`` holds a run to: share of missed cycles, watchdog trips
+MISSED_SHARE_GOAL = 0.001
+
+
+def graph_nodes(scenario):
+    """Return the node names the scenario runs (recorder excluded), in build order."""
+    if scenario == 'hysteresis-experiment':
+        return ('simulated_actuator', 'scenario_runner', 'actuator_driver')
+    if scenario == 'align':
+        return CONTROL_NODES + ('alignment_sequencer',)
+    if scenario in TRACKING_SCENARIOS:
+        return CONTROL_NODES + ('scenario_runner',)
+    return CONTROL_NODES
+
+
+def expected_endpoints(scenario, lockstep, record, composed=False):
+    """
+    Return ``{topic: (publishers, subscribers)}`` (at least) the running graph must have.
+
+    :param scenario: a scenario name of ``bringup``.
+    :param lockstep: the plant publishes ``/clock``.
+    :param record: a recorder subscribes to every recorded topic too.
+    :param composed: the control nodes share one process: their readers of each other's
+        topics are in-process (``_common.LocalBus``), not DDS subscriptions.
+    """
+    from fiber_align.nodes.bag_recorder import DEFAULT_TOPICS
+    inner = 0 if composed else 1
+    if scenario == 'hysteresis-experiment':
+        out = {'displacement': (1, 1 + inner), 'feedforward_voltage': (1, inner),
+               'feedback_voltage': (1, inner), 'drive_voltage': (1, 1 + inner),
+               'optical_power': (1, 0)}
+    else:
+        source = 0 if scenario == 'none' else 1
+        out = {'displacement': (1, 1 + inner * (1 + source)),
+               'setpoint': (source, 1 if scenario == 'none' else inner),
+               'reference': (1, inner), 'feedforward_voltage': (1, inner),
+               'feedback_voltage': (1, inner), 'controller_state': (1, 0),
+               'drive_voltage': (1, 1 + inner), 'optical_power': (1, 0)}
+    if scenario == 'align':
+        out.update({'reference': (1, 1 + inner), 'optical_power': (1, 1 + inner),
+                    'alignment_state': (1, 1)})
+    if lockstep:
+        out['/clock'] = (1, 0)
+    recorded = {t.lstrip('/') for t in DEFAULT_TOPICS}
+    rec = 1 if record else 0
+    return {k: (p, s + (rec if p and k.lstrip('/') in recorded else 0))
+            for k, (p, s) in out.items()}
+
+
+def dds_environment(env=None):
+    """
+    Return the environment for the graph's processes (a copy of ``env`` or os.environ).
+
+    Unless the user chose a Fast DDS profile, ``config/fastdds_profile.xml`` is used: a
+    50 ms heartbeat, so a reliable sample dropped in a burst is resent at once instead
+    of after 3 s (when its writer may have exited), and larger socket buffers.
+    """
+    from fiber_align.config import config_path
+    out = dict(os.environ if env is None else env)
+    out.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    if 'FASTRTPS_DEFAULT_PROFILES_FILE' not in out:
+        out['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(config_path('fastdds_profile.xml'))
+    return out
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _already_stopping(signum, frame):
+    print('bringup: already stopping (the stop is bounded by stop_timeout_s)', flush=True)
+
+
+class Bringup:
+    """One bring-up: processes, orchestration, stop and summary."""
+
+    def __init__(self, args):
+        """
+        Compose the parameters and decide what runs.
+
+        :raises ConfigError: a bad params file or override (exit 2).
+        """
+        self.args = args
+        self.composed = args.composed is not False
+        graph0 = compose(args.params_file)
+        gp = node_params(graph0, 'bringup')
+        self.scenario = args.scenario or gp.get('scenario', 'none')
+        self.sync = args.sync or node_params(graph0, 'simulated_actuator')['sync_mode']
+        ov = param_overrides(args, self.sync)
+        self.rate = float(args.rate or node_params(graph0, 'simulated_actuator')['rate_hz'])
+        ov['/**']['rate_hz'] = self.rate
+        self.params = compose(args.params_file, ov)
+        self.gp = node_params(self.params, 'bringup')
+        self.duration = args.duration if args.duration is not None else float(
+            gp.get('duration_s', 0.0))
+        self.cycles = args.cycles if args.cycles is not None else int(
+            self.gp.get('switch_cycles', 5))
+        self.names = graph_nodes(self.scenario)
+        self.source = None
+        if 'scenario_runner' in self.names:
+            self.source = self._source(ov)
+            self.params = compose(args.params_file, ov)
+        if self.scenario == 'align':
+            ov.setdefault('simulated_actuator', {})['optical_power_every'] = 1
+            self.params = compose(args.params_file, ov)
+        self.children, self.runner = [], None
+        self.tmp = tempfile.TemporaryDirectory(prefix='fiber_align_bringup_')
+        self.params_file = str(Path(self.tmp.name) / 'fiber_align_params.yaml')
+        with open(self.params_file, 'w', encoding='utf-8') as f:
+            yaml.safe_dump(namespaced(self.params, args.namespace), f, sort_keys=False)
+        self.stopping = False
+        self.interrupted = False
+        self.endpoints = {}
+        self._next_check = 0.0
+        self.summary = {}
+        self.diag = {}
+        self.cpu0 = {}
+
+    def _source(self, ov):
+        """Return the scenario's Source and set the runner's overrides (reach, duration)."""
+        from fiber_align.nodes.scenario_runner import setpoint_range, Source
+        from fiber_align.plant.actuator import SimulatedActuator
+        from fiber_align.nodes.simulated_actuator import PLANT_KEYS
+        p = node_params(self.params, 'simulated_actuator')
+        reach = SimulatedActuator.from_params({k: p[k] for k in PLANT_KEYS if k in p}) \
+            .reachable_m()
+        name = self.scenario
+        sp = node_params(self.params, 'scenario_runner')
+        src = Source(name, *setpoint_range(sp['setpoint_min_m'], sp['setpoint_max_m'],
+                                           reach))
+        if self.duration <= 0:
+            self.duration = float(src.sc.duration_s)
+        ov['scenario_runner'] = {'scenario': name, 'duration_s': float(self.duration),
+                                 'reach_m': float(reach)}
+        return src
+
+    # -- processes ------------------------------------------------------------------
+    def _spawn(self, module, name, extra=(), pre=()):
+        ros = ['--ros-args', '--params-file', self.params_file]
+        if self.args.namespace:
+            ros += ['-r', '__ns:=/' + self.args.namespace]
+        cmd = [sys.executable, '-m', module] + list(pre) + ros + list(extra)
+        ch = Child(name, cmd, dds_environment(), self.args.quiet)
+        self.children.append(ch)
+        self.cpu0[name] = (time.monotonic(), 0.0)
+        print('bringup: started %s (pid %d)' % (name, ch.proc.pid), flush=True)
+
+    def _alive(self):
+        for ch in self.children:
+            if not ch.alive():
+                why = (': ' + ch.last_error) if ch.last_error else ''
+                raise BringupError('%s exited with code %s%s'
+                                   % (ch.name, ch.proc.returncode, why))
+        now = time.monotonic()
+        if self.endpoints and self.runner is not None and now >= self._next_check:
+            self._next_check = now + 1.0
+            extra = self.runner.foreign_publishers(self.endpoints)
+            if extra:
+                raise BringupError(
+                    'another graph shares ROS_DOMAIN_ID=%s: %s; run on a domain of its own'
+                    % (os.environ.get('ROS_DOMAIN_ID', '0'), ', '.join(extra)))
+
+    def _check_alone(self):
+        """Refuse to start beside another graph in the same namespace and domain."""
+        time.sleep(float(self.gp.get('discovery_wait_s', 0.5)))
+        others = [n for n in self.names if self.runner.count_nodes(n)]
+        if others:
+            raise BringupError(
+                'another fiber_align graph runs on ROS_DOMAIN_ID=%s in namespace /%s (its '
+                'nodes: %s); stop it, or use --namespace or another ROS_DOMAIN_ID'
+                % (os.environ.get('ROS_DOMAIN_ID', '0'), self.args.namespace,
+                   ', '.join(others)))
+
+    # -- run ------------------------------------------------------------------------
+    def run(self):
+        """Run the whole bring-up; return the exit code."""
+        import rclpy
+        from rclpy.signals import SignalHandlerOptions
+        rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
+        code = EXIT_OK
+        retries = int(self.gp.get('start_retries', 2))
+        try:
+            for attempt in range(retries + 1):
+                try:
+                    self._start()
+                    self._run_scenario()
+                    break
+                except StartStall as exc:
+                    if attempt == retries:
+                        raise
+                    print('bringup: %s; restarting the graph (restart %d, counted in the '
+                          'summary)' % (exc, attempt + 1), flush=True)
+                    self._stop()
+                    self._reset()
+                    self.summary['restarts'] = attempt + 1
+        except KeyboardInterrupt:
+            print('bringup: interrupted, stopping', flush=True)
+            code = EXIT_INTERRUPTED
+            self.interrupted = True
+            self.summary['interrupted'] = True
+        except BringupError as exc:
+            print('bringup: error: %s' % exc, file=sys.stderr, flush=True)
+            self.summary['error'] = str(exc)
+            code = EXIT_FAIL
+        finally:
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, _already_stopping)
+            self._stop()
+            self._report()
+            rclpy.try_shutdown()
+            self.tmp.cleanup()
+        if code == EXIT_OK and self.args.strict and self.summary.get('goals_missed'):
+            print('bringup: --strict: %s' % '; '.join(self.summary['goals_missed']),
+                  file=sys.stderr, flush=True)
+            code = EXIT_FAIL
+        return code
+
+    def _reset(self):
+        """Forget a stopped attempt: processes, runner, its bag and its summary."""
+        import shutil
+        self.children, self.runner = [], None
+        self.endpoints, self._next_check = {}, 0.0
+        self.stopping = False
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, _interrupt)
+        for k in ('sent', 'recorded', 'children', 'stop_s', 'recorder_catch_up_s',
+                  'startup_s', 'run_wall_s'):
+            self.summary.pop(k, None)
+        if self.args.record and os.path.isdir(self.args.record):
+            shutil.rmtree(self.args.record)
+
+    def _start(self):
+        from rclpy.executors import SingleThreadedExecutor
+        t_start = time.monotonic()
+        timeout = float(self.gp.get('startup_timeout_s', 30.0))
+        lockstep = self.sync == 'lockstep'
+        self.runner = Runner(self.args.namespace, self.source, lockstep, self.rate,
+                             self.duration if self.source is not None else float('inf'))
+        self.runner.stall_s = float(self.gp.get('stall_timeout_s', 10.0))
+        self.runner.start_stall_s = float(self.gp.get('start_stall_timeout_s', 3.0))
+        # not the EventsExecutor: a service call from the main thread while it spins
+        # the observer can deadlock in rclpy Jazzy (seen: bringup hung at 40 % CPU)
+        self.executor = SingleThreadedExecutor()
+        self.executor.add_node(self.runner.node)
+        self._watch_diagnostics()
+        self.spin_thread = threading.Thread(target=self._spin, daemon=True)
+        self.spin_thread.start()
+        if not self.summary.get('restarts'):
+            self._check_alone()
+        if self.args.record:
+            rec = ['-p', 'output:=%s' % os.path.abspath(self.args.record)]
+            if self.args.storage:
+                rec += ['-p', 'storage:=%s' % self.args.storage]
+            self._spawn('fiber_align.nodes.bag_recorder', 'bag_recorder', rec)
+        if self.composed:
+            self._spawn('fiber_align.nodes.control_graph', 'control_graph',
+                        pre=['--nodes', ','.join(self.names)])
+        else:
+            for n in self.names:
+                self._spawn('fiber_align.nodes.' + n, n)
+        all_names = list(self.names) + (['bag_recorder'] if self.args.record else [])
+        self.runner.wait_nodes(all_names, timeout, self._alive)
+        self.runner.activate_driver(timeout)
+        want = expected_endpoints(self.scenario, lockstep, bool(self.args.record),
+                                  self.composed)
+        self.runner.wait_matched(want, timeout, self._alive)
+        self.endpoints = want
+        self._alive()
+        self.summary['startup_s'] = time.monotonic() - t_start
+        for ch in self.children:
+            self.cpu0[ch.name] = (time.monotonic(), cpu_time_s(ch.proc.pid))
+        print('bringup: graph up in %.2f s (%s, %g Hz, %s, %s)'
+              % (self.summary['startup_s'], self.sync, self.rate, self.args.controller,
+                 'composed' if self.composed else 'multi-process'), flush=True)
+
+    def _watch_diagnostics(self):
+        """Keep the newest /diagnostics values of every node of the graph."""
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        from fiber_align.nodes._common import DIAG_QOS
+
+        def on_diag(msg):
+            for st in msg.status:
+                lvl = st.level[0] if isinstance(st.level, (bytes, bytearray)) \
+                    else int(st.level)
+                vals = {kv.key: kv.value for kv in st.values}
+                self.diag[st.name.rsplit('/', 1)[-1]] = {
+                    'level': lvl, 'message': st.message, '_t': time.monotonic(), **vals}
+        # a node and a thread of its own: the observer's executor may be seconds behind
+        # with samples (Python executor) when the stop needs fresh reports
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+        self.diag_node = Node('bringup_diagnostics', namespace=self.args.namespace or None)
+        self.diag_node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, DIAG_QOS)
+        self.diag_exec = SingleThreadedExecutor()
+        self.diag_exec.add_node(self.diag_node)
+        threading.Thread(target=self._spin_diag, daemon=True).start()
+
+    def _spin_diag(self):
+        try:
+            self.diag_exec.spin()
+        except Exception:  # noqa: BLE001 - executor shut down at exit
+            pass
+
+    def _spin(self):
+        try:
+            self.executor.spin()
+        except Exception:  # noqa: BLE001 - executor shut down at exit
+            pass
+
+    def _run_scenario(self):
+        r = self.runner
+        t0 = time.monotonic()
+        if self.scenario == 'none':
+            r.set_running(True)
+            print('bringup: running; publish `setpoint` (m). Ctrl-C stops.', flush=True)
+            while True:
+                self._alive()
+                time.sleep(0.1)
+        r.start()
+        r.set_running(True)
+        try:
+            if self.scenario == 'align':
+                from fiber_align.nodes.bringup.align import run_align
+                self.summary['align_events'] = run_align(self)
+                return
+            wall_limit = 60.0 + 20.0 * self.duration
+            while True:
+                self._alive()
+                r.check_stall()
+                if r.done.wait(0.02):
+                    break
+                if time.monotonic() - t0 > wall_limit:
+                    raise BringupError('scenario did not finish within %g s' % wall_limit)
+        finally:
+            self.summary['run_wall_s'] = time.monotonic() - t0
+
+    # -- stop -----------------------------------------------------------------------
+    def _stop(self):
+        """Hold the plant, SIGINT the nodes, then the recorder, all within stop_timeout_s."""
+        if self.stopping:
+            return
+        self.stopping = True
+        t_stop = time.monotonic()
+        stop_s = float(self.gp.get('stop_timeout_s', 5.0))
+        deadline = t_stop + max(1.0, stop_s - 0.5)
+        r = self.runner
+        self._usage()
+        # the realtime figures of the run itself: holding the plant below stops the
+        # loop's input, which the driver's watchdog then reports as a trip
+        self.summary['realtime'] = sm.realtime_figures(self.diag)
+        if r is not None:
+            r.active = False
+            try:
+                if r.run_cli.service_is_ready() and all(
+                        ch.alive() for ch in self.children if ch.name != 'bag_recorder'):
+                    r.set_running(False, timeout=0.5)
+            except BringupError:
+                pass
+            time.sleep(0.1)   # in-flight messages reach their subscribers
+        nodes = [ch for ch in self.children if ch.name != 'bag_recorder']
+        rec = [ch for ch in self.children if ch.name == 'bag_recorder']
+        if rec and rec[0].alive():
+            # the graph is held: let the recorder work through its backlog before the
+            # publishers go (a writer that exits takes its undelivered samples with it)
+            limit = (deadline - 2.5 - time.monotonic()) if self.interrupted else 30.0
+            self.summary['recorder_catch_up_s'] = self._wait_recorder(rec[0], max(0.5, limit))
+        for ch in nodes:
+            ch.interrupt()
+        node_deadline = deadline - (1.5 if rec else 0.0)
+        for ch in nodes:
+            ch.wait(node_deadline - time.monotonic())
+        for ch in rec:
+            ch.interrupt()
+            ch.wait(max(deadline - time.monotonic(), 2.0))
+        if r is not None:
+            self.executor.shutdown(timeout_sec=0.5)
+            self.diag_exec.shutdown(timeout_sec=0.5)
+            self.diag_node.destroy_node()
+            r.destroy()
+        for ch in self.children:
+            self.summary.setdefault('sent', {}).update(ch.sent)
+        self.summary['children'] = {ch.name: {'pid': ch.proc.pid,
+                                              'exit_code': ch.proc.returncode}
+                                    for ch in self.children}
+        self.summary['stop_s'] = time.monotonic() - t_stop
+        if self.args.record:
+            counts = Path(self.args.record) / 'recorder_counts.json'
+            if counts.is_file():
+                self.summary['recorded'] = json.loads(counts.read_text(encoding='utf-8'))
+
+    def _wait_recorder(self, ch, limit_s):
+        """
+        Wait until the recorder holds every message the nodes sent on its topics (s).
+
+        Every node reports ``sent.<topic>`` and the recorder ``recorded.<topic>`` on
+        ``/diagnostics``; only reports made after the plant was held count. Reliable
+        delivery may need a retransmission after a burst, so the wait is on the counts
+        themselves, bounded by ``limit_s`` (s); the shortfall, if any, is in the summary.
+        """
+        t0 = time.monotonic()
+        short = None
+        while time.monotonic() - t0 < limit_s and ch.alive():
+            time.sleep(0.05)
+            rec = self.diag.get('bag_recorder', {})
+            if rec.get('_t', 0.0) <= t0:
+                continue
+            got = {k.rsplit('/', 1)[-1]: int(v) for k, v in rec.items()
+                   if k.startswith('recorded.')}
+            short, fresh = {}, True
+            for node in self.names:
+                if node == 'scenario_runner':
+                    continue        # its setpoints are recorded as the `reference`
+                d = self.diag.get(node, {})
+                if d.get('_t', 0.0) <= t0:
+                    fresh = False
+                    break
+                for k, v in d.items():
+                    topic = k[len('sent.'):] if k.startswith('sent.') else None
+                    if topic in got and got[topic] < int(float(v)):
+                        short[topic] = (got[topic], int(float(v)))
+            if fresh and not short:
+                short = None
+                break
+        if short:
+            self.summary['recorder_short'] = {k: list(v) for k, v in short.items()}
+        return time.monotonic() - t0
+
+    def _usage(self):
+        """Note CPU (s per s of run) and resident memory (MB) of every process."""
+        out = {}
+        for ch in self.children:
+            t_a, c_a = self.cpu0.get(ch.name, (None, 0.0))
+            c_b, wall = cpu_time_s(ch.proc.pid), time.monotonic() - (t_a or time.monotonic())
+            out[ch.name] = {'cpu_per_s': (c_b - c_a) / wall if wall > 0 else None,
+                            'rss_mb': rss_bytes(ch.proc.pid) / 1e6}
+        if out:
+            self.summary['processes'] = out
+
+    # -- summary --------------------------------------------------------------------
+    def _report(self):
+        s = self.summary
+        s.update({'scenario': self.scenario, 'sync_mode': self.sync, 'rate_hz': self.rate,
+                  'controller': self.args.controller, 'composed': self.composed,
+                  'namespace': self.args.namespace,
+                  'model_file': os.path.abspath(self.args.model) if self.args.model else None,
+                  'record': os.path.abspath(self.args.record) if self.args.record else None})
+        s.setdefault('realtime', sm.realtime_figures(self.diag))
+        r = self.runner
+        if r is not None:
+            t, ref, y = r.trace()
+            s['samples'] = int(t.size)
+            if t.size > 2 and self.scenario in TRACKING_SCENARIOS:
+                s['metrics'] = sm.scenario_metrics(self.scenario, t, ref, y, r.series('v'))
+            elif t.size > 2 and self.scenario == 'hysteresis-experiment':
+                from fiber_align.analysis.report import hysteresis_metrics
+                s['metrics'] = hysteresis_metrics(r.series('v'), y)
+            elif t.size > 2 and self.scenario == 'align':
+                s['align'] = sm.align_metrics(t, y, r.series('p'), r.states,
+                                              s.get('align_events', {}), self.params,
+                                              self.rate)
+            if self.args.trace and t.size:
+                np.savetxt(self.args.trace, np.column_stack([t, ref, y]), delimiter=',',
+                           header='t_s,r_m,y_m', comments='')
+        s['goals_missed'] = sm.goals_missed(s, self.sync, MISSED_SHARE_GOAL)
+        print(sm.format_summary(s), flush=True)
+        if self.args.summary:
+            with open(self.args.summary, 'w', encoding='utf-8') as f:
+                json.dump(s, f, indent=1, default=sm.json_default)

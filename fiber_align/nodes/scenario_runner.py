@@ -1,0 +1,173 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+``scenario_runner``: the setpoint source of a scenario, one message per sample.
+
+The same node runs a scenario under ``ros2 launch`` and under ``bringup`` (and inside
+``control_graph``, where its setpoints reach the compensator in-process, in the same
+control period as the sample they answer). Parameters (defaults in
+``config/scenario.yaml``):
+
+- ``scenario``: ``step``, ``sine``, ``triangle``, ``staircase`` (the references of
+  :mod:`fiber_align.control.scenarios`) or ``hysteresis-experiment`` (open loop: the
+  0-72 V, 0.1 Hz triangle as ``feedforward_voltage`` with 0 V ``feedback_voltage``).
+- ``duration_s``: length (s of sample time); 0: the scenario's own length.
+- ``reach_m``: the plant's largest reachable displacement (m), ``bringup`` sets it from
+  the plant's parameters as the offline loop does; 0: only the setpoint limits clamp.
+- ``setpoint_min_m``, ``setpoint_max_m``: the graph's setpoint limits (m).
+
+For each ``displacement`` sample with stamp t_k (t = t_k - t_0, t_0 the first sample's
+stamp) it publishes ``setpoint`` = the reference at t (m), clamped to
+``[max(0, setpoint_min_m), min(setpoint_max_m, reach_m)]``; once t reaches the duration
+it publishes nothing more, so a lockstep graph holds after exactly ``duration * rate``
+commands and a realtime graph holds the last setpoint. ``scenario_state``
+(std_msgs/String, latched) is ``running`` and then ``done``.
+"""
+
+import math
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64, String
+
+from fiber_align.control import scenarios
+from fiber_align.nodes import _common as c
+
+NODE_NAME = 'scenario_runner'
+AREA_FILES = ('scenario.yaml',)
+SCENARIOS = ('step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment')
+#: Topics this node publishes (relative names; see ``_common.LocalBus``).
+PUBLISHES = ('setpoint', 'feedforward_voltage', 'feedback_voltage')
+
+
+class Source:
+    """
+    A scenario's values at sample times (pure; shared with ``bringup``'s trace).
+
+    :param name: a name in :data:`SCENARIOS`.
+    :param lo: lowest setpoint (m).
+    :param hi: highest setpoint (m).
+    """
+
+    def __init__(self, name, lo=0.0, hi=float('inf')):
+        """Build the scenario of :mod:`fiber_align.control.scenarios`."""
+        self.sc = scenarios.make(name)
+        self.lo, self.hi = max(0.0, float(lo)), float(hi)
+
+    @property
+    def open_loop(self):
+        """Return True for an open-loop drive (V) instead of a setpoint (m)."""
+        return self.sc.open_loop
+
+    def value(self, t):
+        """Return the setpoint (m) or, open loop, the drive (V) at sample time ``t`` (s)."""
+        if self.sc.open_loop:
+            return self.sc.drive(t)
+        return min(max(self.sc.reference(t), self.lo), self.hi)
+
+
+def setpoint_range(lo, hi, reach_m):
+    """Return the clamp range (m) of the setpoints: ``[max(0, lo), min(hi, reach)]``."""
+    return max(0.0, float(lo)), (min(float(hi), float(reach_m)) if reach_m > 0
+                                 else float(hi))
+
+
+class ScenarioRunnerNode(Node):
+    """Publish a scenario's setpoint (or open-loop drive) for every displacement sample."""
+
+    def __init__(self, bus=None, **kwargs):
+        """
+        Declare the parameters (defaults from config/) and wire the topics.
+
+        :param bus: the :class:`~fiber_align.nodes._common.LocalBus` of a composed
+            process, or ``None``.
+        """
+        super().__init__(NODE_NAME, **kwargs)
+        d = c.node_defaults(NODE_NAME, AREA_FILES)
+        self.name_ = c.declare(self, d, 'scenario', 'scenario to run', read_only=True,
+                               choices=SCENARIOS)
+        dur = c.declare(self, d, 'duration_s', 'length (s of sample time); 0: the '
+                        "scenario's own", 0.0, 1e6, True)
+        reach = c.declare(self, d, 'reach_m', 'largest reachable displacement (m); 0: '
+                          'unknown', 0.0, 1e-2, True)
+        lo = c.declare(self, d, 'setpoint_min_m', 'lowest accepted setpoint (m)', -1e-3,
+                       1e-3, True)
+        hi = c.declare(self, d, 'setpoint_max_m', 'highest accepted setpoint (m)', -1e-3,
+                       1e-3, True)
+        self.lockstep = c.declare(self, d, 'sync_mode', 'sample clock', read_only=True,
+                                  choices=c.SYNC_MODES) == 'lockstep'
+        self.period_s = 1.0 / c.declare(self, d, 'rate_hz', 'control rate (Hz)', 1.0,
+                                        20000.0, True)
+        self.source = Source(self.name_, *setpoint_range(lo, hi, reach))
+        self.sc = self.source.sc
+        self.duration_s = float(dur) if dur > 0 else float(self.sc.duration_s)
+        if self.sc.open_loop:
+            self.pub_ff = c.Pub(self, Float64, 'feedforward_voltage', c.CONTROL_QOS, bus)
+            self.pub_fb = c.Pub(self, Float64, 'feedback_voltage', c.CONTROL_QOS, bus)
+        else:
+            self.pub_sp = c.Pub(self, Float64, 'setpoint', c.CONTROL_QOS, bus)
+        self.pub_state = self.create_publisher(String, 'scenario_state', c.LATCHED_QOS)
+        c.subscription(self, JointState, 'displacement', self._on_disp,
+                       c.sample_qos(self.lockstep), bus)
+        self._msg = Float64()
+        self._zero = Float64(data=0.0)
+        self.t0_ns = None
+        self.n = 0
+        self.done = False
+        self.pub_state.publish(String(data='ready'))
+        self.get_logger().info('scenario %s, %g s' % (self.name_, self.duration_s))
+
+    def _on_disp(self, msg):
+        if self.done:
+            return
+        st = msg.header.stamp
+        ns = st.sec * 1_000_000_000 + st.nanosec
+        if self.t0_ns is None:
+            self.t0_ns = ns
+            self.pub_state.publish(String(data='running'))
+        t = (ns - self.t0_ns) * 1e-9
+        if self.lockstep:
+            t = round(t / self.period_s) * self.period_s
+        if t >= self.duration_s - 0.5 * self.period_s:
+            self.done = True
+            self.pub_state.publish(String(data='done'))
+            self.get_logger().info('scenario done after %d samples' % self.n)
+            return
+        v = self.source.value(t)
+        if not math.isfinite(v):
+            return
+        m = self._msg
+        m.data = float(v)
+        if self.sc.open_loop:
+            self.pub_ff.publish(m)
+            self.pub_fb.publish(self._zero)
+        else:
+            self.pub_sp.publish(m)
+        self.n += 1
+
+    def sent_counts(self):
+        """Return published message counts per topic."""
+        if self.sc.open_loop:
+            return {'feedforward_voltage': self.n, 'feedback_voltage': self.n}
+        return {'setpoint': self.n}
+
+
+def main(args=None):
+    """Run the node (demo_nodes_py idiom)."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = ScenarioRunnerNode()
+        c.spin(node, realtime=not node.lockstep)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            c.report_sent(node, node.sent_counts())
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()
