@@ -34,6 +34,7 @@ import numpy as np
 from fiber_align.alignment import hillclimb2d as hc
 from fiber_align.alignment import scenarios as sc1
 from fiber_align.alignment import sequencer2d as s2d
+from fiber_align.config import load_params
 from fiber_align.plant import optics2d as o2
 
 SCENARIOS = ('align2d', 'track2d', 'switch2d')
@@ -241,9 +242,14 @@ def track_bench(bench, duration_s, skip_s=1.0, t_cmd=0.02):
 
 
 def switch_cycles(bench, cycles=5, on_s=0.06, off_s=0.03, level_s=0.01):
-    """Run ``cycles`` off/on cycles from TRACKING; the loss (dB) at the end of each on."""
+    """
+    Run ``cycles`` off/on cycles from TRACKING; the loss (dB) at the end of each on period.
+
+    ``cycles_not_tracking`` counts the on periods that ended before TRACKING (still
+    re-peaking); only a FAULT stops the cycles.
+    """
     seq = bench.seq
-    losses, faults = [], []
+    losses, faults, late = [], [], 0
     for i in range(cycles):
         ok, msg = seq.switch(False)
         if ok:
@@ -260,9 +266,12 @@ def switch_cycles(bench, cycles=5, on_s=0.06, off_s=0.03, level_s=0.01):
                 ll.append(bench.true_loss())
         losses.append(float(np.mean(ll)))
         if seq.state != s2d.TRACKING:
-            faults.append('cycle %d ended in %s %s' % (i, seq.state, seq.fault_reason))
+            late += 1
+        if seq.state == s2d.FAULT:
+            faults.append('cycle %d: FAULT %s' % (i, seq.fault_reason))
             break
-    out = dict(cycles=len(losses), cycle_loss_db=losses, switch_faults=faults)
+    out = dict(cycles=len(losses), cycle_loss_db=losses, switch_faults=faults,
+               cycles_not_tracking=late)
     if losses:
         n = max(1, min(10, len(losses) // 2))
         arr = np.asarray(losses)
@@ -315,13 +324,18 @@ def run(name, seed=0, loop='composite', record=False, rig=None, **kw):
 
     Returns the sequencer's metrics with the hill climb's under ``baseline`` and the ratios
     ``samples_ratio`` / ``time_ratio`` (hill climb / sequencer, peak samples and time to
-    peak). Keyword arguments: ``target`` ``(x, y)`` (m), ``cycles``, ``duration_s`` (s),
+    peak). Keyword arguments: ``target`` ``(x, y)`` (m), ``period_s`` (s; default the
+    config's ``control_period_s``), ``cycles``, ``duration_s`` (s),
     ``drift_m_per_s`` (m/s), ``vibration_m`` (m), ``vibration_hz`` (Hz), keys of the
     optics files.
     """
     if name not in SCENARIOS:
         raise ValueError('unknown scenario %r (allowed: %s)' % (name, ', '.join(SCENARIOS)))
-    rig = rig or Rig2D(loop, 1e-3, 2 * seed)
+    period_s = kw.pop('period_s', None)
+    if period_s is not None:
+        kw['seq_overrides'] = dict(control_period_s=float(period_s))
+    rig = rig or Rig2D(loop, period_s or load_params(s2d.CONFIG_FILE, s2d.CONFIG_NODE)[
+        'control_period_s'], 2 * seed)
     out = run_method(name, 'sequencer', seed, rig, record, **kw)
     base = run_method(name, 'hillclimb', seed, rig, record, **kw)
     out.update(scenario=name, seed=seed, loop=loop, control_rate_hz=1.0 / rig.period_s,
@@ -351,7 +365,7 @@ def run_cli(args):
 
     Reads ``args.scenario``, ``args.seed``, ``args.json``, ``args.plot`` and, when present,
     ``args.loop``, ``args.cycles``, ``args.duration`` (s), ``args.drift`` (m/s),
-    ``args.target`` ((x, y) in m). Exit code 0 when the sequencer ends TRACKING.
+    ``args.rate`` (Hz), ``args.target`` ((x, y) in m). Exit code 0 when the sequencer ends TRACKING.
     """
     name = getattr(args, 'scenario', 'align2d')
     seed = int(getattr(args, 'seed', 0) or 0)
@@ -361,6 +375,9 @@ def run_cli(args):
         v = getattr(args, attr, None)
         if v is not None:
             kw[key] = v
+    rate = getattr(args, 'rate', None)
+    if rate:
+        kw['period_s'] = 1.0 / float(rate)
     loop = getattr(args, 'loop', None) or 'composite'
     plot = getattr(args, 'plot', None)
     res = run(name, seed=seed, loop=loop, record=bool(plot), **kw)

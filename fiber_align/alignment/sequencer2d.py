@@ -151,6 +151,18 @@ class Sequencer2D:
         self._start_pattern(self.aligned, self.p['repeak_pattern_radius_m'])
         return True, 'switching on to (%.2f, %.2f) um' % tuple(np.asarray(self.aligned) * 1e6)
 
+    def spiral(self, start):
+        """
+        Return the first-light walk from ``start`` (m): the square's centre, then outwards.
+
+        It ends half a pitch beyond the half-diagonal, so that in every direction an arm
+        passes within half a pitch of the corners (the setpoints are clipped to the square,
+        so the outer turn runs along its edges).
+        """
+        center = 0.5 * (self.lo + self.hi)
+        r_max = 0.5 * float(np.hypot(*(self.hi - self.lo))) + 0.5 * self.pitch_m
+        return s2.SpiralPath(start, center, self.pitch_m, r_max)
+
     @property
     def setpoint(self):
         """Return the last setpoints ``(x, y)`` (m)."""
@@ -300,9 +312,7 @@ class Sequencer2D:
                 self._start_peaking(pos)
                 return
             self.threshold_w = max(mean + p['threshold_sigma'] * std, p['min_threshold_w'])
-            center = 0.5 * (self.lo + self.hi)
-            self._spiral = s2.SpiralPath(pos, center, self.pitch_m,
-                                         0.5 * float(np.hypot(*(self.hi - self.lo))))
+            self._spiral = self.spiral(pos)
             self._phase = 'spiral'
             self._confirm = 0
             self._best = (0.0, pos)
@@ -398,8 +408,11 @@ class Sequencer2D:
         if ok.sum() >= 4:
             fit = s2.fit_log_paraboloid(rows[ok, 0], rows[ok, 1], rows[ok, 2], w[ok])
             r = p['curvature_ratio_max']
-            if fit is not None and not (self.curvature_prior / r < fit[2]
-                                        < self.curvature_prior * r):
+            # far outside the cross the vertex is an extrapolation whose error scales with
+            # the curvature's: there the prior (from the mode radius) is the better guess
+            if fit is not None and (not (self.curvature_prior / r < fit[2]
+                                         < self.curvature_prior * r) or np.hypot(
+                    fit[0] - self._center[0], fit[1] - self._center[1]) > 2 * self._radius):
                 fit = None
         if fit is None and ok.sum() >= 3:
             prior = True
@@ -418,14 +431,19 @@ class Sequencer2D:
             (vertex > self.hi + p['range_tolerance_m'])
         at_edge = (np.abs(self._center - self.lo) < p['settle_tolerance_m']) | \
             (np.abs(self._center - self.hi) < p['settle_tolerance_m'])
-        for a in range(2):
-            if out[a] and at_edge[a] and not prior:
-                self._fault('target out of reach in %s: peak estimated at %.1f um, '
-                            'reachable %.1f..%.1f um' % (AXES[a], vertex[a] * 1e6,
-                                                         self.lo[a] * 1e6, self.hi[a] * 1e6))
-                return
+        bad = [a for a in range(2) if out[a] and at_edge[a]]
+        if bad and ok.sum() >= 4:
+            self._fault('target out of reach in %s: peak estimated at (%.1f, %.1f) um, '
+                        'reachable x %.1f..%.1f um, y %.1f..%.1f um'
+                        % (' and '.join(AXES[a] for a in bad), *(vertex * 1e6),
+                           self.lo[0] * 1e6, self.hi[0] * 1e6, self.lo[1] * 1e6,
+                           self.hi[1] * 1e6))
+            return
         step = vertex - self._center
         dist = float(np.hypot(*step))
+        self._log('cross %d at (%.2f, %.2f) um, radius %.2f um, %d lit: vertex (%.2f, %.2f) um'
+                  '%s' % (self.iterations, *(self._center * 1e6), self._radius * 1e6,
+                          ok.sum(), *(vertex * 1e6), ' (curvature prior)' if prior else ''))
         if dist > p['max_step_m']:
             step *= p['max_step_m'] / dist
         self._fit = fit
