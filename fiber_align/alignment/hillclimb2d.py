@@ -52,10 +52,12 @@ class HillClimb2D(s2d.Sequencer2D):
         super().__init__(params, **overrides)
 
     def switch(self, on):
-        """Switch on: back to the last point, climb with the tracking step; off: park."""
+        """Switch on: back to the last point and perturb-and-observe from there; off: park."""
         ok, msg = super().switch(on)
         if ok and on and self.state == s2d.PEAKING:
-            self._start_climb(self.aligned, self.hp['track_step_m'])
+            # the classic way: the tracking climb is the re-peak
+            self._phase = 'goto'
+            self._visit([self.aligned], lambda rows: self._start_tracking(self._t))
         return ok, msg
 
     def _start_peaking(self, center):
@@ -109,13 +111,31 @@ class HillClimb2D(s2d.Sequencer2D):
 
     def _finish(self):
         here = self._here[0]
-        for a in range(2):
-            if here[a] <= self.lo[a] or here[a] >= self.hi[a]:
-                return self._fault('target out of reach in %s: the hill climb ends at the '
-                                   'edge, %.1f um (reachable %.1f..%.1f um)'
-                                   % (s2d.AXES[a], here[a] * 1e6, self.lo[a] * 1e6,
-                                      self.hi[a] * 1e6))
-        self.aligned = here.copy()
+        edge = [a for a in range(2) if here[a] <= self.lo[a] or here[a] >= self.hi[a]]
+        if not edge:
+            return self._accept()
+        # ended at an edge: one probe a full step inwards tells a peak just inside (the
+        # power falls by at most k s^2) from one beyond the edge (k (s^2 + 2 s tol) or more)
+        a = edge[0]
+        s = self.hp['initial_step_m']
+        inward = np.where(here[a] <= self.lo[a], 1.0, -1.0) * s * UNIT[a]
+        self._edge_axis = a
+        self._visit([here + inward], self._edge_check)
+
+    def _edge_check(self, rows):
+        a, s, tol = self._edge_axis, self.hp['initial_step_m'], self.p['range_tolerance_m']
+        drop = np.log(self._here[1] / max(rows[0, 2], 1e-300))
+        if drop > self.curvature_prior * (s * s + 2.0 * s * tol):
+            here = self._here[0]
+            return self._fault('target out of reach in %s: the hill climb ends at the edge, '
+                               '%.1f um, and the power falls %.1f dB a step inwards '
+                               '(reachable %.1f..%.1f um)'
+                               % (s2d.AXES[a], here[a] * 1e6, 10 * drop / np.log(10),
+                                  self.lo[a] * 1e6, self.hi[a] * 1e6))
+        self._accept()
+
+    def _accept(self):
+        self.aligned = self._here[0].copy()
         self.aligned_power_w = self._here[1]
         self._start_tracking(self._t)
 

@@ -365,7 +365,8 @@ def run_cli(args):
 
     Reads ``args.scenario``, ``args.seed``, ``args.json``, ``args.plot`` and, when present,
     ``args.loop``, ``args.cycles``, ``args.duration`` (s), ``args.drift`` (m/s),
-    ``args.rate`` (Hz), ``args.target`` ((x, y) in m). Exit code 0 when the sequencer ends TRACKING.
+    ``args.rate`` (Hz), ``args.target`` ((x, y) in m). Exit code 0 when the sequencer ends
+    TRACKING.
     """
     name = getattr(args, 'scenario', 'align2d')
     seed = int(getattr(args, 'seed', 0) or 0)
