@@ -73,6 +73,11 @@ def align_table(rig, n_x=5, n_y=4):
                   max((q['samples'] for q in tr), default='-'),
                   _f(np.median([q['time_to_peak_s'] for q in tr]) if tr else None, 1e3),
                   _f(np.median([q['peak_samples'] for q in tr]) if tr else None, fmt='%.0f')))
+        print('  each goal alone: %d/%d within 0.05 dB, %d/%d in <= 1 s, %d/%d with <= 150 '
+              'peak samples' % (
+                  sum(1 for q in tr if q['final_loss_db'] <= 0.05), len(qs),
+                  sum(1 for q in tr if q['time_to_peak_s'] <= 1.0), len(qs),
+                  sum(1 for q in tr if q['peak_samples'] <= 150), len(qs)))
     both = [r for r in rows if r['state'] == r['baseline']['state'] == s2d.TRACKING]
     if both:
         ps = sum(r['baseline']['peak_samples'] for r in both) / sum(

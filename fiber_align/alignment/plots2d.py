@@ -42,7 +42,7 @@ def _path(ax, tr, label, coloured, style):
     for i in range(1, len(st) + 1):
         if i == len(st) or st[i] != st[i0]:
             s = st[i0]
-            ax.plot(x[i0:i + 1], y[i0:i + 1], style, lw=1.0,
+            ax.plot(x[i0:i + 1], y[i0:i + 1], style, lw=1.0, zorder=3,
                     color=STATE_COLOURS.get(s, 'k'),
                     label=None if s in seen else '%s: %s' % (label, s))
             seen.add(s)
@@ -73,7 +73,8 @@ def plot_run2d(res, path, title=None):
     _path(ax, tr, 'sequencer', True, '-')
     if base is not None:
         _path(ax, base, 'hill climb', False, '--')
-    ax.plot(tr['tx'] * 1e6, tr['ty'] * 1e6, 'r-', lw=1.5, alpha=0.6)
+    ax.plot(tr['tx'] * 1e6, tr['ty'] * 1e6, 'r-', lw=3, alpha=0.35, zorder=1,
+            label='target path')
     ax.plot(tr['tx'][0] * 1e6, tr['ty'][0] * 1e6, 'r+', ms=12, mew=2,
             label='target (true, unknown)')
     ax.add_patch(plt.Rectangle((0, 0), 65, 65, fill=False, ls=':', color='gray'))
