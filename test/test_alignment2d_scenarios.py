@@ -129,8 +129,8 @@ def test_cli_json_has_the_keys(capsys):
     out = json.loads(capsys.readouterr().out)
     assert rc == 0
     for key in ('final_loss_db', 'time_to_peak_s', 'peak_samples'):
-        assert isinstance(out[key], (int, float)) and isinstance(out['baseline'][key],
-                                                                  (int, float))
+        assert isinstance(out[key], (int, float))
+        assert isinstance(out['baseline'][key], (int, float))
     assert out['final_loss_db'] <= 0.05 and out['scenario'] == 'align2d'
     assert out['baseline']['method'] == 'hillclimb'
 
