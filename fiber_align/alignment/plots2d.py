@@ -93,10 +93,18 @@ def plot_run2d(res, path, title=None):
     for trace, label, colour in ((tr, 'sequencer', 'C0'), (base, 'hill climb', 'C1')):
         if trace is None:
             continue
-        a1.plot(trace['t'] * sc, op.w_to_dbm(trace['p']), lw=0.7, color=colour,
-                label='%s, measured' % label)
-        a2.plot(trace['t'] * sc, np.maximum(trace['loss_db'], 1e-4), lw=0.7, color=colour,
-                label=label)
+        t, p_dbm, loss = trace['t'], op.w_to_dbm(trace['p']), trace['loss_db']
+        note = ''
+        if not ms and t.size > 2000:
+            # seconds of samples would fill the panel: draw the worst of each 100 ms
+            n = int(round(0.1 / max(t[1] - t[0], 1e-9)))
+            m = t.size // n
+            t = t[:m * n:n]
+            p_dbm = p_dbm[:m * n].reshape(m, n).min(axis=1)
+            loss = loss[:m * n].reshape(m, n).max(axis=1)
+            note = ', worst per 100 ms'
+        a1.plot(t * sc, p_dbm, lw=0.7, color=colour, label='%s, measured%s' % (label, note))
+        a2.plot(t * sc, np.maximum(loss, 1e-4), lw=0.8, color=colour, label=label + note)
     a1.set_ylabel('optical power (dBm)')
     a1.set_ylim(-80, 5)
     a1.grid(alpha=0.3)
