@@ -13,7 +13,9 @@ targets and noise seeds, for the coordinate hill-climb baseline:
 - 1,000 switch off/on cycles (30 ms off, 60 ms on): loss at the end of each on period;
 - faults: broken fiber, target out of reach in x and in y, fiber breaking while tracking.
 
-``python -m bench bench_alignment2d`` (``main(['--quick'])`` for a reduced run).
+``python -m bench bench_alignment2d`` (``main(['--quick'])`` for a reduced run;
+``python bench/bench_alignment2d.py --extra 200`` aligns the sequencer alone to 200 more
+random targets).
 """
 
 import argparse
@@ -92,14 +94,36 @@ def align_table(rig, n_x=5, n_y=4):
     return rows
 
 
+def extra_targets(rig, n):
+    """Align the sequencer to ``n`` uniform random targets, seeds 100..; print a summary."""
+    qs = [sc.run_method('align2d', 'sequencer', seed=100 + i, rig=rig) for i in range(n)]
+    ok = [q for q in qs if q['aligned']]
+    print('sequencer, %d random targets (seeds 100..%d): %d aligned (<= 0.05 dB, <= 1 s, '
+          '<= 150 peak samples); worst loss %s dB, worst time %s ms, most peak samples %s, '
+          'most samples %s, %d with more than 150 samples counting the search; failures %s'
+          % (n, 99 + n, len(ok), _f(max((q['final_loss_db'] for q in ok), default=None),
+                                    fmt='%.4f'),
+             _f(max((q['time_to_peak_s'] for q in ok), default=None), 1e3),
+             max((q['peak_samples'] for q in ok), default='-'),
+             max((q['samples'] for q in ok), default='-'),
+             sum(1 for q in ok if q['samples'] > 150),
+             [(q['target_x_m'], q['target_y_m'], q['state'], q['fault_reason'])
+              for q in qs if not q['aligned']] or 'none'))
+    return 0
+
+
 def main(argv=None):
     """Run the checks and print the tables; return 0."""
     ap = argparse.ArgumentParser(prog='bench_alignment2d')
     ap.add_argument('--quick', action='store_true', help='reduced sizes')
+    ap.add_argument('--extra', type=int, default=0, metavar='N',
+                    help='only align the sequencer to N more random targets (seeds 100..)')
     args = ap.parse_args([] if argv is None else argv)
     n_cycles, track_s = (50, 5.0) if args.quick else (1000, 60.0)
     t0 = time.time()
     rig = sc.Rig2D('composite', 1e-3, 0)
+    if args.extra:
+        return extra_targets(rig, args.extra)
     align_table(rig)
     print()
     for seed in (1, 2, 3):
