@@ -14,7 +14,9 @@ def register(sub):
     p.add_argument('--scenario', default='step',
                    help='step | sine | triangle | staircase | hysteresis-experiment; '
                         'align | switch | track run the alignment sequencer '
-                        '(fiber_align.alignment.scenarios)')
+                        '(fiber_align.alignment.scenarios); align2d | track2d | switch2d '
+                        'the two-axis sequencer and its hill-climb baseline '
+                        '(fiber_align.alignment.scenarios2d)')
     p.add_argument('--controller', default='composite',
                    help='open-loop | feedforward | pid | fuzzy | composite | composite-pid')
     p.add_argument('--rate', type=float, default=None, help='control rate, Hz')
@@ -50,6 +52,7 @@ def register(sub):
 
 
 ALIGN_SCENARIOS = ('align', 'switch', 'track')
+ALIGN2D_SCENARIOS = ('align2d', 'track2d', 'switch2d')
 
 
 def _check_alignment_args(args):
@@ -95,6 +98,10 @@ def _fmt(v, scale=1.0, digits=3):
 def cmd_simulate(args):
     """Run ``simulate``; return an exit code."""
     from fiber_align.control import scenarios, simulate
+    if args.scenario in ALIGN2D_SCENARIOS:      # issue 14: two-axis alignment
+        from fiber_align.alignment import scenarios2d
+        _check_alignment_args(args)
+        return scenarios2d.run_cli(args)
     if args.scenario in ALIGN_SCENARIOS:
         try:
             mod = importlib.import_module('fiber_align.alignment.scenarios')

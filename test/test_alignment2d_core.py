@@ -1,0 +1,138 @@
+# SPDX-License-Identifier: Apache-2.0
+"""Properties of the 2-D estimators: spiral coverage, paraboloid fit, circle demodulation."""
+
+import math
+
+import numpy as np
+import pytest
+
+from fiber_align.alignment import search2d as s2
+from fiber_align.alignment import sequencer2d as s2d
+from fiber_align.plant import optics as op
+
+W = 5.2e-6
+K = 1.0 / W ** 2                  # curvature of ln P (1/m^2), no gap
+
+
+def _min_dist(grid, path, chunk=400):
+    """Return, for each grid point, the distance (m) to the nearest path point."""
+    out = []
+    for i in range(0, len(grid), chunk):
+        d = np.hypot(grid[i:i + chunk, None, 0] - path[None, :, 0],
+                     grid[i:i + chunk, None, 1] - path[None, :, 1])
+        out.append(d.min(axis=1))
+    return np.concatenate(out)
+
+
+def test_spiral_pitch_leaves_no_gap_larger_than_the_capture_radius():
+    seq = s2d.Sequencer2D()
+    p = seq.p
+    rc = seq.capture_radius_m
+    assert rc == pytest.approx(W * math.sqrt(p['spiral_capture_db'] * math.log(10) / 10))
+    chord = (p['confirm_samples'] + 1) * p['search_speed_m_per_s'] * p['control_period_s']
+    assert seq.pitch_m == pytest.approx(2 * math.sqrt(rc ** 2 - (chord / 2) ** 2))
+    path = seq.spiral(seq.park).points(0.25e-6)
+    path = np.clip(path, seq.lo, seq.hi)           # the setpoints are clipped to the square
+    g = np.linspace(0.0, 65e-6, 60)
+    grid = np.array([(a, b) for a in g for b in g])
+    dmin = _min_dist(grid, path)
+    # every point of the square is within half a pitch of the walk, and that is inside the
+    # capture radius with room for the confirm chord
+    assert dmin.max() <= 0.5 * seq.pitch_m + 0.3e-6
+    assert 0.5 * seq.pitch_m < rc
+    # the walk stays within the capture radius of each point for at least the chord
+    near = []
+    for q in grid[::7]:
+        near.append(np.sum(np.hypot(*(path - q).T) < rc) * 0.25e-6)
+    assert min(near) >= chord
+    # and the walk is short: at most the transit plus pi R^2 / pitch of the whole spiral
+    steps = np.hypot(*np.diff(path, axis=0).T).sum()
+    sp = seq.spiral(seq.park)
+    assert steps <= sp.transit + math.pi * sp.r_max ** 2 / seq.pitch_m
+
+
+def _fit_cov_std(x, y, x0, y0, sigma):
+    """Return the predicted standard deviation (m) of the fitted vertex x and y."""
+    xm, ym = x.mean(), y.mean()
+    xs, ys = (x - xm) * 1e6, (y - ym) * 1e6
+    a = np.vstack([np.ones_like(xs), xs, ys, -(xs ** 2 + ys ** 2)]).T
+    cov = sigma ** 2 * np.linalg.inv(a.T @ a)
+    k = K * 1e-12
+    bx, by = 2 * k * (x0 - xm) * 1e6, 2 * k * (y0 - ym) * 1e6
+    # vertex = b / (2 k): gradients w.r.t. (a, bx, by, k)
+    jx = np.array([0.0, 1 / (2 * k), 0.0, -bx / (2 * k * k)])
+    jy = np.array([0.0, 0.0, 1 / (2 * k), -by / (2 * k * k)])
+    return math.sqrt(jx @ cov @ jx) * 1e-6, math.sqrt(jy @ cov @ jy) * 1e-6
+
+
+def test_paraboloid_fit_recovers_a_noisy_gaussian_peak_within_the_noise():
+    rng = np.random.default_rng(7)
+    x0, y0 = 31.3e-6, 18.9e-6
+    c = np.array([31.0e-6, 19.6e-6])            # cross centre 0.76 um from the peak
+    h = 1.5e-6
+    pts = np.array([c, c + (h, 0), c + (0, h), c - (h, 0), c - (0, h)])
+    sigma = 0.02 * math.log(10) / 10 / math.sqrt(2)   # two readings of 0.02 dB RIN
+    sx, sy = _fit_cov_std(pts[:, 0], pts[:, 1], x0, y0, sigma)
+    assert 0.005e-6 < sx < 0.05e-6 and 0.005e-6 < sy < 0.05e-6
+    errs = []
+    for _ in range(400):
+        lp = math.log(1e-3) - K * ((pts[:, 0] - x0) ** 2 + (pts[:, 1] - y0) ** 2)
+        p = np.exp(lp + sigma * rng.standard_normal(len(pts)))
+        fit = s2.fit_log_paraboloid(pts[:, 0], pts[:, 1], p)
+        errs.append((fit[0] - x0, fit[1] - y0, fit[2] / K - 1))
+    e = np.asarray(errs)
+    # the spread matches the least-squares prediction (400 trials: +-15 % covers it) ...
+    assert np.std(e[:, 0]) == pytest.approx(sx, rel=0.15)
+    assert np.std(e[:, 1]) == pytest.approx(sy, rel=0.15)
+    # ... with no bias beyond the noise (first-order unbiased; 4 sigma of the mean)
+    assert abs(np.mean(e[:, 0])) < 4 * sx / math.sqrt(len(e)) + 1e-9
+    assert abs(np.mean(e[:, 1])) < 4 * sy / math.sqrt(len(e)) + 1e-9
+    # noise-free: exact
+    p = np.exp(math.log(1e-3) - K * ((pts[:, 0] - x0) ** 2 + (pts[:, 1] - y0) ** 2))
+    fit = s2.fit_log_paraboloid(pts[:, 0], pts[:, 1], p)
+    assert fit[0] == pytest.approx(x0, abs=1e-12) and fit[1] == pytest.approx(y0, abs=1e-12)
+    assert fit[2] == pytest.approx(K, rel=1e-9)
+    assert fit[3] == pytest.approx(math.log(1e-3), abs=1e-9)
+    # the prior-curvature fit extrapolates from far away (first light, 18 um off)
+    far = pts + np.array([18e-6, 0.0])
+    p = np.exp(math.log(1e-3) - K * ((far[:, 0] - x0) ** 2 + (far[:, 1] - y0) ** 2))
+    fit = s2.fit_log_paraboloid(far[:3, 0], far[:3, 1], p[:3], curvature=K)
+    assert fit[0] == pytest.approx(x0, abs=1e-12) and fit[1] == pytest.approx(y0, abs=1e-12)
+    # a valley or a line of points is no peak
+    assert s2.fit_log_paraboloid(pts[:, 0], pts[:, 1], 1.0 / p) is None
+    assert s2.fit_log_paraboloid(pts[:, 0], np.full(5, 1e-6), p) is None
+
+
+@pytest.mark.parametrize('lag_deg', [0.0, 40.0])
+def test_circle_demodulation_points_uphill(lag_deg):
+    """The gradient points at the peak, magnitude 2 k |offset|, whatever the loop's lag."""
+    x0, y0 = 20e-6, 30e-6
+    a, f, dt = 0.3e-6, 50.0, 1e-3
+    for ang in np.radians([0.0, 75.0, 130.0, 250.0]):
+        off = 0.6e-6
+        cx, cy = x0 - off * math.cos(ang), y0 - off * math.sin(ang)   # peak at +ang
+        det = op.Detector(noise_floor_w=0.0, rin_db=0.0, seed=0)
+        dm = s2.CircleDemodulator(0.04, lag_s=det.lag_s(dt))
+        for k in range(200):
+            # the tip follows the commanded circle with a phase lag and 80 % amplitude
+            ph = 2 * math.pi * f * k * dt - math.radians(lag_deg)
+            x = cx + 0.8 * a * math.cos(ph)
+            y = cy + 0.8 * a * math.sin(ph)
+            pw = det.measure(1e-3 * math.exp(-K * ((x - x0) ** 2 + (y - y0) ** 2)), dt)
+            dm.update(dt, x, y, math.log(pw))
+        gx, gy = dm.gradient(0.01 * a * a)
+        err = math.degrees(math.atan2(math.sin(math.atan2(gy, gx) - ang),
+                                      math.cos(math.atan2(gy, gx) - ang)))
+        assert abs(err) < 2.0
+        assert math.hypot(gx, gy) == pytest.approx(2 * K * off, rel=0.05)
+
+
+def test_parameters_come_from_the_config_file_only():
+    seq = s2d.Sequencer2D()
+    assert seq.p == s2d.load_sequencer2d_params()
+    with pytest.raises(ValueError, match='unknown'):
+        s2d.Sequencer2D(not_a_parameter=1.0)
+    p = s2d.load_sequencer2d_params()
+    del p['dither_radius_m']
+    with pytest.raises(ValueError, match='missing'):
+        s2d.Sequencer2D(p)
