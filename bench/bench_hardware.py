@@ -21,7 +21,6 @@ import time
 
 import numpy as np
 
-from fiber_align.alignment import sequencer as sq
 from fiber_align.hardware import errors as er
 from fiber_align.hardware.bench import align_trial, emulated, SensorlessBench
 
@@ -34,7 +33,7 @@ def _rate(fn, n):
 
 
 def rates(n=2000):
-    """Return the measured rates (Hz) of the emulated devices through our clients."""
+    """Measure how fast (Hz) the emulated devices take commands and readings."""
     out = {}
     with emulated(seed=0, slot_position_m=30e-6) as (bench, mdt, pm):
         sb = SensorlessBench(mdt.port, pm.resource)

@@ -17,7 +17,7 @@ V_MIN, V_MAX = 0.0, 90.0
 
 @pytest.fixture
 def emu():
-    """An MDT693B emulator with its limit switch at 100 V."""
+    """Serve an MDT693B emulator with its limit switch at 100 V."""
     e = MDT693BEmulator(Bench(v_limit=100.0))
     yield e
     e.stop()

@@ -1,18 +1,19 @@
 # SPDX-License-Identifier: Apache-2.0
-"""
+r"""
 Thorlabs MDT693B / MDT694B piezo controller over its USB virtual serial port (pyserial).
 
-Protocol (Thorlabs MDT693B/MDT694B manual, cross-checked with session captures of real
-units and the PyPI client ``mdt69x``): 115200 baud, 8N1, no flow control; a command is
-ASCII terminated by a carriage return (CR, ``\\r``); line feeds are ignored. The device
-answers every command with its prompt: ``>`` in the present command set, ``*`` in the
-MDT693A compatibility command set (``cm=1``; ``XV``, ``XR``, ``XH``, ``XL``, ``I``,
-``%``, ...). A query answers ``[ value]`` then CR before the prompt (``xvoltage?`` ->
-``[  24.8]\\r>``, ``vlimit?`` -> ``[ 100]\\r>``); an unknown command answers
-``CMD_NOT_DEFINED`` then the prompt. With the echo on (``echo=1``) the device first
-echoes the characters it receives. ``xvoltage?`` reads back the *output* voltage to
-0.1 V, not the last set value (a capture shows ``xvoltage=24.680`` reading ``24.8``).
-``vlimit?`` answers the position of the rear-panel output limit switch: 75, 100 or 150 V.
+Protocol as issue 12 states it, checked against what public sources show of real units
+(session captures and the PyPI client ``mdt69x``, which was written against real units;
+the Thorlabs manual itself was not at hand, see docs/hardware.md): 115200 baud, 8N1, no
+flow control; a command is ASCII terminated by a carriage return (CR, ``\r``); line
+feeds are ignored. The device answers every command with its prompt: ``>`` in the
+present command set, ``*`` in the MDT693A compatibility command set (``cm=1``; ``XV``,
+``XR``, ``XH``, ``XL``, ``I``, ``%``, ...). A query answers ``[ value]`` then CR before
+the prompt (``xvoltage?`` -> ``[  24.8]\r>``, ``vlimit?`` -> ``[ 100]\r>``); an unknown
+command answers ``CMD_NOT_DEFINED`` then the prompt. With the echo on (``echo=1``) the
+device first echoes the characters it receives. ``xvoltage?`` reads back the *output*
+voltage to 0.1 V, not the last set value (a capture shows ``xvoltage=24.680`` reading
+``24.8``). ``vlimit?`` answers the rear-panel output limit switch: 75, 100 or 150 V.
 
 :class:`MDT693B` is the client (one transaction at a time, explicit timeouts, typed
 :class:`~fiber_align.hardware.errors.DeviceError`); :class:`MDT693BOutput` is the output
@@ -340,11 +341,12 @@ class MDT693BOutput:
         v = float(volts)
         if not math.isfinite(v):
             raise er.LimitError(DEVICE, 'refused non-finite voltage %r' % v)
-        hi = self.v_max if self.device_limit_v is None else min(self.v_max,
-                                                                 self.device_limit_v)
+        hi = self.v_max
+        if self.device_limit_v is not None:
+            hi = min(hi, self.device_limit_v)
         if not self.v_min <= v <= hi:
-            raise er.LimitError(DEVICE, 'refused %.6g V outside [%g, %g] V' % (v, self.v_min,
-                                                                                hi))
+            raise er.LimitError(DEVICE, 'refused %.6g V outside [%g, %g] V'
+                                % (v, self.v_min, hi))
         return v
 
     def write(self, volts):

@@ -1,11 +1,11 @@
 # SPDX-License-Identifier: Apache-2.0
-"""
+r"""
 Thorlabs PM100 family power meter (PM100D, PM100USB, PM101, ...) over SCPI with pyvisa.
 
 The pure-Python backend ``@py`` (pyvisa-py) reaches the meter as USBTMC
 (``USB0::0x1313::0x8078::P0001234::INSTR``, needs pyusb), serial
 (``ASRL/dev/ttyUSB0::INSTR``) or a TCP socket (``TCPIP::127.0.0.1::5025::SOCKET``, the
-emulator). Socket and serial resources get ``\\n`` read and write termination.
+emulator). Socket and serial resources get ``\n`` read and write termination.
 
 :meth:`PM100.configure` sends ``SENS:CORR:WAV <nm>``, ``SENS:POW:RANG:AUTO ON``,
 ``SENS:AVER:COUN <n>`` and ``CONF:POW`` and checks ``SYST:ERR?``; :meth:`PM100.read_w`

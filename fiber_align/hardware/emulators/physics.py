@@ -17,9 +17,9 @@ rides on one channel; the MDT693B and PM100 emulators share one Bench.
 import threading
 import time
 
-from fiber_align.plant.actuator import SimulatedActuator
-from fiber_align.plant.optics import Detector, FiberCoupling, _section
 from fiber_align.config import load_params
+from fiber_align.plant.actuator import SimulatedActuator
+from fiber_align.plant.optics import _section, Detector, FiberCoupling
 
 MAX_CATCH_UP_STEPS = 20000
 

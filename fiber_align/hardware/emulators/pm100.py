@@ -1,9 +1,9 @@
 # SPDX-License-Identifier: Apache-2.0
-"""
+r"""
 A Thorlabs PM100 power meter on a loopback TCP socket, reading this package's optics.
 
 pyvisa reaches it as ``TCPIP::127.0.0.1::<port>::SOCKET`` (read and write termination
-``\\n``). SCPI as the PM100 manuals document it, long or short mnemonics, any case:
+``\n``). SCPI as the PM100 manuals document it, long or short mnemonics, any case:
 ``*IDN?``, ``*RST``, ``*CLS``, ``SENS:CORR:WAV <nm>`` / ``?``, ``SENS:POW:RANG:AUTO
 ON|OFF|1|0`` / ``?``, ``SENS:POW:RANG[:UPP] <W>`` / ``?``, ``SENS:AVER[:COUN] <n>`` /
 ``?``, ``CONF[:SCAL]:POW`` / ``CONF?``, ``MEAS[:SCAL]:POW?``, ``READ?``, ``INIT``,
