@@ -25,6 +25,12 @@ import math
 import re
 import time
 
+try:                                   # tcdrain / tcgetattr on a vanished port raise it
+    from termios import error as TermiosError
+except ImportError:                    # pragma: no cover - not POSIX
+    class TermiosError(Exception):
+        """Stand-in where termios does not exist."""
+
 from fiber_align.hardware import errors as er
 
 CHANNELS = ('x', 'y', 'z')
@@ -82,14 +88,18 @@ class MDT693B:
                                       stopbits=serial.STOPBITS_ONE, timeout=self.timeout_s,
                                       write_timeout=self.timeout_s, xonxoff=False,
                                       rtscts=False, dsrdtr=False)
-        except (serial.SerialException, OSError, ValueError) as exc:
+        except (serial.SerialException, OSError, TermiosError, ValueError) as exc:
             self._ser = None
             raise er.DeviceError(DEVICE, er.PORT_GONE,
                                  'cannot open %s: %s' % (self.port, exc)) from None
         # Resynchronise: whatever mode and echo state the device is in, a bare CR and
         # the two mode commands end with a prompt ('>' or '*') that we read past.
         try:
-            self._ser.reset_input_buffer()
+            try:
+                self._ser.reset_input_buffer()
+            except (serial.SerialException, OSError, TermiosError) as exc:
+                raise er.DeviceError(DEVICE, er.PORT_GONE, 'cannot use %s: %s'
+                                     % (self.port, exc)) from None
             for cmd in (b'\r', b'cm=0\r', b'echo=0\r'):
                 self._write(cmd)
                 self._read_until_prompt(prompts=(b'>', b'*'))
@@ -128,7 +138,7 @@ class MDT693B:
             self.close()
             raise er.DeviceError(DEVICE, er.WRITE_ERROR, 'write to %s timed out after '
                                  '%.3g s: %s' % (self.port, self.timeout_s, exc)) from None
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, TermiosError) as exc:
             self.close()
             raise er.DeviceError(DEVICE, er.PORT_GONE, 'write to %s failed: %s'
                                  % (self.port, exc)) from None
@@ -151,7 +161,8 @@ class MDT693B:
             try:
                 self._ser.timeout = left
                 chunk = self._ser.read(max(1, self._ser.in_waiting or 1))
-            except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+            except (serial.SerialException, OSError, TermiosError, TypeError,
+                    AttributeError) as exc:
                 self.close()
                 raise er.DeviceError(DEVICE, er.PORT_GONE, 'read from %s failed: %s'
                                      % (self.port, exc)) from None
