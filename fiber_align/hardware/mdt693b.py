@@ -182,7 +182,9 @@ class MDT693B:
         """
         cmd = command.strip()
         self._write(cmd.encode('ascii') + b'\r')
-        raw = self._read_until_prompt().decode('ascii', 'replace')
+        # either prompt: a unit left in the compatibility set answers '*' (and one public
+        # capture shows '*' with the compatibility mode reported off)
+        raw = self._read_until_prompt(prompts=(b'>', b'*')).decode('ascii', 'replace')
         self.transactions += 1
         # an echo (if someone turned it on) repeats the command and its CR first
         if raw.lower().startswith(cmd.lower()):
