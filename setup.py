@@ -20,6 +20,7 @@ NODES = [
     'alignment_sequencer',
     'bag_recorder',
     'bringup',
+    'power_meter',
 ]
 
 setup(
