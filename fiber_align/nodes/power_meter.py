@@ -90,7 +90,7 @@ class PowerMeterNode(Node):
         with self.lock:
             changed = level != self.level
             self.level, self.message = level, message
-        if changed:
+        if changed and not self.stop.is_set():
             if level == ERROR:
                 self.get_logger().error(message)
             else:
@@ -130,9 +130,24 @@ class PowerMeterNode(Node):
                 self.stop.wait(self.p['reconnect_period_s'])
         self.meter.close()
 
+    def _publish(self, pub, msg):
+        """Publish unless the context is gone (SIGINT); then stop the reading thread."""
+        if self.stop.is_set() or not self.context.ok():
+            self.stop.set()
+            return False
+        try:
+            pub.publish(msg)
+        except Exception:  # noqa: BLE001 - the context shut down under the thread
+            if self.context.ok():
+                raise
+            self.stop.set()
+            return False
+        return True
+
     def publish_power(self, p_w):
         """Publish one reading (W) and note its stamp (s, node clock)."""
-        self.pub.publish(Float64(data=float(p_w)))
+        if not self._publish(self.pub, Float64(data=float(p_w))):
+            return
         t = self.get_clock().now().nanoseconds * 1e-9
         with self.lock:
             self.published += 1
@@ -165,7 +180,7 @@ class PowerMeterNode(Node):
         st.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         msg = DiagnosticArray(status=[st])
         msg.header.stamp = self.get_clock().now().to_msg()
-        self.diag_pub.publish(msg)
+        self._publish(self.diag_pub, msg)
 
     def destroy_node(self):
         """Stop the reading thread (bounded) and close the meter."""
