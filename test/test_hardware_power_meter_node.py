@@ -14,15 +14,16 @@ from fiber_align.hardware.emulators.pm100 import PM100Emulator
 
 def test_power_meter_node_reads_survives_a_lost_meter_and_recovers():
     emu = PM100Emulator(Bench(slot_position_m=0.0, seed=3))
-    rclpy.init(args=['--ros-args', '-p', 'resource:=%s' % emu.resource, '-p',
-                     'rate_hz:=100.0', '-p', 'reconnect_period_s:=0.2', '-p',
-                     'diagnostics_period_s:=0.1'])
+    ctx = rclpy.Context()          # its own context: other tests' rclpy state is untouched
+    rclpy.init(context=ctx, args=[
+        '--ros-args', '-p', 'resource:=%s' % emu.resource, '-p', 'rate_hz:=100.0', '-p',
+        'reconnect_period_s:=0.2', '-p', 'diagnostics_period_s:=0.1'])
     from fiber_align.nodes.power_meter import PowerMeterNode
     node = probe = None
-    ex = SingleThreadedExecutor()
+    ex = SingleThreadedExecutor(context=ctx)
     try:
-        node = PowerMeterNode()
-        probe = rclpy.create_node('probe')
+        node = PowerMeterNode(context=ctx)
+        probe = rclpy.create_node('probe', context=ctx)
         got, diags = [], []
         probe.create_subscription(Float64, 'optical_power', lambda m: got.append(m.data), 10)
         probe.create_subscription(
@@ -66,5 +67,5 @@ def test_power_meter_node_reads_survives_a_lost_meter_and_recovers():
             node.destroy_node()
         if probe is not None:
             probe.destroy_node()
-        rclpy.try_shutdown()
+        rclpy.try_shutdown(context=ctx)
         emu.stop()

@@ -44,9 +44,9 @@ FLOATS = {  # name: (low, high, description)
 class PowerMeterNode(Node):
     """Read a PM100 on a thread and publish the power and the meter's health."""
 
-    def __init__(self):
-        """Declare the parameters and start the reading thread."""
-        super().__init__('power_meter')
+    def __init__(self, **kwargs):
+        """Declare the parameters and start the reading thread (``kwargs``: rclpy Node's)."""
+        super().__init__('power_meter', **kwargs)
         d = load_params('hardware.yaml', 'power_meter')
         # graph-wide (/** in fiber_align.yaml), as every node of the graph
         d['diagnostics_period_s'] = load_params('fiber_align.yaml', '/**')[
