@@ -40,7 +40,7 @@ def test_switch_off_and_on_without_fault():
                 assert bench.true_loss_db() > 20.0
                 ok, wall = sb.switch(True)
                 assert ok, sb.seq.fault_reason
-                assert wall < 1.0
+                assert wall <= 3.0            # the align budget; typically 0.3-0.5 s
                 losses = sb.hold(0.1)
                 assert max(losses) < 0.1
         finally:

@@ -95,6 +95,7 @@ class SensorlessBench:
         d = load_hardware('actuator_driver', port=serial_port, **(driver or {}))
         m = load_hardware('power_meter', resource=visa_resource, **(meter or {}))
         self.period_s = 1.0 / float(self.hw['rate_hz'])
+        self.max_dt_s = float(self.hw['max_control_dt_s'])
         self.output = MDT693BOutput.from_params(d)
         self.meter = PM100.from_params(m)
         self.driver = DriverCore(float(d['v_min']), float(d['v_max']),
@@ -109,6 +110,8 @@ class SensorlessBench:
         self.truth = truth
         self.y_cmd = 0.0
         self.t0 = None
+        self.t_wall = None
+        self.t_ctrl = 0.0
         self.trace = []
         self.overruns = 0
         self.steps = 0
@@ -135,13 +138,23 @@ class SensorlessBench:
         self.meter.close()
 
     def now(self):
-        """Return the loop time (s) since the first step."""
-        if self.t0 is None:
-            self.t0 = time.monotonic()
-        return time.monotonic() - self.t0
+        """
+        Return the control time (s): wall time since the first step, gaps capped.
+
+        A period that overran (a starved CPU, a slow device) advances the control time by
+        at most ``max_control_dt_s``, so the sequencer's per-period moves (speed x dt)
+        stay at the configured resolution instead of jumping.
+        """
+        w = time.monotonic()
+        if self.t_wall is None:
+            self.t0 = self.t_wall = w
+            return self.t_ctrl
+        self.t_ctrl += min(max(w - self.t_wall, 0.0), self.max_dt_s)
+        self.t_wall = w
+        return self.t_ctrl
 
     def step(self):
-        """Run one period now; return ``(t_s, power_w, setpoint_m, volts)``."""
+        """Run one period now; return ``(t_s, power_w, setpoint_m, volts)`` (control time)."""
         t = self.now()
         p = self.meter.read_w()
         r = self.seq.update(t, self.y_cmd, p)

@@ -43,7 +43,7 @@ class PM100:
     :param backend: pyvisa backend, ``@py`` = pyvisa-py.
     """
 
-    def __init__(self, resource, wavelength_m=1.55e-6, averaging_count=1, timeout_s=0.3,
+    def __init__(self, resource, wavelength_m=1.55e-6, averaging_count=1, timeout_s=0.5,
                  backend='@py'):
         """Store the settings; nothing is opened until :meth:`open`."""
         if not (math.isfinite(wavelength_m) and 200e-9 <= wavelength_m <= 20e-6):
@@ -66,7 +66,7 @@ class PM100:
         """Build from the ``power_meter`` keys of ``config/hardware.yaml``."""
         return cls(p.get('resource', 'TCPIP::127.0.0.1::5025::SOCKET'),
                    float(p.get('wavelength_m', 1.55e-6)), int(p.get('averaging_count', 1)),
-                   float(p.get('timeout_s', 0.3)), p.get('visa_backend', '@py'))
+                   float(p.get('timeout_s', 0.5)), p.get('visa_backend', '@py'))
 
     @property
     def is_open(self):
