@@ -19,7 +19,7 @@ import time
 
 from fiber_align.config import load_params
 from fiber_align.plant.actuator import SimulatedActuator
-from fiber_align.plant.optics import _section, Detector, FiberCoupling
+from fiber_align.plant.optics import OpticalLink
 
 MAX_CATCH_UP_STEPS = 20000
 
@@ -106,14 +106,9 @@ class Bench:
         self.channels = {c: WallClockBimorph(plant_params, 0.0, self.v_limit, step_s, clock)
                          for c in ('x', 'y', 'z')}
         self.fiber_channel = fiber_channel
-        o = _section(optics_params, 'optics')
-        o.update(optics)
-        known_c = ('source_power_w', 'wavelength_m', 'mode_radius_m', 'gap_m', 'index',
-                   'slot_position_m', 'slot_drift_m_per_s', 'slot_vibration_amplitude_m',
-                   'slot_vibration_frequency_hz', 'fiber_broken')
-        known_d = ('noise_floor_w', 'rin_db', 'averaging_time_s', 'saturation_w')
-        self.coupling = FiberCoupling(**{k: o[k] for k in known_c if k in o})
-        self.detector = Detector(seed=seed, **{k: o[k] for k in known_d if k in o})
+        link = OpticalLink.from_params(optics_params, seed=seed, **optics)
+        self.coupling = link.coupling
+        self.detector = link.detector
         self.t0 = clock()
 
     def elapsed(self, now=None):
