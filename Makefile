@@ -12,7 +12,7 @@ venv: $(STAMP)
 $(STAMP): setup.py setup.cfg package.xml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[ros,test,bench]'
+	$(PY) -m pip install --quiet -e '.[ros,test,bench,hardware]'
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -8,6 +8,10 @@ from setuptools import find_packages, setup
 
 package_name = 'fiber_align'
 
+# The real devices (docs/hardware.md): the MDT693B piezo amplifier over pyserial, the PM100
+# power meter over pyvisa with the pure-Python pyvisa-py backend.
+HARDWARE = ['pyserial', 'pyvisa', 'pyvisa-py']
+
 NODES = [
     'simulated_actuator',
     'actuator_driver',
@@ -18,6 +22,7 @@ NODES = [
     'bringup',
     'control_graph',
     'scenario_runner',
+    'power_meter',
 ]
 
 setup(
@@ -52,8 +57,10 @@ setup(
             'pydocstyle',
             'colcon-core',
             'colcon-ros',
-        ],
+            'mdt69x',           # an outside MDT693B client, run against the emulator
+        ] + HARDWARE,
         'bench': ['scikit-fuzzy', 'pyswarms', 'networkx'],
+        'hardware': HARDWARE,
     },
     zip_safe=True,
     maintainer='fiber_align maintainers',

@@ -1,0 +1,176 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The sensorless hardware bench on the emulators (docs/hardware.md).
+
+- Rates of the emulated devices through pyserial (MDT693B ``xvoltage=`` and
+  ``xvoltage?``) and pyvisa (PM100 ``MEAS:POW?`` at averaging 1 and 3), and of one
+  loop period (one reading, one command).
+- 20 seeds, slot uniform in 3..62 um: align within 0.1 dB of the true peak in <= 3 s of
+  wall time, sensorless at ``rate_hz`` (100 Hz).
+- 60 s of TRACKING under a 0.2 um/s slot drift: largest true loss (< 0.2 dB wanted).
+- 10 switch off/on cycles: no FAULT, the loss after each.
+- Unplug latency: amplifier pty closed / meter socket dropped to the typed error.
+
+``python -m bench bench_hardware`` (``main(['--quick'])``: 5 seeds, 10 s of tracking).
+"""
+
+import argparse
+import sys
+import threading
+import time
+
+import numpy as np
+
+from fiber_align.hardware import errors as er
+from fiber_align.hardware.bench import align_trial, emulated, SensorlessBench
+
+
+def _rate(fn, n):
+    t0 = time.perf_counter()
+    for _ in range(n):
+        fn()
+    return n / (time.perf_counter() - t0)
+
+
+def rates(n=2000):
+    """Measure how fast (Hz) the emulated devices take commands and readings."""
+    out = {}
+    with emulated(seed=0, slot_position_m=30e-6) as (bench, mdt, pm):
+        sb = SensorlessBench(mdt.port, pm.resource)
+        sb.connect()
+        vals = iter(np.linspace(0.0, 50.0, n))
+        out['mdt693b_set_hz'] = _rate(lambda: sb.output.write(float(next(vals))), n)
+        out['mdt693b_read_hz'] = _rate(sb.output.read_back, n)
+        out['pm100_meas_avg1_hz'] = _rate(sb.meter.read_w, 200)
+        sb.meter.write('SENS:AVER:COUN 3')
+        out['pm100_meas_avg3_hz'] = _rate(sb.meter.read_w, 100)
+        sb.meter.write('SENS:AVER:COUN 1')
+        out['loop_step_hz'] = _rate(sb.step, 200)
+        sb.close()
+    return out
+
+
+def align_trials(n_seeds):
+    """Run ``n_seeds`` alignments; return the list of results."""
+    res = []
+    for seed in range(n_seeds):
+        slot = float(np.random.default_rng(1000 + seed).uniform(3e-6, 62e-6))
+        res.append(align_trial(seed, slot, timeout_s=3.0))
+    return res
+
+
+def track(duration_s, drift=0.2e-6, seed=5):
+    """Align with the slot at 20 um, then track a drifting slot; return SI metrics."""
+    with emulated(seed=seed, slot_position_m=20e-6, slot_drift_m_per_s=drift) as (
+            bench, mdt, pm):
+        sb = SensorlessBench(mdt.port, pm.resource, truth=bench.true_loss_db)
+        try:
+            sb.connect()
+            sb.run(lambda b: False, 0.15)
+            ok, wall = sb.align()
+            s0 = bench.slot_position_m()
+            losses = sb.hold(duration_s) if ok else []
+            return dict(aligned=ok, state=sb.seq.state, fault=sb.seq.fault_reason,
+                        max_loss_db=max(losses) if losses else None,
+                        mean_loss_db=float(np.mean(losses)) if losses else None,
+                        samples=len(losses), slot_moved_m=bench.slot_position_m() - s0,
+                        overruns=sb.overruns, steps=sb.steps)
+        finally:
+            sb.close()
+
+
+def switch_cycles(n, seed=6, slot_m=40e-6):
+    """Align, then ``n`` off/on cycles; return per-cycle losses (dB) and on times (s)."""
+    with emulated(seed=seed, slot_position_m=slot_m) as (bench, mdt, pm):
+        sb = SensorlessBench(mdt.port, pm.resource, truth=bench.true_loss_db)
+        try:
+            sb.connect()
+            sb.run(lambda b: False, 0.15)
+            ok, _ = sb.align()
+            cyc = []
+            faults = []
+            for _ in range(n if ok else 0):
+                ok_off, _ = sb.switch(False)
+                dark = bench.true_loss_db()
+                ok_on, wall = sb.switch(True)
+                losses = sb.hold(0.2)
+                cyc.append((dark, wall, max(losses) if losses else None))
+                if not (ok_off and ok_on):
+                    faults.append(sb.seq.fault_reason or sb.seq.state)
+            return dict(aligned=ok, cycles=cyc, faults=faults, state=sb.seq.state)
+        finally:
+            sb.close()
+
+
+def unplug_latency():
+    """Return the time (s) from unplugging to the typed error, and its text, per device."""
+    out = {}
+    with emulated(seed=0) as (bench, mdt, pm):
+        sb = SensorlessBench(mdt.port, pm.resource)
+        sb.connect()
+        for name, dev, fn in (('mdt693b', mdt, lambda: sb.output.write(10.0)),
+                              ('pm100', pm, sb.meter.read_w)):
+            box = {}
+
+            def go(dev=dev):
+                box['t'] = time.monotonic()
+                dev.unplug()
+            threading.Timer(0.1, go).start()
+            end = time.monotonic() + 3.0
+            while time.monotonic() < end:
+                try:
+                    fn()
+                except er.DeviceError as exc:
+                    out[name] = (time.monotonic() - box['t'], str(exc))
+                    break
+                time.sleep(0.01)
+        sb.close()
+    return out
+
+
+def main(argv=None):
+    """Run the checks and print tables; return 0."""
+    ap = argparse.ArgumentParser(prog='bench_hardware')
+    ap.add_argument('--quick', action='store_true', help='5 seeds, 10 s of tracking')
+    args = ap.parse_args([] if argv is None else argv)
+    n_seeds, track_s = (5, 10.0) if args.quick else (20, 60.0)
+    t0 = time.time()
+    r = rates()
+    print('emulator rates through pyserial / pyvisa (Hz): ' + ', '.join(
+        '%s %.0f' % (k, v) for k, v in r.items()))
+    trials = align_trials(n_seeds)
+    print('\n| seed | slot (um) | state | loss (dB) | align wall (s) | peak samples '
+          '| overruns |')
+    print('|---|---|---|---|---|---|---|')
+    for t in trials:
+        print('| %d | %.2f | %s | %s | %.3f | %d | %d |' % (
+            t['seed'], t['slot_m'] * 1e6,
+            t['state'] if t['aligned'] else '%s (%s)' % (t['state'], t['fault_reason']),
+            '-' if t['final_loss_db'] is None else '%.4f' % t['final_loss_db'],
+            t['align_wall_s'], t['peak_samples'], t['overruns']))
+    good = [t for t in trials if t['aligned'] and t['final_loss_db'] < 0.1
+            and t['align_wall_s'] <= 3.0]
+    print('\naligned within 0.1 dB in <= 3 s: %d/%d; worst loss %.4f dB, worst wall %.3f s'
+          % (len(good), len(trials),
+             max(t['final_loss_db'] or 99.0 for t in trials),
+             max(t['align_wall_s'] for t in trials)))
+    tr = track(track_s)
+    print('track %.0f s at 0.2 um/s (slot moved %.2f um): max loss %s dB, mean %s dB, '
+          'state %s %s, overruns %d of %d periods' % (
+              track_s, tr['slot_moved_m'] * 1e6,
+              '-' if tr['max_loss_db'] is None else '%.4f' % tr['max_loss_db'],
+              '-' if tr['mean_loss_db'] is None else '%.4f' % tr['mean_loss_db'],
+              tr['state'], tr['fault'], tr['overruns'], tr['steps']))
+    sw = switch_cycles(10)
+    print('switch 10 cycles: faults %s; dark loss min %.1f dB; on time max %.3f s; loss '
+          'after on max %.4f dB' % (
+              sw['faults'] or 'none', min(c[0] for c in sw['cycles']),
+              max(c[1] for c in sw['cycles']), max(c[2] for c in sw['cycles'])))
+    for name, (dt, text) in unplug_latency().items():
+        print('unplug %s: error after %.3f s: %s' % (name, dt, text))
+    print('(%.0f s wall)' % (time.time() - t0))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,112 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+``fiber-align emulate``: an MDT693B and a PM100 emulator on one simulated bench.
+
+Prints one JSON line (``serial_port``: the pty, ``serial_link``: a stable symlink to it,
+``visa_resource``, ``slot_position_m``, ``seed``, ``pid``, ...) and serves until SIGINT
+or SIGTERM, then stops both emulators and exits 0. Defaults: ``config/hardware.yaml``
+(section ``emulator``) and ``config/plant.yaml`` / ``config/optics.yaml``. Bad options
+exit 2 with one line.
+"""
+
+import json
+import math
+import os
+import signal
+import sys
+import threading
+
+
+def register(subparsers):
+    """Add the ``emulate`` sub-command."""
+    p = subparsers.add_parser(
+        'emulate', help='serve an emulated MDT693B (pty) and PM100 (TCP) on one bench',
+        description='Start an MDT693B piezo amplifier emulator on a pseudo-terminal and a '
+                    'PM100 power meter emulator on a loopback TCP socket, both on this '
+                    "package's simulated bimorph and optics; print one JSON line and serve "
+                    'until SIGINT or SIGTERM. Values in SI units (m, m/s, V, s).')
+    # strings, checked in _run, so a bad value is one line and exit 2
+    p.add_argument('--slot', metavar='M', help='slot (output core) position (m), '
+                   'default config/optics.yaml')
+    p.add_argument('--drift', metavar='M_PER_S', help='slot drift (m/s), default 0')
+    p.add_argument('--seed', metavar='N', default='0', help='detector noise seed')
+    p.add_argument('--model', metavar='MDT693B|MDT694B', help='amplifier model')
+    p.add_argument('--v-limit', metavar='V', help='limit switch (V): 75, 100 or 150')
+    p.add_argument('--echo', metavar='on|off', help='echo at power-on')
+    p.add_argument('--pm100-port', metavar='PORT', help='TCP port, 0 = free one')
+    p.add_argument('--link-dir', metavar='DIR', help='directory of the serial symlink')
+    p.add_argument('--fiber-broken', action='store_true', help='no light anywhere')
+    p.set_defaults(func=_run)
+
+
+def _number(name, text, lo=-math.inf, hi=math.inf, integer=False):
+    try:
+        v = int(text) if integer else float(text)
+    except (TypeError, ValueError):
+        raise ValueError('%s must be %s, got %r' % (
+            name, 'an integer' if integer else 'a number', text)) from None
+    if not (math.isfinite(v) and lo <= v <= hi):
+        raise ValueError('%s must be within %g..%g, got %r' % (name, lo, hi, text))
+    return v
+
+
+def options(args):
+    """Check the options; return ``(seed, emulator overrides, optics overrides)``."""
+    seed = _number('--seed', args.seed, 0, 2 ** 31 - 1, integer=True)
+    emu, optics = {}, {}
+    if args.slot is not None:
+        optics['slot_position_m'] = _number('--slot', args.slot, -1e-3, 1e-3)
+    if args.drift is not None:
+        optics['slot_drift_m_per_s'] = _number('--drift', args.drift, -1e-3, 1e-3)
+    if args.fiber_broken:
+        optics['fiber_broken'] = True
+    if args.model is not None:
+        if args.model not in ('MDT693B', 'MDT694B'):
+            raise ValueError('--model must be MDT693B or MDT694B, got %r' % args.model)
+        emu['model'] = args.model
+    if args.v_limit is not None:
+        v = _number('--v-limit', args.v_limit)
+        if v not in (75.0, 100.0, 150.0):
+            raise ValueError('--v-limit must be 75, 100 or 150 (the switch), got %r'
+                             % args.v_limit)
+        emu['v_limit'] = v
+    if args.echo is not None:
+        if args.echo not in ('on', 'off'):
+            raise ValueError('--echo must be on or off, got %r' % args.echo)
+        emu['echo'] = args.echo == 'on'
+    if args.pm100_port is not None:
+        emu['pm100_port'] = _number('--pm100-port', args.pm100_port, 0, 65535, integer=True)
+    if args.link_dir is not None:
+        if not os.path.isdir(args.link_dir):
+            raise ValueError('--link-dir %r is not a directory' % args.link_dir)
+        emu['serial_link_dir'] = args.link_dir
+    return seed, emu, optics
+
+
+def _run(args):
+    from fiber_align.hardware.bench import emulated
+    seed, emu, optics = options(args)
+    stop = threading.Event()
+
+    def on_signal(signum, frame):
+        stop.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with emulated(seed=seed, emulator_params=emu, **optics) as (bench, mdt, pm):
+            info = dict(serial_port=mdt.slave_path, serial_link=mdt.port,
+                        visa_resource=pm.resource, model=mdt.model,
+                        v_limit_v=bench.v_limit, fiber_channel=bench.fiber_channel,
+                        slot_position_m=bench.coupling.slot_position_m,
+                        slot_drift_m_per_s=bench.coupling.slot_drift_m_per_s,
+                        echo=mdt.echo, seed=seed, pid=os.getpid())
+            print(json.dumps(info), flush=True)
+            while not stop.wait(0.2):
+                pass
+            stats = dict(stopped=True, mdt693b_commands=mdt.commands,
+                         voltage_commands=len(mdt.command_log), pm100_readings=pm.readings)
+            print(json.dumps(stats), file=sys.stderr, flush=True)
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+    return 0

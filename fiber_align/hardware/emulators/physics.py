@@ -1,0 +1,157 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The physics behind the emulators: this package's simulated bimorph, advanced in wall time.
+
+:class:`WallClockBimorph` wraps :class:`fiber_align.plant.actuator.SimulatedActuator`
+(hysteresis law, exact 2nd-order mode, amplifier clamp and slew, from
+``config/plant.yaml``): the amplifier output is held between commands (zero-order hold)
+and the plant is stepped every ``step_s`` (s) up to the present wall time whenever
+anyone asks where the tip is. The sensor noise of the plant is not used (there is no
+displacement sensor on the bench); :attr:`position_m` is the true tip position (m).
+
+:class:`Bench` holds the three amplifier channels and the optical link
+(:class:`fiber_align.plant.optics.FiberCoupling` + ``Detector``) whose input fiber
+rides on one channel; the MDT693B and PM100 emulators share one Bench.
+"""
+
+import threading
+import time
+
+from fiber_align.config import load_params
+from fiber_align.plant.actuator import SimulatedActuator
+from fiber_align.plant.optics import OpticalLink
+
+MAX_CATCH_UP_STEPS = 20000
+
+
+class WallClockBimorph:
+    """
+    One amplifier channel driving one simulated bimorph, in wall-clock time (V, m, s).
+
+    :param plant_params: ``simulated_actuator`` parameters (``config/plant.yaml``).
+    :param v_min: amplifier lower limit (V) (the MDT693B: 0 V).
+    :param v_max: amplifier upper limit (V) (the limit switch: 75, 100 or 150 V).
+    :param step_s: plant step (s); the mode is discretised exactly, any step works.
+    :param clock: the wall clock (s), ``time.monotonic`` by default.
+    """
+
+    def __init__(self, plant_params, v_min=0.0, v_max=100.0, step_s=1e-4,
+                 clock=time.monotonic):
+        """Build the plant at rest at 0 V."""
+        p = dict(plant_params)
+        for k in ('rate_hz', 'noise_rms_m', 'resolution_m', 'v_min', 'v_max'):
+            p.pop(k, None)
+        self.plant = SimulatedActuator.from_params(p, period_s=step_s, v_min=v_min,
+                                                   v_max=v_max, noise_rms_m=0.0,
+                                                   resolution_m=0.0)
+        self.step_s = float(step_s)
+        self.clock = clock
+        self.v_cmd = 0.0
+        self.t = clock()
+
+    def advance(self, now=None):
+        """Step the plant up to ``now`` (s) with the held command; return the position (m)."""
+        now = self.clock() if now is None else now
+        n = int((now - self.t) / self.step_s)
+        if n > MAX_CATCH_UP_STEPS:          # long idle: the mode has long settled
+            self.t += (n - MAX_CATCH_UP_STEPS) * self.step_s
+            n = MAX_CATCH_UP_STEPS
+        step = self.plant.step
+        v = self.v_cmd
+        for _ in range(max(n, 0)):
+            step(v)
+        if n > 0:
+            self.t += n * self.step_s
+        return self.plant.x
+
+    def command(self, volts, now=None):
+        """Advance to ``now``, then hold ``volts`` (V; the amplifier clamps and slews)."""
+        self.advance(now)
+        self.v_cmd = float(volts)
+
+    @property
+    def output_v(self):
+        """Return the amplifier output voltage (V) after clamp and slew."""
+        return self.plant.v_applied
+
+    @property
+    def position_m(self):
+        """Return the true tip position (m) as of the last advance."""
+        return self.plant.x
+
+
+class Bench:
+    """
+    The emulated optical bench: three amplifier channels and one fiber link.
+
+    :param plant_params: ``simulated_actuator`` parameters (``config/plant.yaml``).
+    :param optics_params: ``optics`` parameters (``config/optics.yaml``).
+    :param v_limit: amplifier limit switch (V).
+    :param fiber_channel: channel (``x``, ``y``, ``z``) carrying the input fiber.
+    :param seed: detector noise seed.
+    :param step_s: plant step (s).
+    :param clock: the wall clock (s).
+    """
+
+    def __init__(self, plant_params=None, optics_params=None, v_limit=100.0,
+                 fiber_channel='x', seed=0, step_s=1e-4, clock=time.monotonic, **optics):
+        """Build the channels at rest and the link; ``optics`` override optics keys."""
+        if plant_params is None:
+            plant_params = load_params('plant.yaml', 'simulated_actuator')
+        if optics_params is None:
+            optics_params = load_params('optics.yaml', 'simulated_actuator')
+        self.clock = clock
+        self.lock = threading.RLock()
+        self.v_limit = float(v_limit)
+        self.channels = {c: WallClockBimorph(plant_params, 0.0, self.v_limit, step_s, clock)
+                         for c in ('x', 'y', 'z')}
+        self.fiber_channel = fiber_channel
+        link = OpticalLink.from_params(optics_params, seed=seed, **optics)
+        self.coupling = link.coupling
+        self.detector = link.detector
+        self.t0 = clock()
+
+    def elapsed(self, now=None):
+        """Return the bench time (s) since it was built (the slot drift's time)."""
+        return (self.clock() if now is None else now) - self.t0
+
+    def command(self, channel, volts):
+        """Hold ``volts`` (V) on ``channel`` from now on."""
+        with self.lock:
+            self.channels[channel].command(volts)
+
+    def output_v(self, channel):
+        """Return the output voltage (V) of ``channel`` now."""
+        with self.lock:
+            ch = self.channels[channel]
+            ch.advance()
+            return ch.output_v
+
+    def advance(self):
+        """Bring every channel up to now; return the fiber channel's position (m)."""
+        with self.lock:
+            now = self.clock()
+            for ch in self.channels.values():
+                ch.advance(now)
+            return self.channels[self.fiber_channel].position_m
+
+    def true_power_w(self, now=None):
+        """Return the noise-free coupled power (W) now (slot at bench time)."""
+        with self.lock:
+            x = self.advance()
+            return self.coupling.power_w(self.elapsed(now), x)
+
+    def true_loss_db(self):
+        """Return the true loss (dB) against the (moving) maximum now."""
+        with self.lock:
+            x = self.advance()
+            return self.coupling.loss_db(self.elapsed(), x)
+
+    def slot_position_m(self):
+        """Return the slot (output core) position (m) now."""
+        return self.coupling.slot_position(self.elapsed())
+
+    def detector_sample(self, dt_s):
+        """Take one raw detector sample (W) of the present power, ``dt_s`` after the last."""
+        with self.lock:
+            return self.detector.measure(self.true_power_w(), dt_s)
