@@ -16,6 +16,7 @@ NODES = [
     'alignment_sequencer',
     'bag_recorder',
     'bringup',
+    'lifecycle_manager',
 ]
 
 setup(
@@ -26,6 +27,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         (os.path.join('share', package_name, 'config'), glob('config/*.yaml')),
+        (os.path.join('share', package_name, 'launch'), glob('launch/*.launch.py')),
     ],
     python_requires='>=3.10',
     # The ROS 2 client libraries are deliberately not here: a real Jazzy workspace

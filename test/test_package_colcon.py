@@ -50,7 +50,7 @@ def test_colcon_build_installs_every_executable(tmp_path):
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     lib = ws / 'install' / 'fiber_align' / 'lib' / 'fiber_align'
     names = console_scripts()
-    assert len(names) == 8
+    assert len(names) == 9
     for name in names:
         exe = lib / name
         assert exe.is_file(), 'missing executable %s in %s' % (name, lib)
