@@ -182,8 +182,8 @@ class LifecycleManager(Node):
         key = (name, srv)
         if key not in self._lc_clients:
             typ = GetState if srv == 'get_state' else ChangeState
-            self._lc_clients[key] = self.create_client(typ, '%s/%s' % (name, srv),
-                                                    callback_group=self._lc_group)
+            self._lc_clients[key] = self.create_client(
+                typ, '%s/%s' % (name, srv), callback_group=self._lc_group)
         return self._lc_clients[key]
 
     def _timeout(self):
