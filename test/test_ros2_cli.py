@@ -189,6 +189,39 @@ def test_ros2_run_starts_a_node_that_stops_on_sigint(ros2_env, tmp_path):
     assert 'Traceback' not in log, log
 
 
+def test_without_ros2_the_tests_skip_with_the_hint_and_fail_in_ci(monkeypatch, tmp_path):
+    monkeypatch.setattr(sys, 'prefix', str(tmp_path))      # a venv without ros2-tools
+    monkeypatch.setenv('PATH', str(tmp_path))               # and no system ros2
+    assert ros2_environment(tmp_path / 'install') is None
+    monkeypatch.delenv('CI', raising=False)
+    with pytest.raises(pytest.skip.Exception, match='make venv'):
+        _missing(INSTALL_HINT)
+    monkeypatch.setenv('CI', 'true')
+    with pytest.raises(pytest.fail.Exception, match='make venv'):
+        _missing(INSTALL_HINT)
+
+
+def test_lifecycle_manager_reports_a_missing_node_and_keeps_running(ros2_env, tmp_path):
+    proc = spawn(ros2_env, ['ros2', 'run', 'fiber_align', 'lifecycle_manager', '--ros-args',
+                            '-p', 'managed_nodes:=[nobody]', '-p', 'service_timeout_s:=1.0',
+                            '-p', 'autostart:=false'],
+                 tmp_path / 'manager.log')
+    try:
+        rc, out = ros2(ros2_env, 'service', 'call', '/lifecycle_manager/startup',
+                       'std_srvs/srv/Trigger')
+        assert rc == 0 and 'success=False' in out, out
+        assert 'startup failed at nobody: no get_state service within 1 s' in out, out
+        assert proc.poll() is None, 'the manager died'
+        os.killpg(proc.pid, signal.SIGINT)
+        proc.wait(timeout=STOP_WITHIN_S)
+    finally:
+        kill_group(proc)
+    log = (tmp_path / 'manager.log').read_text()
+    assert 'startup failed at nobody' in log, log
+    assert 'Traceback' not in log, log
+    print('lifecycle_manager: %s' % out.strip().splitlines()[-1])
+
+
 class Listener:
     """
     An rclpy node spun in a thread: records what the graph publishes (monotonic s).
