@@ -9,7 +9,10 @@ lists the arguments. The processes, node names, params files and remappings come
 Every process reads one params file, the merge of ``config/*.yaml`` (per-area files, then
 ``fiber_align.yaml``), ``params_file`` and the arguments below, written to a temporary
 directory that is removed at shutdown. ``lifecycle_manager`` brings the driver to active;
-Ctrl-C (SIGINT) stops every process, and the recorder finalises its bag.
+Ctrl-C (SIGINT) stops every process, and the recorder finalises its bag. With a scenario,
+the launch shuts down when the process hosting ``scenario_runner`` exits (the scenario is
+over); any other process that exits leaves the rest running (the driver's watchdog holds
+the actuator safe, and the graph recovers when the node is back).
 """
 
 import os
@@ -18,6 +21,7 @@ import tempfile
 
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler
+from launch.actions import Shutdown
 from launch.event_handlers import OnShutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
@@ -56,7 +60,9 @@ def launch_setup(context):
             package=graph.PACKAGE, executable=p.executable, name=p.node_name,
             namespace=('/' + g.namespace) if g.namespace else None,
             arguments=list(p.arguments), parameters=[params],
-            remappings=list(g.remappings), output='screen'))
+            remappings=list(g.remappings), output='screen',
+            on_exit=[Shutdown(reason='%s exited: the scenario is over' % p.name)]
+            if p.ends_graph else None))
     return actions
 
 

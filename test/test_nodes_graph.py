@@ -93,6 +93,9 @@ def test_scenario_decides_the_control_nodes(scenario, nodes):
     assert g.nodes[:len(nodes)] == nodes and g.scenario == scenario
     if scenario != 'none':
         assert g.node_params('scenario_runner')['scenario'] == scenario
+    # the launch stops when the scenario runner's process exits, and only then
+    assert [p.executable for p in g.processes if p.ends_graph] == (
+        [] if scenario == 'none' else ['scenario_runner'])
 
 
 def test_composed_layout_is_one_control_graph_process(tmp_path):
@@ -104,6 +107,7 @@ def test_composed_layout_is_one_control_graph_process(tmp_path):
     assert first.argv('/p.yaml') == ['--nodes', ','.join(nodes), '--ros-args',
                                      '--params-file', '/p.yaml']
     assert [p.executable for p in g.processes[1:]] == ['lifecycle_manager', 'bag_recorder']
+    assert first.ends_graph and not any(p.ends_graph for p in g.processes[1:])
     assert g.managed_nodes == ('actuator_driver',)
 
 
@@ -120,6 +124,9 @@ def test_namespace_keys_the_node_sections_and_remaps_the_processes(tmp_path):
     assert p['/left/fuzzy_pid_controller']['ros__parameters']['u_max'] == 50.0
     assert g.processes[0].ros_args('/p.yaml', g.namespace) == [
         '--ros-args', '--params-file', '/p.yaml', '-r', '__ns:=/left']
+    assert g.processes[0].command('/p.yaml', g.namespace, (('a', 'b'),), 'py') == [
+        'py', '-m', 'fiber_align.nodes.simulated_actuator', '--ros-args', '--params-file',
+        '/p.yaml', '-r', '__ns:=/left', '-r', 'a:=b']
     out = g.write_params(str(tmp_path / 'params.yaml'))
     assert yaml.safe_load(Path(out).read_text()) == p
 

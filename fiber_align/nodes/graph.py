@@ -31,7 +31,7 @@ Example::
     g = build(namespace='left', sync_mode='lockstep', scenario='sine')
     g.write_params('/tmp/params.yaml')
     for p in g.processes:
-        argv = [p.executable] + p.argv('/tmp/params.yaml', g.namespace, g.remappings)
+        argv = p.command('/tmp/params.yaml', g.namespace, g.remappings, sys.executable)
 """
 
 from dataclasses import dataclass, field
@@ -91,6 +91,8 @@ class Process:
     :ivar arguments: arguments before ``--ros-args`` (``--nodes a,b`` when composed).
     :ivar node_name: the node name to pass as ``name`` to launch_ros (single-node
         processes only; ``None`` for a process hosting several nodes).
+    :ivar ends_graph: the graph stops when this process exits (it hosts
+        ``scenario_runner``, which exits when its scenario is over).
     """
 
     name: str
@@ -98,6 +100,7 @@ class Process:
     nodes: Tuple[str, ...]
     arguments: Tuple[str, ...] = ()
     node_name: Optional[str] = None
+    ends_graph: bool = False
 
     @property
     def module(self):
@@ -122,6 +125,16 @@ class Process:
     def argv(self, params_file, namespace='', remappings=()):
         """Return the arguments after the executable (list of str)."""
         return list(self.arguments) + self.ros_args(params_file, namespace, remappings)
+
+    def command(self, params_file, namespace='', remappings=(), python=None):
+        """
+        Return the full command line (list of str).
+
+        :param python: an interpreter: run ``python -m fiber_align.nodes.<executable>``
+            (the pip route, no ``lib/fiber_align`` needed); ``None``: the executable name.
+        """
+        head = [python, '-m', self.module] if python else [self.executable]
+        return head + self.argv(params_file, namespace, remappings)
 
 
 @dataclass(frozen=True)
@@ -353,7 +366,6 @@ def build(namespace='', composed=None, sync_mode='', controller='', params_file=
         over[RECORDER] = {'output': record}
     if scenario:
         over[SCENARIO_RUNNER] = {'scenario': _choice('scenario', scenario, SCENARIOS)}
-    over[LIFECYCLE_MANAGER] = {'managed_nodes': list(LIFECYCLE_NODES)}
     merged = merge_params(files, over, ns)
     graph_wide = effective(merged, PLANT, ns)
     sync = _choice('sync_mode', graph_wide.get('sync_mode', 'realtime'), SYNC_MODES)
@@ -363,9 +375,10 @@ def build(namespace='', composed=None, sync_mode='', controller='', params_file=
     nodes = control_nodes(scen)
     if composed:
         procs = [Process(COMPOSED_EXECUTABLE, COMPOSED_EXECUTABLE, nodes,
-                         ('--nodes', ','.join(nodes)))]
+                         ('--nodes', ','.join(nodes)), ends_graph=SCENARIO_RUNNER in nodes)]
     else:
-        procs = [Process(n, n, (n,), node_name=n) for n in nodes]
+        procs = [Process(n, n, (n,), node_name=n, ends_graph=n == SCENARIO_RUNNER)
+                 for n in nodes]
     procs.append(Process(LIFECYCLE_MANAGER, LIFECYCLE_MANAGER, (LIFECYCLE_MANAGER,),
                          node_name=LIFECYCLE_MANAGER))
     if record:
