@@ -443,6 +443,16 @@ def test_lifecycle_deactivate_holds_the_safe_voltage_and_activate_resumes(
     assert back
 
 
+def test_lifecycle_manager_shutdown_and_startup_services(launched, ros2_env):
+    answers = []
+    for srv, final in (('shutdown', 'unconfigured'), ('startup', 'active')):
+        rc, out = ros2(ros2_env, 'service', 'call', '/lifecycle_manager/' + srv,
+                       'std_srvs/srv/Trigger')
+        assert rc == 0 and 'success=True' in out and final in out, out
+        answers.append(out.strip().splitlines()[-1])
+    print('lifecycle_manager: %s' % ' | '.join(answers))
+
+
 def test_service_call_with_invalid_transition_ids_is_refused_and_driver_survives(
         launched, ros2_env):
     ls = launched['listener']
