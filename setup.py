@@ -23,6 +23,7 @@ NODES = [
     'control_graph',
     'scenario_runner',
     'power_meter',
+    'lifecycle_manager',
 ]
 
 setup(
@@ -34,6 +35,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
         (os.path.join('share', package_name, 'config'),
          glob('config/*.yaml') + glob('config/*.xml')),
+        (os.path.join('share', package_name, 'launch'), glob('launch/*.launch.py')),
     ],
     python_requires='>=3.10',
     # The ROS 2 client libraries are deliberately not here: a real Jazzy workspace

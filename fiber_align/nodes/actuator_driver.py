@@ -9,7 +9,10 @@ Topics (relative names, SI units):
   slew-limited; published only while the node is active (output is 0 V before).
 - srv ``~/enable`` (std_srvs/SetBool): false ramps the output to the safe voltage (0 V,
   the switch's light-off state) and keeps it there; true resumes.
-- lifecycle services (``change_state``, ``get_state``, ...) from rclpy.lifecycle.
+- lifecycle services (``change_state``, ``get_state``, ...) from rclpy.lifecycle; a
+  ``change_state`` request the present state does not offer (any id or label) is
+  refused (``success`` false, a WARN in the log and on ``/diagnostics``, the count in
+  ``refused_transitions``) instead of killing the process (:meth:`_guard_change_state`).
 
 Pairing: in ``lockstep`` the i-th feedforward is summed with the i-th feedback and the
 command time is ``i / rate_hz`` (the plant's sample time), so the output does not depend
@@ -168,6 +171,7 @@ class ActuatorDriverNode(LifecycleNode):
         self._set_held(True, 'unconfigured')
         self.health = c.Health(self, self.get_parameter('diagnostics_period_s').value)
         self.health.status(c.WARN, 'unconfigured: output 0 V')
+        self._guard_change_state()
 
     # -- parameters -----------------------------------------------------------------
     def _core_params(self, overrides=None):
@@ -212,6 +216,50 @@ class ActuatorDriverNode(LifecycleNode):
                     s = new['slew_rate_v_per_s']
                     core.slew = s if s > 0 and math.isfinite(s) else math.inf
         return res
+
+    # -- lifecycle service guard ----------------------------------------------------
+    refused_transitions = 0
+
+    def _guard_change_state(self):
+        """
+        Make ``~/change_state`` refuse a transition the present state does not offer.
+
+        rclpy's handler (``LifecycleNodeMixin.__on_change_state`` -> ``__change_state``)
+        hands the requested id straight to ``trigger_transition_by_id``, which raises
+        ``RCLError`` ("Transition is not registered") for an id that does not start from
+        the current state, e.g. ``configure`` (1) while active; the exception leaves the
+        service callback, the executor re-raises it and the process dies. This wraps the
+        service's callback (the executors call ``Service.callback``): an unavailable id
+        or label is answered with ``success`` false, a WARN in the log and on
+        ``/diagnostics``; an available one goes to rclpy's handler unchanged.
+        """
+        srv = getattr(self, '_service_change_state', None)
+        if srv is None:
+            return
+        inner = srv.callback
+
+        def change_state(request, response):
+            t = request.transition
+            try:
+                state = self._state_machine.current_state[1]
+                offered = [(i, lbl) for i, lbl, *_ in self._state_machine.available_transitions]
+                ok = any((lbl == t.label) if t.label else (i == t.id) for i, lbl in offered)
+                if ok:
+                    return inner(request, response)
+                why = ('refused lifecycle transition %s: not available in state %s '
+                       '(available: %s)' % (repr(t.label) if t.label else 'id %d' % t.id,
+                                            state, ', '.join('%s (%d)' % (lbl, i)
+                                                             for i, lbl in offered)))
+            except Exception as exc:  # noqa: BLE001 - no request may kill the driver
+                why = 'lifecycle transition %d %r failed: %s' % (t.id, t.label, exc)
+            self.refused_transitions += 1
+            self.get_logger().warning(why)
+            self.health.set_values(refused_transitions=self.refused_transitions)
+            self.health.warn(why)
+            response.success = False
+            return response
+
+        srv.callback = change_state
 
     # -- lifecycle ------------------------------------------------------------------
     def on_configure(self, state):

@@ -1,0 +1,391 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The fiber_align ROS graph, described once (pure Python: no rclpy).
+
+One description serves the launch file (``launch/fiber_align.launch.py``), ``bringup``,
+the demo and the benchmarks: which processes run which executables and host which nodes,
+which params files are read in which order, the remappings, the lifecycle-managed nodes
+and how the launch arguments override parameters.
+
+Layouts:
+
+- multi-process (``composed=False``): one process per node, each the node's own
+  executable (``simulated_actuator``, ``actuator_driver``, ...);
+- composed (``composed=True``): the control nodes (plant, compensator, controller,
+  driver, and the scenario runner and sequencer when the scenario needs them) in ONE
+  process of the executable ``control_graph``, started as
+  ``control_graph --nodes a,b,c --ros-args --params-file FILE``; each hosted node keeps
+  its own name and reads its own section of the params file.
+
+In both layouts ``lifecycle_manager`` (brings the lifecycle nodes to active) and
+``bag_recorder`` (only with ``record``) are processes of their own.
+
+Parameters: every process gets ONE params file (:meth:`Graph.write_params`), the merge of
+the per-area files (:data:`AREA_FILES`), ``fiber_align.yaml``, the user's ``params_file``
+and the launch-argument overrides, later ones winning, with numeric lists made float
+lists (ROS arrays are homogeneous) and node sections keyed ``/<namespace>/<node>``
+when there is a namespace (a bare ``node`` key would only match ``/node``).
+
+Example::
+
+    g = build(namespace='left', sync_mode='lockstep', scenario='sine')
+    g.write_params('/tmp/params.yaml')
+    for p in g.processes:
+        argv = p.command('/tmp/params.yaml', g.namespace, g.remappings, sys.executable)
+"""
+
+from dataclasses import dataclass, field
+import os
+import re
+from typing import Dict, Optional, Tuple
+
+from fiber_align.config import ConfigError, config_dir, read_yaml
+
+PACKAGE = 'fiber_align'
+#: Layout when the launch argument ``composed`` (or bringup's option) is not given.
+DEFAULT_COMPOSED = False
+#: Executable that hosts several nodes in one process (composed layout).
+COMPOSED_EXECUTABLE = 'control_graph'
+#: Per-area params files, in the order they are merged (names in ``config/``).
+AREA_FILES = ('plant.yaml', 'optics.yaml', 'controller.yaml', 'compensator.yaml',
+              'driver.yaml', 'sequencer.yaml', 'recorder.yaml', 'scenario.yaml',
+              'lifecycle_manager.yaml')
+#: Area files a checkout may not have yet (skipped when missing).
+OPTIONAL_FILES = ('scenario.yaml',)
+#: Graph-wide params file, merged after the per-area files.
+GRAPH_FILE = 'fiber_align.yaml'
+
+SYNC_MODES = ('realtime', 'lockstep')
+#: Control laws, as in ``fiber-align simulate --controller``.
+CONTROLLERS = ('composite', 'composite-pid', 'fuzzy', 'pid', 'feedforward', 'open-loop')
+SCENARIOS = ('none', 'step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment',
+             'align')
+
+PLANT = 'simulated_actuator'
+COMPENSATOR = 'hysteresis_compensator'
+CONTROLLER = 'fuzzy_pid_controller'
+DRIVER = 'actuator_driver'
+SCENARIO_RUNNER = 'scenario_runner'
+SEQUENCER = 'alignment_sequencer'
+RECORDER = 'bag_recorder'
+LIFECYCLE_MANAGER = 'lifecycle_manager'
+#: Nodes that are lifecycle (managed) nodes, brought to active by ``lifecycle_manager``.
+LIFECYCLE_NODES = (DRIVER,)
+#: Remappings applied to every process (``from``, ``to``); the nodes use the graph's
+#: relative names as they are, so there are none today.
+REMAPPINGS = ()
+
+
+class GraphError(ConfigError):
+    """A launch argument or option is wrong; the message names what and what is allowed."""
+
+
+@dataclass(frozen=True)
+class Process:
+    """
+    One OS process of the graph.
+
+    :ivar name: label of the process (its node's name, or ``control_graph``).
+    :ivar executable: executable in ``lib/fiber_align`` (also ``fiber_align.nodes.<name>``).
+    :ivar nodes: names of the nodes it hosts (relative; each reads its own params section).
+    :ivar arguments: arguments before ``--ros-args`` (``--nodes a,b`` when composed).
+    :ivar node_name: the node name to pass as ``name`` to launch_ros (single-node
+        processes only; ``None`` for a process hosting several nodes).
+    :ivar ends_graph: the graph stops when this process exits (it hosts
+        ``scenario_runner``, which exits when its scenario is over).
+    """
+
+    name: str
+    executable: str
+    nodes: Tuple[str, ...]
+    arguments: Tuple[str, ...] = ()
+    node_name: Optional[str] = None
+    ends_graph: bool = False
+
+    @property
+    def module(self):
+        """Return the Python module of the executable (``python -m`` form)."""
+        return 'fiber_align.nodes.' + self.executable
+
+    def ros_args(self, params_file, namespace='', remappings=()):
+        """
+        Return the ``--ros-args`` part of the command line (list of str).
+
+        :param params_file: the graph's params file (:meth:`Graph.write_params`).
+        :param namespace: the graph's namespace (``''``: none).
+        :param remappings: (from, to) pairs.
+        """
+        out = ['--ros-args', '--params-file', str(params_file)]
+        if namespace:
+            out += ['-r', '__ns:=/' + namespace]
+        for a, b in remappings:
+            out += ['-r', '%s:=%s' % (a, b)]
+        return out
+
+    def argv(self, params_file, namespace='', remappings=()):
+        """Return the arguments after the executable (list of str)."""
+        return list(self.arguments) + self.ros_args(params_file, namespace, remappings)
+
+    def command(self, params_file, namespace='', remappings=(), python=None):
+        """
+        Return the full command line (list of str).
+
+        :param python: an interpreter: run ``python -m fiber_align.nodes.<executable>``
+            (the pip route, no ``lib/fiber_align`` needed); ``None``: the executable name.
+        """
+        head = [python, '-m', self.module] if python else [self.executable]
+        return head + self.argv(params_file, namespace, remappings)
+
+
+@dataclass(frozen=True)
+class Graph:
+    """
+    The graph to start: processes, params and settings in effect.
+
+    :ivar namespace: namespace of every node, without leading or trailing ``/``.
+    :ivar composed: the layout (see the module docstring).
+    :ivar sync_mode: ``realtime`` or ``lockstep`` (in effect after every override).
+    :ivar controller: control law in effect.
+    :ivar scenario: scenario in effect (``none``: the graph waits for setpoints).
+    :ivar record: bag directory (absolute) or ``''`` (no recorder).
+    :ivar processes: the processes, control graph first, the manager and recorder last.
+    :ivar params_files: the files merged, in order (absolute paths).
+    :ivar overrides: node (or ``/**``) -> {parameter: value}, applied after the files.
+    :ivar remappings: (from, to) pairs for every process.
+    :ivar managed_nodes: lifecycle nodes, in the order the manager activates them.
+    """
+
+    namespace: str
+    composed: bool
+    sync_mode: str
+    controller: str
+    scenario: str
+    record: str
+    processes: Tuple[Process, ...]
+    params_files: Tuple[str, ...]
+    overrides: Dict[str, Dict[str, object]] = field(default_factory=dict)
+    remappings: Tuple[Tuple[str, str], ...] = REMAPPINGS
+    managed_nodes: Tuple[str, ...] = LIFECYCLE_NODES
+
+    @property
+    def nodes(self):
+        """Return every node name of the graph, in process order."""
+        return tuple(n for p in self.processes for n in p.nodes)
+
+    def params(self):
+        """Return the merged params mapping (``{key: {'ros__parameters': {...}}}``)."""
+        return merge_params(self.params_files, self.overrides, self.namespace)
+
+    def write_params(self, path):
+        """Write the merged params file every process reads to ``path``; return ``path``."""
+        import yaml
+        with open(path, 'w', encoding='utf-8') as f:
+            yaml.safe_dump(self.params(), f, sort_keys=False)
+        return path
+
+    def node_params(self, node):
+        """Return the effective parameters of ``node`` (``/**`` then its section)."""
+        return effective(self.params(), node, self.namespace)
+
+
+def control_nodes(scenario):
+    """Return the names of the control nodes the scenario needs, in start order."""
+    if scenario == 'hysteresis-experiment':   # open loop: the runner drives the driver
+        return (PLANT, DRIVER, SCENARIO_RUNNER)
+    nodes = (PLANT, COMPENSATOR, CONTROLLER, DRIVER)
+    if scenario == 'none':
+        return nodes
+    if scenario == 'align':
+        return nodes + (SCENARIO_RUNNER, SEQUENCER)
+    return nodes + (SCENARIO_RUNNER,)
+
+
+def _normalize(value):
+    """Return ``value`` with numeric lists as float lists (recursively)."""
+    if isinstance(value, dict):
+        return {k: _normalize(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        if value and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                         for v in value):
+            return [float(v) for v in value]
+        return list(value)
+    return value
+
+
+def _merge(a, b):
+    out = dict(a)
+    for k, v in b.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = _merge(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def _nest(name, value):
+    """Return ``{'a': {'b': value}}`` for the ROS dotted name ``a.b``."""
+    out = value
+    for part in reversed(name.split('.')):
+        out = {part: out}
+    return out
+
+
+def _section_key(key, namespace):
+    """Return a params-file key as a node name relative to ``namespace`` (or as it is)."""
+    if key in ('/**', '**'):
+        return '/**'
+    k = key.lstrip('/')
+    if namespace and k.startswith(namespace + '/'):
+        k = k[len(namespace) + 1:]
+    return k if '/' not in k and '*' not in k else key
+
+
+def merge_params(files, overrides=None, namespace=''):
+    """
+    Merge ROS params files and overrides into one mapping keyed for ``namespace``.
+
+    :param files: params file paths, in order (later ones win, key by key).
+    :param overrides: ``{node or '/**': {name: value}}`` applied last; dotted names
+        (``optics.gap_m``) are nested.
+    :param namespace: the graph's namespace; node sections come out keyed
+        ``/<namespace>/<node>`` (``<node>`` without one); ``/**`` and keys with
+        wildcards or other namespaces stay as they are.
+    :raises ConfigError: a file is missing or not a params mapping.
+    """
+    data = {}
+    for f in files:
+        for key, sec in read_yaml(f).items():
+            data = _merge(data, {_section_key(str(key), namespace): sec})
+    for node, params in (overrides or {}).items():
+        for name, value in params.items():
+            data = _merge(data, {_section_key(node, namespace):
+                                 {'ros__parameters': _nest(name, value)}})
+    data = _normalize(data)
+    if not namespace:
+        return data
+    return {(k if k.startswith('/') else '/%s/%s' % (namespace, k)): v
+            for k, v in data.items()}
+
+
+def effective(params, node, namespace=''):
+    """Return the parameters ``node`` gets from a merged mapping (``/**``, then its own)."""
+    key = '/%s/%s' % (namespace, node) if namespace else node
+    out = dict(params.get('/**', {}).get('ros__parameters', {}))
+    out.update(params.get(key, {}).get('ros__parameters', {}))
+    return out
+
+
+def area_files(directory=None):
+    """Return the absolute paths of the area files and ``fiber_align.yaml``, in order."""
+    d = config_dir() if directory is None else directory
+    out = []
+    for name in AREA_FILES + (GRAPH_FILE,):
+        p = os.path.join(str(d), name)
+        if not os.path.isfile(p):
+            if name in OPTIONAL_FILES:
+                continue
+            raise GraphError('config file %s is missing' % p)
+        out.append(p)
+    return tuple(out)
+
+
+_NAME = re.compile(r'^[A-Za-z_][A-Za-z0-9_]*$')
+
+
+def check_namespace(namespace):
+    """Return ``namespace`` without outer ``/``; raise :class:`GraphError` if invalid."""
+    ns = (namespace or '').strip()
+    inner = ns.strip('/')
+    if inner and (any(not _NAME.match(t) for t in inner.split('/')) or '//' in ns):
+        raise GraphError('namespace %r is not a valid ROS namespace: tokens of letters, '
+                         'digits and _ separated by /, not starting with a digit' % namespace)
+    return inner
+
+
+def _choice(what, value, allowed):
+    if value not in allowed:
+        raise GraphError('%s %r is not allowed: one of %s' % (what, value, ', '.join(allowed)))
+    return value
+
+
+def parse_bool(what, value):
+    """Return ``value`` (bool or a launch-argument string) as a bool, or raise."""
+    if isinstance(value, bool):
+        return value
+    s = str(value).strip().lower()
+    if s in ('true', '1', 'yes', 'on'):
+        return True
+    if s in ('false', '0', 'no', 'off'):
+        return False
+    raise GraphError('%s %r is not allowed: true or false' % (what, value))
+
+
+def build(namespace='', composed=None, sync_mode='', controller='', params_file='',
+          model_file='', record='', scenario='', config_directory=None):
+    """
+    Describe the graph for the given launch arguments; return a :class:`Graph`.
+
+    Empty strings mean "as the params files say" (``record``: no recorder).
+
+    :param namespace: namespace of every node (``''``: none).
+    :param composed: layout (bool or ``'true'``/``'false'``; ``None`` or ``''``:
+        :data:`DEFAULT_COMPOSED`).
+    :param sync_mode: ``realtime`` | ``lockstep``: ``/**`` ``sync_mode``.
+    :param controller: a name of :data:`CONTROLLERS`: ``/**`` ``controller``.
+    :param params_file: a params file merged after ``fiber_align.yaml``.
+    :param model_file: PI model file: ``hysteresis_compensator.model_file`` (absolute).
+    :param record: bag directory (must not exist): ``bag_recorder.output``; adds the
+        recorder process.
+    :param scenario: a name of :data:`SCENARIOS`: ``scenario_runner.scenario``; other
+        than ``none`` adds ``scenario_runner`` (and ``alignment_sequencer`` for align).
+    :param config_directory: where the shipped files are (default: :func:`config_dir`).
+    :raises GraphError: a value is not allowed or a file is missing (one clear line).
+    """
+    ns = check_namespace(namespace)
+    composed = DEFAULT_COMPOSED if composed in (None, '') else parse_bool('composed',
+                                                                          composed)
+    files = list(area_files(config_directory))
+    if params_file:
+        if not os.path.isfile(params_file):
+            raise GraphError('params_file %s does not exist' % params_file)
+        files.append(os.path.abspath(params_file))
+    over = {}
+    if sync_mode:
+        over.setdefault('/**', {})['sync_mode'] = _choice('sync_mode', sync_mode, SYNC_MODES)
+    if controller:
+        over.setdefault('/**', {})['controller'] = _choice('controller', controller,
+                                                           CONTROLLERS)
+    if model_file:
+        if not os.path.isfile(model_file):
+            raise GraphError('model_file %s does not exist' % model_file)
+        over[COMPENSATOR] = {'model_file': os.path.abspath(model_file)}
+    if record:
+        record = os.path.abspath(record)
+        if os.path.exists(record):
+            raise GraphError('record %s already exists: give a new bag directory' % record)
+        over[RECORDER] = {'output': record}
+    if scenario:
+        over[SCENARIO_RUNNER] = {'scenario': _choice('scenario', scenario, SCENARIOS)}
+    merged = merge_params(files, over, ns)
+    graph_wide = effective(merged, PLANT, ns)
+    sync = _choice('sync_mode', graph_wide.get('sync_mode', 'realtime'), SYNC_MODES)
+    law = _choice('controller', graph_wide.get('controller', 'composite'), CONTROLLERS)
+    scen = _choice('scenario', effective(merged, SCENARIO_RUNNER, ns).get('scenario', 'none'),
+                   SCENARIOS)
+    nodes = control_nodes(scen)
+    if composed:
+        procs = [Process(COMPOSED_EXECUTABLE, COMPOSED_EXECUTABLE, nodes,
+                         ('--nodes', ','.join(nodes)), ends_graph=SCENARIO_RUNNER in nodes)]
+    else:
+        procs = [Process(n, n, (n,), node_name=n, ends_graph=n == SCENARIO_RUNNER)
+                 for n in nodes]
+    procs.append(Process(LIFECYCLE_MANAGER, LIFECYCLE_MANAGER, (LIFECYCLE_MANAGER,),
+                         node_name=LIFECYCLE_MANAGER))
+    if record:
+        procs.append(Process(RECORDER, RECORDER, (RECORDER,), node_name=RECORDER))
+    managed = tuple(n for n in nodes if n in LIFECYCLE_NODES)
+    over[LIFECYCLE_MANAGER] = {'managed_nodes': list(managed)}
+    return Graph(namespace=ns, composed=composed, sync_mode=sync, controller=law,
+                 scenario=scen, record=record, processes=tuple(procs),
+                 params_files=tuple(files), overrides=over, remappings=REMAPPINGS,
+                 managed_nodes=managed)

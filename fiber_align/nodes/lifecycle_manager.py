@@ -1,0 +1,269 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+``lifecycle_manager``: bring the graph's managed (lifecycle) nodes to active, in order.
+
+A small nav2-style manager that works whatever process hosts the managed nodes (one
+process per node or the composed ``control_graph``), where a launch_ros
+``LifecycleNode`` event handler only reaches a node that is a process of its own.
+
+Parameters (defaults in ``config/lifecycle_manager.yaml``; the launch file and
+``bringup`` set ``managed_nodes`` from :mod:`fiber_align.nodes.graph`):
+
+* ``managed_nodes`` (str[], read-only): relative (or absolute) node names, configured
+  and activated in this order, deactivated and cleaned up in the reverse order.
+* ``autostart`` (bool, read-only): run the start-up sequence at once.
+* ``service_timeout_s`` (s): bound on each wait for a node's ``get_state`` and
+  ``change_state`` services (retried every second until then) and on each call.
+* ``diagnostics_period_s`` (s, read-only, graph-wide).
+
+Services (std_srvs/Trigger): ``~/startup`` (configure what is unconfigured, activate
+what is inactive; a node already active is left alone) and ``~/shutdown`` (deactivate
+what is active, clean up what is inactive: the nodes end unconfigured, ``startup``
+brings them back). Each answers ``success`` and one line saying what happened.
+
+Progress and failures go to the log and to ``/diagnostics`` (status
+``/<ns>/lifecycle_manager``: OK while starting and when every node is active, ERROR with
+the reason when a node's services do not appear in time, a call is not answered or a
+transition is refused; key ``state.<node>`` holds each node's last known state). A
+failure stops the sequence at that node and is reported, never raised: the manager keeps
+running and ``~/startup`` can be called again.
+"""
+
+import threading
+import time
+
+from rcl_interfaces.msg import ParameterDescriptor
+import rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from std_srvs.srv import Trigger
+
+from fiber_align.nodes import _common as c
+
+NODE_NAME = 'lifecycle_manager'
+AREA_FILES = ('lifecycle_manager.yaml',)
+#: lifecycle_msgs State ids and Transition ids used here (lifecycle_msgs/msg/*).
+UNCONFIGURED, INACTIVE, ACTIVE, FINALIZED = 1, 2, 3, 4
+CONFIGURE, CLEANUP, ACTIVATE, DEACTIVATE = 1, 2, 3, 4
+#: Slice (s) of the bounded waits, so a shutdown of the context ends them quickly.
+WAIT_SLICE_S = 0.1
+
+
+class LifecycleManager(Node):
+    """Configure and activate the managed nodes; report on ``/diagnostics``."""
+
+    def __init__(self, **kwargs):
+        """Declare the parameters (defaults from config/), create the services."""
+        super().__init__(NODE_NAME, **kwargs)
+        d = c.node_defaults(NODE_NAME, AREA_FILES)
+        self.declare_parameter('managed_nodes', list(d.get('managed_nodes', [])),
+                               ParameterDescriptor(
+                                   description='lifecycle nodes to configure and activate, '
+                                   'in order (relative or absolute names)', read_only=True))
+        self.declare_parameter('autostart', bool(d.get('autostart', True)),
+                               ParameterDescriptor(description='run the start-up sequence '
+                                                   'at once', read_only=True))
+        c.declare(self, d, 'service_timeout_s', 'bound on each wait for lifecycle services '
+                  'and on each call (s)', 0.1, 3600.0)
+        c.declare(self, d, 'diagnostics_period_s', '/diagnostics period (s)', 0.01, 60.0,
+                  True)
+        self.managed = [str(n) for n in self.get_parameter('managed_nodes').value]
+        self.states = {n: 'unknown' for n in self.managed}
+        self._busy = threading.Lock()
+        self._lc_group = ReentrantCallbackGroup()
+        self._lc_clients = {}
+        self.health = c.Health(self, self.get_parameter('diagnostics_period_s').value)
+        self.health.status(c.OK, 'waiting: %s' % (', '.join(self.managed) or 'no nodes'))
+        self._update_values()
+        group = MutuallyExclusiveCallbackGroup()
+        self.create_service(Trigger, '~/startup', self._on_startup, callback_group=group)
+        self.create_service(Trigger, '~/shutdown', self._on_shutdown, callback_group=group)
+        self._autostart_timer = None
+        if self.get_parameter('autostart').value:
+            self._autostart_timer = self.create_timer(
+                0.01, self._autostart, callback_group=MutuallyExclusiveCallbackGroup())
+
+    # -- services -------------------------------------------------------------------
+    def _autostart(self):
+        self.destroy_timer(self._autostart_timer)
+        self._autostart_timer = None
+        self.startup()
+
+    def _on_startup(self, request, response):
+        response.success, response.message = self.startup()
+        return response
+
+    def _on_shutdown(self, request, response):
+        response.success, response.message = self.shutdown()
+        return response
+
+    # -- sequences ------------------------------------------------------------------
+    def startup(self):
+        """Configure and activate every managed node in order; return (ok, message)."""
+        return self._run('startup', self.managed, self._bring_up)
+
+    def shutdown(self):
+        """Deactivate and clean up every managed node in reverse order; (ok, message)."""
+        return self._run('shutdown', list(reversed(self.managed)), self._bring_down)
+
+    def _run(self, what, nodes, step):
+        if not self._busy.acquire(blocking=False):
+            return False, '%s refused: another sequence is running' % what
+        try:
+            t0 = time.monotonic()
+            for name in nodes:
+                why = step(name)
+                if why:
+                    msg = '%s failed at %s: %s' % (what, name, why)
+                    self.get_logger().error(msg)
+                    self.health.status(c.ERROR, msg)
+                    self.health.error(msg)
+                    return False, msg
+            final = 'active' if what == 'startup' else 'unconfigured'
+            msg = '%s done in %.2f s: %s %s' % (what, time.monotonic() - t0,
+                                                ', '.join(nodes) or 'no nodes', final)
+            self.get_logger().info(msg)
+            self.health.status(c.OK, msg)
+            self.health.publish()
+            return True, msg
+        except Exception as exc:  # noqa: BLE001 - the manager never dies of a node
+            msg = '%s failed: %s: %s' % (what, type(exc).__name__, exc)
+            self.get_logger().error(msg)
+            self.health.status(c.ERROR, msg)
+            return False, msg
+        finally:
+            self._busy.release()
+
+    def _bring_up(self, name):
+        """Return ``None`` once ``name`` is active, else the reason (str)."""
+        return self._walk(name, {UNCONFIGURED: CONFIGURE, INACTIVE: ACTIVATE}, ACTIVE)
+
+    def _bring_down(self, name):
+        """Return ``None`` once ``name`` is unconfigured, else the reason (str)."""
+        return self._walk(name, {ACTIVE: DEACTIVATE, INACTIVE: CLEANUP}, UNCONFIGURED)
+
+    def _walk(self, name, steps, goal):
+        """Apply ``steps`` (state id -> transition id) until ``goal``; ``None`` or why."""
+        labels = {CONFIGURE: 'configure', CLEANUP: 'cleanup', ACTIVATE: 'activate',
+                  DEACTIVATE: 'deactivate'}
+        why = self._wait_services(name)
+        if why:
+            return why
+        for _ in range(len(steps) + 4):      # transition states may need a second look
+            state = self._get_state(name)
+            if isinstance(state, str):
+                return state
+            sid, label = state
+            self._set_state(name, label)
+            if sid == goal:
+                return None
+            if sid == FINALIZED:
+                return 'node is finalized (shut down): restart it'
+            if sid not in steps:             # a transition state: look again shortly
+                time.sleep(0.05)
+                continue
+            tid = steps[sid]
+            self.health.status(c.OK, '%s: %s (%s)' % (name, labels[tid], label))
+            self.get_logger().info('%s: %s' % (name, labels[tid]))
+            ok = self._change_state(name, tid)
+            if isinstance(ok, str):
+                return ok
+            if not ok:
+                state = self._get_state(name)
+                now = state[1] if isinstance(state, tuple) else 'unknown'
+                self._set_state(name, now)
+                return 'transition %s refused (state now %s)' % (labels[tid], now)
+        return 'state did not settle'
+
+    # -- service calls --------------------------------------------------------------
+    def _client(self, name, srv):
+        from lifecycle_msgs.srv import ChangeState, GetState
+        key = (name, srv)
+        if key not in self._lc_clients:
+            typ = GetState if srv == 'get_state' else ChangeState
+            self._lc_clients[key] = self.create_client(
+                typ, '%s/%s' % (name, srv), callback_group=self._lc_group)
+        return self._lc_clients[key]
+
+    def _timeout(self):
+        return float(self.get_parameter('service_timeout_s').value)
+
+    def _wait_services(self, name):
+        """Wait (bounded, retrying) for the node's lifecycle services; ``None`` or why."""
+        timeout = self._timeout()
+        end = time.monotonic() + timeout
+        tries = 0
+        for srv in ('get_state', 'change_state'):
+            cl = self._client(name, srv)
+            while not cl.wait_for_service(timeout_sec=min(1.0, max(0.0,
+                                                                   end - time.monotonic()))):
+                tries += 1
+                if time.monotonic() >= end or not self.context.ok():
+                    return 'no %s service within %g s (%s)' % (
+                        srv, timeout, self.resolve_service_name(cl.srv_name))
+                if tries % 5 == 0:
+                    self.get_logger().info('waiting for %s/%s' % (name, srv))
+                    self.health.status(c.OK, 'waiting for %s/%s' % (name, srv))
+        return None
+
+    def _call(self, name, srv, request):
+        """Call a service with a bounded wait; return the response or the reason (str)."""
+        cl = self._client(name, srv)
+        done = threading.Event()
+        fut = cl.call_async(request)
+        fut.add_done_callback(lambda f: done.set())
+        end = time.monotonic() + self._timeout()
+        while not done.wait(WAIT_SLICE_S):
+            if time.monotonic() >= end or not self.context.ok():
+                cl.remove_pending_request(fut)
+                return 'no answer from %s within %g s' % (cl.srv_name, self._timeout())
+        exc = fut.exception()
+        if exc is not None:
+            return '%s failed: %s' % (cl.srv_name, exc)
+        return fut.result()
+
+    def _get_state(self, name):
+        from lifecycle_msgs.srv import GetState
+        res = self._call(name, 'get_state', GetState.Request())
+        if isinstance(res, str):
+            return res
+        return res.current_state.id, res.current_state.label
+
+    def _change_state(self, name, transition_id):
+        from lifecycle_msgs.srv import ChangeState
+        req = ChangeState.Request()
+        req.transition.id = int(transition_id)
+        res = self._call(name, 'change_state', req)
+        if isinstance(res, str):
+            return res
+        return bool(res.success)
+
+    def _set_state(self, name, label):
+        self.states[name] = label
+        self._update_values()
+
+    def _update_values(self):
+        self.health.set_values(**{'state.%s' % n: s for n, s in self.states.items()})
+
+
+def main(args=None):
+    """Run the manager until SIGINT/SIGTERM (demo_nodes_py idiom, threaded executor)."""
+    rclpy.init(args=args)
+    node = None
+    executor = MultiThreadedExecutor(num_threads=3)
+    try:
+        node = LifecycleManager()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        executor.shutdown(timeout_sec=1.0)
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    main()

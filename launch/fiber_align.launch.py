@@ -1,0 +1,75 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+Launch the fiber_align graph on the simulated actuator.
+
+``ros2 launch fiber_align fiber_align.launch.py [name:=value ...]``; ``ros2 launch -s``
+lists the arguments. The processes, node names, params files and remappings come from
+:mod:`fiber_align.nodes.graph` (the one description of the graph, shared with
+``bringup``); this file only turns that description into launch_ros ``Node`` actions.
+Every process reads one params file, the merge of ``config/*.yaml`` (per-area files, then
+``fiber_align.yaml``), ``params_file`` and the arguments below, written to a temporary
+directory that is removed at shutdown. ``lifecycle_manager`` brings the driver to active;
+Ctrl-C (SIGINT) stops every process, and the recorder finalises its bag. With a scenario,
+the launch shuts down when the process hosting ``scenario_runner`` exits (the scenario is
+over); any other process that exits leaves the rest running (the driver's watchdog holds
+the actuator safe, and the graph recovers when the node is back).
+"""
+
+import os
+import shutil
+import tempfile
+
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler
+from launch.actions import Shutdown
+from launch.event_handlers import OnShutdown
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+from fiber_align.nodes import graph
+
+#: name, default, description, choices (``None``: any value)
+ARGUMENTS = (
+    ('namespace', '', 'namespace of every node ("" = none)', None),
+    ('composed', str(graph.DEFAULT_COMPOSED).lower(),
+     'true: the control nodes in one control_graph process; false: one process per node',
+     ['true', 'false']),
+    ('sync_mode', '', 'sample clock ("" = as the params files say: realtime)',
+     [''] + list(graph.SYNC_MODES)),
+    ('controller', '', 'control law ("" = as the params files say: composite)',
+     [''] + list(graph.CONTROLLERS)),
+    ('params_file', '', 'params file applied after config/fiber_align.yaml', None),
+    ('model_file', '', 'PI model params file for hysteresis_compensator ("" = inline)',
+     None),
+    ('record', '', 'bag directory to record into (must not exist; "" = no recording)', None),
+    ('scenario', '', 'setpoint scenario of scenario_runner ("" = as the params files say: '
+     'none, the graph waits for setpoints)', [''] + list(graph.SCENARIOS)),
+)
+
+
+def launch_setup(context):
+    """Build the graph from the launch arguments; return its Node actions."""
+    args = {name: LaunchConfiguration(name).perform(context) for name, *_ in ARGUMENTS}
+    g = graph.build(**args)
+    tmp = tempfile.mkdtemp(prefix='fiber_align_launch_')
+    params = g.write_params(os.path.join(tmp, 'params.yaml'))
+    actions = [RegisterEventHandler(OnShutdown(
+        on_shutdown=lambda event, ctx: shutil.rmtree(tmp, ignore_errors=True)))]
+    for p in g.processes:
+        actions.append(Node(
+            package=graph.PACKAGE, executable=p.executable, name=p.node_name,
+            namespace=('/' + g.namespace) if g.namespace else None,
+            arguments=list(p.arguments), parameters=[params],
+            remappings=list(g.remappings), output='screen',
+            on_exit=[Shutdown(reason='%s exited: the scenario is over' % p.name)]
+            if p.ends_graph else None))
+    return actions
+
+
+def generate_launch_description():
+    """Return the launch description: the arguments and the graph built from them."""
+    return LaunchDescription(
+        [DeclareLaunchArgument(name, default_value=default, description=text,
+                               **({'choices': choices} if choices else {}))
+         for name, default, text, choices in ARGUMENTS]
+        + [OpaqueFunction(function=launch_setup)])

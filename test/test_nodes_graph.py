@@ -1,0 +1,170 @@
+# SPDX-License-Identifier: Apache-2.0
+"""The one description of the graph (fiber_align.nodes.graph): pure, no ROS needed."""
+
+from pathlib import Path
+import subprocess
+import sys
+
+import pytest
+import yaml
+
+from fiber_align.nodes import graph
+
+ROOT = Path(__file__).resolve().parents[1]
+CONTROL = ('simulated_actuator', 'hysteresis_compensator', 'fuzzy_pid_controller',
+           'actuator_driver')
+
+
+def setup_py_nodes():
+    """Return the executables declared in setup.py's NODES list."""
+    text = (ROOT / 'setup.py').read_text()
+    start = text.index('NODES = [')
+    block = text[start:text.index(']', start)]
+    return [line.strip().strip("',") for line in block.splitlines()[1:] if line.strip()]
+
+
+def test_graph_module_imports_no_rclpy():
+    code = ('import sys; import fiber_align.nodes.graph; '
+            'sys.exit(1 if [m for m in sys.modules if m.startswith("rclpy")] else 0)')
+    assert subprocess.run([sys.executable, '-c', code], timeout=60).returncode == 0
+
+
+def test_default_graph_is_one_process_per_node_plus_the_lifecycle_manager():
+    assert graph.DEFAULT_COMPOSED is False      # until control_graph exists
+    g = graph.build()
+    assert not g.composed
+    assert [p.executable for p in g.processes] == list(CONTROL) + ['lifecycle_manager']
+    assert g.nodes == CONTROL + ('lifecycle_manager',)
+    for p in g.processes:
+        assert p.nodes == (p.node_name,) and p.arguments == ()
+    assert (g.sync_mode, g.controller, g.scenario, g.record) == (
+        'realtime', 'composite', 'none', '')
+    assert g.managed_nodes == ('actuator_driver',)
+    assert g.node_params('lifecycle_manager')['managed_nodes'] == ['actuator_driver']
+    # every executable of this layout is a console script ros2 run can find
+    assert set(p.executable for p in g.processes) <= set(setup_py_nodes())
+
+
+def test_params_files_in_order_area_files_then_graph_file_then_the_users(tmp_path):
+    user = tmp_path / 'mine.yaml'
+    user.write_text(yaml.safe_dump({
+        'actuator_driver': {'ros__parameters': {'v_max': 90}},
+        '/**': {'ros__parameters': {'diagnostics_period_s': 1.0}}}))
+    g = graph.build(params_file=str(user))
+    names = [Path(f).name for f in g.params_files]
+    expected = [f for f in graph.AREA_FILES if f in names]
+    assert names == expected + ['fiber_align.yaml', 'mine.yaml']
+    assert expected[:7] == ['plant.yaml', 'optics.yaml', 'controller.yaml',
+                            'compensator.yaml', 'driver.yaml', 'sequencer.yaml',
+                            'recorder.yaml']
+    drv = g.node_params('actuator_driver')
+    assert drv['v_max'] == 90.0 and drv['v_min'] == -20.0    # user file wins, key by key
+    assert drv['diagnostics_period_s'] == 1.0
+    # fiber_align.yaml's /** reaches every node; numeric lists become float lists
+    assert g.node_params('simulated_actuator')['sync_mode'] == 'realtime'
+    kd = g.node_params('fuzzy_pid_controller')['pid']['kd']
+    assert all(isinstance(v, float) for v in kd)
+
+
+def test_launch_arguments_override_the_files(tmp_path):
+    model = tmp_path / 'model.yaml'
+    model.write_text((ROOT / 'config' / 'hysteresis_paper.yaml').read_text())
+    bag = tmp_path / 'bag'
+    g = graph.build(sync_mode='lockstep', controller='pid', model_file=str(model),
+                    record=str(bag))
+    assert (g.sync_mode, g.controller, g.record) == ('lockstep', 'pid', str(bag))
+    for node in CONTROL:
+        assert g.node_params(node)['sync_mode'] == 'lockstep'
+        assert g.node_params(node)['controller'] == 'pid'
+    assert g.node_params('hysteresis_compensator')['model_file'] == str(model)
+    assert g.node_params('bag_recorder')['output'] == str(bag)
+    assert g.processes[-1].executable == 'bag_recorder'
+    assert not bag.exists()                     # describing the graph creates nothing
+
+
+@pytest.mark.parametrize('scenario, nodes', [
+    ('none', CONTROL),
+    ('sine', CONTROL + ('scenario_runner',)),
+    ('align', CONTROL + ('scenario_runner', 'alignment_sequencer')),
+    ('hysteresis-experiment', ('simulated_actuator', 'actuator_driver', 'scenario_runner')),
+])
+def test_scenario_decides_the_control_nodes(scenario, nodes):
+    g = graph.build(scenario=scenario)
+    assert g.nodes[:len(nodes)] == nodes and g.scenario == scenario
+    if scenario != 'none':
+        assert g.node_params('scenario_runner')['scenario'] == scenario
+    # the launch stops when the scenario runner's process exits, and only then
+    assert [p.executable for p in g.processes if p.ends_graph] == (
+        [] if scenario == 'none' else ['scenario_runner'])
+
+
+def test_composed_layout_is_one_control_graph_process(tmp_path):
+    g = graph.build(composed='true', scenario='align', record=str(tmp_path / 'b'))
+    first = g.processes[0]
+    assert first.executable == 'control_graph' and first.node_name is None
+    nodes = CONTROL + ('scenario_runner', 'alignment_sequencer')
+    assert first.nodes == nodes
+    assert first.argv('/p.yaml') == ['--nodes', ','.join(nodes), '--ros-args',
+                                     '--params-file', '/p.yaml']
+    assert [p.executable for p in g.processes[1:]] == ['lifecycle_manager', 'bag_recorder']
+    assert first.ends_graph and not any(p.ends_graph for p in g.processes[1:])
+    assert g.managed_nodes == ('actuator_driver',)
+
+
+def test_namespace_keys_the_node_sections_and_remaps_the_processes(tmp_path):
+    user = tmp_path / 'ns.yaml'
+    user.write_text(yaml.safe_dump({
+        '/left/actuator_driver': {'ros__parameters': {'v_max': 80.0}},
+        'fuzzy_pid_controller': {'ros__parameters': {'u_max': 50.0}}}))
+    g = graph.build(namespace='/left/', params_file=str(user))
+    assert g.namespace == 'left'
+    p = g.params()
+    assert '/left/actuator_driver' in p and 'actuator_driver' not in p and '/**' in p
+    assert p['/left/actuator_driver']['ros__parameters']['v_max'] == 80.0
+    assert p['/left/fuzzy_pid_controller']['ros__parameters']['u_max'] == 50.0
+    assert g.processes[0].ros_args('/p.yaml', g.namespace) == [
+        '--ros-args', '--params-file', '/p.yaml', '-r', '__ns:=/left']
+    assert g.processes[0].command('/p.yaml', g.namespace, (('a', 'b'),), 'py') == [
+        'py', '-m', 'fiber_align.nodes.simulated_actuator', '--ros-args', '--params-file',
+        '/p.yaml', '-r', '__ns:=/left', '-r', 'a:=b']
+    out = g.write_params(str(tmp_path / 'params.yaml'))
+    assert yaml.safe_load(Path(out).read_text()) == p
+
+
+@pytest.mark.parametrize('kwargs, words', [
+    ({'sync_mode': 'fast'}, ['sync_mode', 'realtime, lockstep']),
+    ({'controller': 'lqr'}, ['controller', 'composite']),
+    ({'scenario': 'walk'}, ['scenario', 'sine']),
+    ({'composed': 'maybe'}, ['composed', 'true or false']),
+    ({'namespace': 'bad name!'}, ['namespace', 'not a valid ROS namespace']),
+    ({'namespace': '1left'}, ['namespace']),
+    ({'params_file': '/nonexistent/p.yaml'}, ['params_file', 'does not exist']),
+    ({'model_file': '/nonexistent/m.yaml'}, ['model_file', 'does not exist']),
+])
+def test_bad_arguments_get_one_clear_line(kwargs, words):
+    with pytest.raises(graph.GraphError) as err:
+        graph.build(**kwargs)
+    msg = str(err.value)
+    assert '\n' not in msg
+    for w in words:
+        assert w in msg
+
+
+def test_an_existing_record_directory_is_refused(tmp_path):
+    with pytest.raises(graph.GraphError, match='already exists'):
+        graph.build(record=str(tmp_path))
+
+
+def test_a_params_file_can_choose_the_scenario(tmp_path):
+    user = tmp_path / 's.yaml'
+    user.write_text(yaml.safe_dump({'scenario_runner': {'ros__parameters': {
+        'scenario': 'step'}}}))
+    assert graph.build(params_file=str(user)).scenario == 'step'
+    assert graph.build(params_file=str(user), scenario='none').scenario == 'none'
+
+
+def test_the_launch_file_takes_its_graph_from_graph_py():
+    text = (ROOT / 'launch' / 'fiber_align.launch.py').read_text()
+    assert 'graph.build(' in text
+    for node in CONTROL + ('lifecycle_manager', 'bag_recorder'):
+        assert "'%s'" % node not in text, 'node list written in the launch file: ' + node
