@@ -29,12 +29,18 @@ def test_graph_module_imports_no_rclpy():
     assert subprocess.run([sys.executable, '-c', code], timeout=60).returncode == 0
 
 
-def test_default_graph_is_one_process_per_node_plus_the_lifecycle_manager():
-    assert graph.DEFAULT_COMPOSED is False      # until control_graph exists
+def test_default_graph_is_one_control_graph_process_plus_the_lifecycle_manager():
+    assert graph.DEFAULT_COMPOSED is True       # measured: docs/ros_interface.md
     g = graph.build()
-    assert not g.composed
-    assert [p.executable for p in g.processes] == list(CONTROL) + ['lifecycle_manager']
+    assert g.composed
+    assert [p.executable for p in g.processes] == ['control_graph', 'lifecycle_manager']
+    assert g.processes[0].nodes == CONTROL
     assert g.nodes == CONTROL + ('lifecycle_manager',)
+
+
+def test_multi_process_graph_is_one_process_per_node():
+    g = graph.build(composed='false')
+    assert [p.executable for p in g.processes] == list(CONTROL) + ['lifecycle_manager']
     for p in g.processes:
         assert p.nodes == (p.node_name,) and p.arguments == ()
     assert (g.sync_mode, g.controller, g.scenario, g.record) == (
@@ -85,11 +91,11 @@ def test_launch_arguments_override_the_files(tmp_path):
 @pytest.mark.parametrize('scenario, nodes', [
     ('none', CONTROL),
     ('sine', CONTROL + ('scenario_runner',)),
-    ('align', CONTROL + ('scenario_runner', 'alignment_sequencer')),
-    ('hysteresis-experiment', ('simulated_actuator', 'actuator_driver', 'scenario_runner')),
+    ('align', CONTROL + ('alignment_sequencer',)),
+    ('hysteresis-experiment', ('simulated_actuator', 'scenario_runner', 'actuator_driver')),
 ])
 def test_scenario_decides_the_control_nodes(scenario, nodes):
-    g = graph.build(scenario=scenario)
+    g = graph.build(scenario=scenario, composed='false')
     assert g.nodes[:len(nodes)] == nodes and g.scenario == scenario
     if scenario != 'none':
         assert g.node_params('scenario_runner')['scenario'] == scenario
@@ -102,12 +108,12 @@ def test_composed_layout_is_one_control_graph_process(tmp_path):
     g = graph.build(composed='true', scenario='align', record=str(tmp_path / 'b'))
     first = g.processes[0]
     assert first.executable == 'control_graph' and first.node_name is None
-    nodes = CONTROL + ('scenario_runner', 'alignment_sequencer')
+    nodes = CONTROL + ('alignment_sequencer',)
     assert first.nodes == nodes
     assert first.argv('/p.yaml') == ['--nodes', ','.join(nodes), '--ros-args',
                                      '--params-file', '/p.yaml']
     assert [p.executable for p in g.processes[1:]] == ['lifecycle_manager', 'bag_recorder']
-    assert first.ends_graph and not any(p.ends_graph for p in g.processes[1:])
+    assert not any(p.ends_graph for p in g.processes)   # align runs until stopped
     assert g.managed_nodes == ('actuator_driver',)
 
 
@@ -116,7 +122,7 @@ def test_namespace_keys_the_node_sections_and_remaps_the_processes(tmp_path):
     user.write_text(yaml.safe_dump({
         '/left/actuator_driver': {'ros__parameters': {'v_max': 80.0}},
         'fuzzy_pid_controller': {'ros__parameters': {'u_max': 50.0}}}))
-    g = graph.build(namespace='/left/', params_file=str(user))
+    g = graph.build(namespace='/left/', params_file=str(user), composed='false')
     assert g.namespace == 'left'
     p = g.params()
     assert '/left/actuator_driver' in p and 'actuator_driver' not in p and '/**' in p

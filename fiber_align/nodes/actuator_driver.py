@@ -111,8 +111,8 @@ def check_field_limits(p):
             return ('%s %g V exceeds the field limit %g V (field_limit_v)' % (k, v, fwd))
         if v < rev:
             return ('%s %g V is below the depoling limit %g V (-depoling_fraction %g * '
-                    'coercive_field_v %g V)' % (k, v, rev, float(p['depoling_fraction']),
-                                                 float(p['coercive_field_v'])))
+                    'coercive_field_v %g V)'
+                    % (k, v, rev, float(p['depoling_fraction']), float(p['coercive_field_v'])))
     return None
 
 

@@ -43,7 +43,7 @@ from fiber_align.config import ConfigError, config_dir, read_yaml
 
 PACKAGE = 'fiber_align'
 #: Layout when the launch argument ``composed`` (or bringup's option) is not given.
-DEFAULT_COMPOSED = False
+DEFAULT_COMPOSED = True
 #: Executable that hosts several nodes in one process (composed layout).
 COMPOSED_EXECUTABLE = 'control_graph'
 #: Per-area params files, in the order they are merged (names in ``config/``).
@@ -51,7 +51,7 @@ AREA_FILES = ('plant.yaml', 'optics.yaml', 'controller.yaml', 'compensator.yaml'
               'driver.yaml', 'sequencer.yaml', 'recorder.yaml', 'scenario.yaml',
               'lifecycle_manager.yaml')
 #: Area files a checkout may not have yet (skipped when missing).
-OPTIONAL_FILES = ('scenario.yaml',)
+OPTIONAL_FILES = ()
 #: Graph-wide params file, merged after the per-area files.
 GRAPH_FILE = 'fiber_align.yaml'
 
@@ -191,12 +191,12 @@ class Graph:
 def control_nodes(scenario):
     """Return the names of the control nodes the scenario needs, in start order."""
     if scenario == 'hysteresis-experiment':   # open loop: the runner drives the driver
-        return (PLANT, DRIVER, SCENARIO_RUNNER)
+        return (PLANT, SCENARIO_RUNNER, DRIVER)
     nodes = (PLANT, COMPENSATOR, CONTROLLER, DRIVER)
     if scenario == 'none':
         return nodes
-    if scenario == 'align':
-        return nodes + (SCENARIO_RUNNER, SEQUENCER)
+    if scenario == 'align':         # the sequencer is the setpoint source
+        return nodes + (SEQUENCER,)
     return nodes + (SCENARIO_RUNNER,)
 
 
@@ -365,7 +365,9 @@ def build(namespace='', composed=None, sync_mode='', controller='', params_file=
             raise GraphError('record %s already exists: give a new bag directory' % record)
         over[RECORDER] = {'output': record}
     if scenario:
-        over[SCENARIO_RUNNER] = {'scenario': _choice('scenario', scenario, SCENARIOS)}
+        # under launch the runner ends the graph when its scenario is over
+        over[SCENARIO_RUNNER] = {'scenario': _choice('scenario', scenario, SCENARIOS),
+                                 'exit_when_done': True}
     merged = merge_params(files, over, ns)
     graph_wide = effective(merged, PLANT, ns)
     sync = _choice('sync_mode', graph_wide.get('sync_mode', 'realtime'), SYNC_MODES)

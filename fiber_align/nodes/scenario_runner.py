@@ -19,7 +19,8 @@ For each ``displacement`` sample with stamp t_k (t = t_k - t_0, t_0 the first sa
 stamp) it publishes ``setpoint`` = the reference at t (m), clamped to
 ``[max(0, setpoint_min_m), min(setpoint_max_m, reach_m)]``; once t reaches the duration
 it publishes nothing more, so a lockstep graph holds after exactly ``duration * rate``
-commands and a realtime graph holds the last setpoint. ``scenario_state``
+commands and a realtime graph holds the last setpoint; with ``exit_when_done`` (set by
+the launch file) the process then ends, which ends the launch. ``scenario_state``
 (std_msgs/String, latched) is ``running`` and then ``done``.
 """
 
@@ -31,12 +32,15 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 
+from fiber_align.config import ConfigError
 from fiber_align.control import scenarios
 from fiber_align.nodes import _common as c
 
 NODE_NAME = 'scenario_runner'
 AREA_FILES = ('scenario.yaml',)
 SCENARIOS = ('step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment')
+#: Accepted as a parameter value; ``none`` starts no runner (graph.py, bringup).
+CHOICES = ('none',) + SCENARIOS
 #: Topics this node publishes (relative names; see ``_common.LocalBus``).
 PUBLISHES = ('setpoint', 'feedforward_voltage', 'feedback_voltage')
 
@@ -86,7 +90,10 @@ class ScenarioRunnerNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         d = c.node_defaults(NODE_NAME, AREA_FILES)
         self.name_ = c.declare(self, d, 'scenario', 'scenario to run', read_only=True,
-                               choices=SCENARIOS)
+                               choices=SCENARIOS if d.get('scenario') != 'none' else CHOICES)
+        if self.name_ == 'none':
+            raise ConfigError('scenario_runner: scenario none runs no runner; choose one '
+                              'of %s' % ', '.join(SCENARIOS))
         dur = c.declare(self, d, 'duration_s', 'length (s of sample time); 0: the '
                         "scenario's own", 0.0, 1e6, True)
         reach = c.declare(self, d, 'reach_m', 'largest reachable displacement (m); 0: '
@@ -95,6 +102,8 @@ class ScenarioRunnerNode(Node):
                        1e-3, True)
         hi = c.declare(self, d, 'setpoint_max_m', 'highest accepted setpoint (m)', -1e-3,
                        1e-3, True)
+        self.exit_when_done = c.declare(self, d, 'exit_when_done', 'end the process when '
+                                        'the scenario is over (ros2 launch)', read_only=True)
         self.lockstep = c.declare(self, d, 'sync_mode', 'sample clock', read_only=True,
                                   choices=c.SYNC_MODES) == 'lockstep'
         self.period_s = 1.0 / c.declare(self, d, 'rate_hz', 'control rate (Hz)', 1.0,
@@ -133,6 +142,10 @@ class ScenarioRunnerNode(Node):
             self.done = True
             self.pub_state.publish(String(data='done'))
             self.get_logger().info('scenario done after %d samples' % self.n)
+            if self.exit_when_done:
+                # a short grace for the last messages to reach their readers, then the
+                # process (and a launch that waits on it) ends
+                self.create_timer(0.5, self._exit)
             return
         v = self.source.value(t)
         if not math.isfinite(v):
@@ -145,6 +158,10 @@ class ScenarioRunnerNode(Node):
         else:
             self.pub_sp.publish(m)
         self.n += 1
+
+    def _exit(self):
+        self.get_logger().info('scenario over: shutting the process down')
+        self.context.try_shutdown()
 
     def sent_counts(self):
         """Return published message counts per topic."""

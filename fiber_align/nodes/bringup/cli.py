@@ -88,8 +88,8 @@ def parse_args(argv):
         ap.error('--cycles must be >= 0, got %d' % a.cycles)
     for path, opt in ((a.trace, '--trace'), (a.summary, '--summary')):
         if path and not os.path.isdir(os.path.dirname(os.path.abspath(path))):
-            ap.error('%s %s: the folder %s does not exist' % (opt, path,
-                                                            os.path.dirname(path) or '.'))
+            ap.error('%s %s: the folder %s does not exist'
+                     % (opt, path, os.path.dirname(path) or '.'))
     if a.record and os.path.exists(a.record):
         ap.error('--record %s exists already; choose a new bag directory' % a.record)
     if a.record and not os.path.isdir(os.path.dirname(os.path.abspath(a.record))):

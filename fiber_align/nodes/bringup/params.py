@@ -13,10 +13,7 @@ import difflib
 
 from fiber_align.config import ConfigError, config_path, read_yaml
 from fiber_align.nodes._common import normalize
-
-AREA_FILES = ('plant.yaml', 'optics.yaml', 'controller.yaml', 'compensator.yaml',
-              'driver.yaml', 'sequencer.yaml', 'recorder.yaml', 'scenario.yaml')
-GRAPH_FILE = 'fiber_align.yaml'
+from fiber_align.nodes.graph import AREA_FILES, GRAPH_FILE
 #: Sections of the shipped files that are not nodes of the graph (read by tools).
 TOOL_SECTIONS = ('analyze', 'bringup')
 

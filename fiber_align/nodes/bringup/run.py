@@ -19,22 +19,15 @@ from fiber_align.nodes.bringup.cli import param_overrides, TRACKING_SCENARIOS
 from fiber_align.nodes.bringup.observer import BringupError, Runner, StartStall
 from fiber_align.nodes.bringup.params import compose, namespaced, node_params
 
-CONTROL_NODES = ('simulated_actuator', 'hysteresis_compensator', 'fuzzy_pid_controller',
-                 'actuator_driver')
 EXIT_OK, EXIT_FAIL, EXIT_INTERRUPTED = 0, 1, 130
 #: realtime goals ``--strict`` holds a run to: share of missed cycles, watchdog trips
 MISSED_SHARE_GOAL = 0.001
 
 
 def graph_nodes(scenario):
-    """Return the node names the scenario runs (recorder excluded), in build order."""
-    if scenario == 'hysteresis-experiment':
-        return ('simulated_actuator', 'scenario_runner', 'actuator_driver')
-    if scenario == 'align':
-        return CONTROL_NODES + ('alignment_sequencer',)
-    if scenario in TRACKING_SCENARIOS:
-        return CONTROL_NODES + ('scenario_runner',)
-    return CONTROL_NODES
+    """Return the node names the scenario runs (recorder excluded): the graph's own."""
+    from fiber_align.nodes.graph import control_nodes
+    return control_nodes(scenario)
 
 
 def expected_endpoints(scenario, lockstep, record, composed=False):
