@@ -19,6 +19,7 @@ COMMAND_MODULES = [
     'fiber_align.hysteresis.cli',    # identify
     'fiber_align.control.cli',       # simulate, fuzzy-surface
     'fiber_align.analysis.cli',      # analyze
+    'fiber_align.analysis.bag_repair',  # bag-repair
     'fiber_align.hardware.cli',      # emulate
 ]
 

@@ -42,7 +42,7 @@ def _wait(cond, timeout, what, spin=None):
     raise AssertionError('timed out after %g s waiting for %s' % (timeout, what))
 
 
-def _record(tmp_path, storage, sig, ns=''):
+def _record(tmp_path, storage, sig, ns='', settle_s=0.0):
     """Publish N Float64 and N JointState messages to a recorder, stop it with ``sig``."""
     from rclpy.qos import QoSProfile
     from sensor_msgs.msg import JointState
@@ -53,7 +53,7 @@ def _record(tmp_path, storage, sig, ns=''):
     proc = _start(str(out), storage, ns)
     try:
         qos = QoSProfile(depth=N)
-        p1 = node.create_publisher(Float64, 'setpoint', qos)
+        p1 = node.create_publisher(Float64, 'reference', qos)
         p2 = node.create_publisher(JointState, 'displacement', qos)
         _wait(lambda: p1.get_subscription_count() >= 1 and p2.get_subscription_count() >= 1,
               20.0, 'the recorder to subscribe', node)
@@ -64,9 +64,11 @@ def _record(tmp_path, storage, sig, ns=''):
             p2.publish(js)
         assert p1.wait_for_all_acked(rclpy.duration.Duration(seconds=5.0))
         assert p2.wait_for_all_acked(rclpy.duration.Duration(seconds=5.0))
+        time.sleep(settle_s)
         proc.send_signal(sig)
         outs, _ = proc.communicate(timeout=20)
-        assert proc.returncode == 0, outs.decode(errors='replace')
+        want = -signal.SIGKILL if sig == signal.SIGKILL else 0
+        assert proc.returncode == want, outs.decode(errors='replace')
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -80,13 +82,16 @@ def _check(out, ns=''):
     prefix = '/' + ns.strip('/') + '/' if ns else '/'
     streams, lockstep, topics = bagio.read_streams(out)
     assert not lockstep
-    assert topics[prefix + 'setpoint'] == ('std_msgs/msg/Float64', N)
+    assert topics[prefix + 'reference'] == ('std_msgs/msg/Float64', N)
     assert topics[prefix + 'displacement'] == ('sensor_msgs/msg/JointState', N)
     assert np.array_equal(streams['setpoint'].fields['data'], np.arange(N) * 1e-6)
     assert np.array_equal(streams['displacement'].fields['position'], np.arange(N) * 1e-7)
     assert np.array_equal(streams['displacement'].fields['stamp_ns'], np.arange(N) * 1000000)
     counts = json.loads((out / 'recorder_counts.json').read_text())
-    assert counts == {prefix + 'setpoint': N, prefix + 'displacement': N}
+    counts.pop('/diagnostics')          # the recorder's own reports are in the bag too
+    assert counts == {prefix + 'reference': N, prefix + 'displacement': N}
+    assert json.loads((out / 'recorder_events.json').read_text()) == {
+        'lost': 0, 'incompatible_qos': 0}
 
 
 def test_recorder_sigint_mcap(tmp_path):
@@ -100,3 +105,24 @@ def test_recorder_sigterm_sqlite3_namespace(tmp_path):
     """SIGTERM finalises a sqlite3 bag; relative topics resolve in the recorder's namespace."""
     out = _record(tmp_path, 'sqlite3', signal.SIGTERM, ns='rig1')
     _check(out, 'rig1')
+
+
+def test_recorder_sigkill_mcap_is_repaired(tmp_path):
+    """SIGKILL leaves no summary; bag-repair recovers every message flushed before it."""
+    out = _record(tmp_path, 'mcap', signal.SIGKILL, settle_s=1.5)   # > flush_period_s
+    assert not (out / 'metadata.yaml').exists()
+    with pytest.raises(Exception):
+        bagio.read_streams(out)
+    env = dict(os.environ)
+    rep = subprocess.run([sys.executable, '-m', 'fiber_align.cli', 'bag-repair', str(out)],
+                         env=env, capture_output=True, text=True, timeout=60)
+    assert rep.returncode == 0, rep.stderr
+    fixed = out.with_name(out.name + '_repaired')
+    streams, _, topics = bagio.read_streams(fixed)
+    assert topics['/reference'] == ('std_msgs/msg/Float64', N)
+    assert topics['/displacement'] == ('sensor_msgs/msg/JointState', N)
+    assert np.array_equal(streams['displacement'].fields['position'], np.arange(N) * 1e-7)
+    # and analyze reads it
+    ana = subprocess.run([sys.executable, '-m', 'fiber_align.cli', 'analyze', str(fixed),
+                          '--json'], env=env, capture_output=True, text=True, timeout=120)
+    assert ana.returncode == 0, ana.stderr
