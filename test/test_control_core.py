@@ -81,8 +81,38 @@ def test_driver_clamp_slew_watchdog():
     assert d.command(-5.0, 0.0, 1.0) == 0.0
     assert d.tick(1.005) == 0.0 and d.watchdog_count == 0
     d.command(50.0, 0.0, 2.0)
-    assert d.tick(2.1) < 50.0 and d.watchdog_count == 1
+    assert d.tick(2.1) == 50.0 and d.watchdog_count == 1    # the trip: the ramp starts
+    assert d.tick(2.101) < 50.0
     assert d.command(math.nan, 0.0, 2.2) == d.v and d.nan_count == 1
+
+
+def test_driver_watchdog_latches_after_three_trips_in_the_window():
+    """Three trips within 10 s latch the safe voltage; commands then change nothing."""
+    d = DriverCore(v_min=0.0, v_max=100.0, watchdog_timeout_s=0.05, latch_trips=3,
+                   latch_window_s=10.0)
+    t = 0.0
+    for trip in range(3):
+        assert not d.latched
+        d.command(60.0, 0.0, t)            # input flows, then stops for 0.1 s
+        t += 0.1
+        d.tick(t)
+        assert d.watchdog_count == trip + 1
+        t += 0.01
+    assert d.latched and d.v == 0.0
+    assert d.command(60.0, 0.0, t) == 0.0 and d.command(80.0, 0.0, t + 1) == 0.0
+    d.rearm()
+    assert not d.latched and d.command(60.0, 0.0, t + 2) == 60.0
+
+
+def test_driver_trips_spread_beyond_the_window_do_not_latch():
+    """Trips more than latch_window_s apart never latch."""
+    d = DriverCore(v_min=0.0, v_max=100.0, watchdog_timeout_s=0.05, latch_trips=3,
+                   latch_window_s=10.0)
+    for k in range(6):
+        t = 6.0 * k
+        d.command(60.0, 0.0, t)
+        d.tick(t + 0.1)
+    assert d.watchdog_count == 6 and not d.latched
 
 
 @pytest.mark.parametrize('rate', [1000.0, 10000.0])
@@ -128,3 +158,26 @@ def test_metrics_on_known_signals():
     tm = tracking_metrics(t, np.zeros_like(t), np.sin(2 * np.pi * t), skip_s=0.0)
     assert tm['max_error_m'] == pytest.approx(1.0, abs=1e-4)
     assert tm['rms_error_m'] == pytest.approx(math.sqrt(0.5), abs=1e-3)
+
+
+def test_driver_field_limits_agree_with_the_design_and_hold_the_defaults():
+    """driver.yaml's forward limit is actuator.yaml's; its defaults lie inside both."""
+    from fiber_align.config import load_params
+    from fiber_align.design import load_actuator
+    d = load_params('driver.yaml', 'actuator_driver')
+    a = load_actuator()
+    assert d['field_limit_v'] == pytest.approx(a.field_limit_v, rel=1e-12)
+    rev = -d['depoling_fraction'] * d['coercive_field_v']
+    for k in ('v_min', 'v_max', 'safe_voltage_v'):
+        assert rev <= d[k] <= d['field_limit_v'], k
+
+
+def test_driver_ramps_to_the_safe_voltage_at_its_own_rate_from_the_trip():
+    """A trip long after the last command still ramps at safe_ramp_rate_v_per_s."""
+    d = DriverCore(v_min=0.0, v_max=100.0, slew_rate_v_per_s=5e5, watchdog_timeout_s=0.05,
+                   safe_ramp_rate_v_per_s=2000.0)
+    d.command(52.0, 0.0, 0.0)
+    assert d.tick(0.06) == 52.0 and d.tripped          # trips at 60 ms: the ramp starts
+    steps = [d.tick(0.06 + 1e-3 * k) for k in range(1, 40)]
+    assert steps[0] == pytest.approx(50.0) and max(-np.diff(steps)) <= 2.0 + 1e-9
+    assert steps[-1] == 0.0 and steps[24] > 0.0        # 52 V take 26 ms

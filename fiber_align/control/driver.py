@@ -38,13 +38,17 @@ class DriverCore:
 
     def __init__(self, v_min=0.0, v_max=100.0, slew_rate_v_per_s=math.inf,
                  watchdog_timeout_s=0.0, safe_voltage_v=0.0, latch_trips=3,
-                 latch_window_s=10.0):
+                 latch_window_s=10.0, safe_ramp_rate_v_per_s=math.inf):
         """
         Check and store the limits; start at ``safe_voltage_v``.
 
         :param latch_trips: trips within ``latch_window_s`` that latch the safe state
             (0: never latch).
         :param latch_window_s: window (s) of that count.
+        :param safe_ramp_rate_v_per_s: rate (V/s) of every ramp to the safe voltage
+            (watchdog, latch, disable); slow enough not to ring the bending mode, which
+            a ramp at the amplifier's slew limit (a step, for the plant) rings by the
+            full height of the step.
         """
         if not v_max > v_min:
             raise ConfigError('v_max (%g V) must exceed v_min (%g V)' % (v_max, v_min))
@@ -59,6 +63,8 @@ class DriverCore:
         self.safe = float(safe_voltage_v)
         if int(latch_trips) < 0 or not float(latch_window_s) >= 0.0:
             raise ConfigError('latch_trips must be >= 0 and latch_window_s >= 0 s')
+        r = float(safe_ramp_rate_v_per_s)
+        self.safe_rate = r if r > 0 and math.isfinite(r) else math.inf
         self.latch_trips = int(latch_trips)
         self.latch_window_s = float(latch_window_s)
         self.reset()
@@ -67,7 +73,7 @@ class DriverCore:
     def from_params(cls, p):
         """Build from the ``actuator_driver`` parameters (see ``config/driver.yaml``)."""
         known = {'v_min', 'v_max', 'slew_rate_v_per_s', 'watchdog_timeout_s',
-                 'safe_voltage_v', 'latch_window_s'}
+                 'safe_voltage_v', 'latch_window_s', 'safe_ramp_rate_v_per_s'}
         kw = {k: float(v) for k, v in p.items() if k in known}
         if 'latch_trips' in p:
             kw['latch_trips'] = int(p['latch_trips'])
@@ -92,11 +98,20 @@ class DriverCore:
         self.latched = False
         self.trip_times = []
 
-    def _limit(self, target, t):
-        """Slew-limit the move from the present output to ``target`` at time ``t`` (s)."""
+    def start_safe_ramp(self, t):
+        """Start a ramp to the safe voltage at ``t`` (s) (a disable or a deactivate)."""
+        self.t_last_out = t
+
+    def ramp_safe(self, t):
+        """Return the output (V) at ``t`` (s) on the way to the safe voltage (safe rate)."""
+        return self._limit(self.safe, t, min(self.slew, self.safe_rate))
+
+    def _limit(self, target, t, rate=None):
+        """Limit the move from the present output to ``target`` at ``t`` (s) to ``rate``."""
         tl = self.t_last_out
-        if tl is not None and self.slew != math.inf:
-            dv_max = self.slew * (t - tl if t > tl else 0.0)
+        rate = self.slew if rate is None else rate
+        if tl is not None and rate != math.inf:
+            dv_max = rate * (t - tl if t > tl else 0.0)
             v = self.v
             if target > v + dv_max:
                 target = v + dv_max
@@ -113,7 +128,7 @@ class DriverCore:
         u = ff + fb
         self.t_last_cmd = t
         if self.latched:            # latched safe state: only rearm() ends it
-            return self._limit(self.safe, t)
+            return self.ramp_safe(t)
         if u - u != 0.0:            # NaN or infinite
             self.nan_count += 1
             return self.v
@@ -139,18 +154,19 @@ class DriverCore:
         to ``safe_voltage_v``.
         """
         if self.latched:
-            return self._limit(self.safe, t)
+            return self.ramp_safe(t)
         if self.timeout <= 0 or self.t_last_cmd is None:
             return self.v
         if t - self.t_last_cmd > self.timeout:
             if not self.tripped:
                 self.tripped = True
                 self.watchdog_count += 1
+                self.t_last_out = t     # the ramp starts now, not at the last command
                 self.trip_times = [x for x in self.trip_times
                                    if t - x <= self.latch_window_s] + [t]
                 if self.latch_trips and len(self.trip_times) >= self.latch_trips:
                     self.latched = True
-            return self._limit(self.safe, t)
+            return self.ramp_safe(t)
         return self.v
 
     def rearm(self):

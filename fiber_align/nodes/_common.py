@@ -20,6 +20,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rcl_interfaces.msg import ParameterType, SetParametersResult
+from rclpy.exceptions import ParameterException
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from fiber_align.config import ConfigError, config_path, read_yaml
@@ -606,7 +607,56 @@ def set_realtime_priority(priority):
     return 'SCHED_FIFO %d' % priority
 
 
-def spin(nodes, realtime=False, priority=0):
+#: Errors of a node's construction that are bad input (a parameter of the wrong type or
+#: out of its range, a broken config): one line and exit code 2, no traceback.
+NODE_ERRORS = (ConfigError, ParameterException, ValueError, TypeError, KeyError)
+
+
+def init(args=None):
+    """
+    Initialise rclpy with this process's own SIGINT and SIGTERM handlers; return the event.
+
+    rclpy's handlers shut the context down at once, while the executor may still run a
+    callback that then publishes on a dead context (``[FATAL] Exception in 'timers'
+    callback`` at an ordinary stop). Here a signal only sets the returned event; the spin
+    loop ends, and the nodes are destroyed and the context shut down in order. The
+    handlers are installed whatever the inherited disposition (a background job of a
+    non-interactive shell inherits SIGINT ignored).
+    """
+    import signal
+    import threading
+
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = threading.Event()
+
+    def on_signal(signum, frame):
+        stop.set()
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    return stop
+
+
+def refuse(name, exc):
+    """Print one line for a node that cannot start (bad input); return exit code 2."""
+    print('%s: error: %s' % (name, exc), file=sys.stderr, flush=True)
+    return 2
+
+
+def finish(nodes):
+    """Print each node's exit report, destroy the nodes, shut rclpy down (idempotent)."""
+    import rclpy
+    for node in nodes if isinstance(nodes, (list, tuple)) else [nodes]:
+        if node is None:
+            continue
+        if hasattr(node, 'sent_counts'):
+            report_sent(node, node.sent_counts())
+        node.destroy_node()
+    rclpy.try_shutdown()
+
+
+def spin(nodes, realtime=False, priority=0, stop=None):
     """
     Spin ``nodes`` (one node or a list) until the context shuts down.
 
@@ -618,6 +668,7 @@ def spin(nodes, realtime=False, priority=0):
     :param realtime: choose the events executor when available (:func:`make_executor`).
     :param priority: ``SCHED_FIFO`` priority of the executor thread
         (:func:`set_realtime_priority`; 0: normal).
+    :param stop: the event of :func:`init`; set, it ends the spin.
     """
     import gc
     nodes = list(nodes) if isinstance(nodes, (list, tuple)) else [nodes]
@@ -639,7 +690,7 @@ def spin(nodes, realtime=False, priority=0):
     gc.collect()
     gc.freeze()
     try:
-        while executor.context.ok():
+        while executor.context.ok() and not (stop is not None and stop.is_set()):
             executor.spin_once(timeout_sec=0.1)
     finally:
         for node in nodes:
@@ -670,26 +721,3 @@ def declare_priority(node, defaults):
 def is_param_type_numeric(ptype):
     """Return True for rcl_interfaces double/integer parameter types."""
     return ptype in (ParameterType.PARAMETER_DOUBLE, ParameterType.PARAMETER_INTEGER)
-
-
-def run(node_factory, args=None):
-    """
-    Run one node in the demo_nodes_py idiom; print its sent counts on exit.
-
-    :param node_factory: callable returning the node (after ``rclpy.init``).
-    """
-    import rclpy
-    from rclpy.executors import ExternalShutdownException
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = node_factory()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            if hasattr(node, 'sent_counts'):
-                report_sent(node, node.sent_counts())
-            node.destroy_node()
-        rclpy.try_shutdown()

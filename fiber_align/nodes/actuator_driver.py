@@ -59,9 +59,9 @@ until ``~/enable`` true or a lifecycle deactivate/activate re-arms it.
 """
 
 import math
+import sys
 import time
 
-import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
@@ -79,19 +79,21 @@ AREA_FILES = ('driver.yaml',)
 #: Uninterrupted fresh input (s, wall) the driver waits for before it ends a trip.
 RECOVERY_S = 0.02
 CORE_KEYS = ('v_min', 'v_max', 'slew_rate_v_per_s', 'watchdog_timeout_s', 'safe_voltage_v',
-             'latch_trips', 'latch_window_s')
+             'latch_trips', 'latch_window_s', 'safe_ramp_rate_v_per_s')
 LIMIT_KEYS = ('field_limit_v', 'coercive_field_v', 'depoling_fraction')
 RANGES = {'v_min': (-1000.0, 1000.0), 'v_max': (-1000.0, 1000.0),
           'slew_rate_v_per_s': (-1.0, 1e12), 'watchdog_timeout_s': (0.0, 60.0),
           'safe_voltage_v': (-1000.0, 1000.0), 'latch_trips': (0, 1000),
-          'latch_window_s': (0.0, 3600.0)}
+          'latch_window_s': (0.0, 3600.0), 'safe_ramp_rate_v_per_s': (-1.0, 1e12)}
 UNITS = {'v_min': 'lowest drive (V)', 'v_max': 'highest drive (V)',
          'slew_rate_v_per_s': 'slew limit (V/s); <= 0: none',
          'watchdog_timeout_s': 'silence before the safe ramp (s); 0: off',
          'safe_voltage_v': 'safe (light-off) drive (V)',
          'latch_trips': 'watchdog trips within latch_window_s that latch the safe '
                         'voltage (0: never)',
-         'latch_window_s': 'window of the latch count (s)'}
+         'latch_window_s': 'window of the latch count (s)',
+         'safe_ramp_rate_v_per_s': 'rate of every ramp to the safe voltage (V/s); <= 0: '
+                                   'the slew limit'}
 
 
 def check_field_limits(p):
@@ -212,6 +214,9 @@ class ActuatorDriverNode(LifecycleNode):
                 core.safe = new.get('safe_voltage_v', core.safe)
                 core.latch_trips = new.get('latch_trips', core.latch_trips)
                 core.latch_window_s = new.get('latch_window_s', core.latch_window_s)
+                if 'safe_ramp_rate_v_per_s' in new:
+                    r = new['safe_ramp_rate_v_per_s']
+                    core.safe_rate = r if r > 0 and math.isfinite(r) else math.inf
                 if 'slew_rate_v_per_s' in new:
                     s = new['slew_rate_v_per_s']
                     core.slew = s if s > 0 and math.isfinite(s) else math.inf
@@ -287,9 +292,14 @@ class ActuatorDriverNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def watchdog_period_s(self):
-        """Return the realtime watchdog timer period (s): timeout / 10 in [T, 10 ms]."""
-        t = self.core.timeout / 10.0 if self.core.timeout > 0 else 0.01
-        return max(self.period_s, min(t, 0.01))
+        """
+        Return the realtime watchdog timer period (s): one control period.
+
+        Every ramp to the safe voltage advances at this period, in steps of
+        ``safe_ramp_rate_v_per_s`` times it (2 mV per us: 2 V), small enough not to ring
+        the bending mode.
+        """
+        return self.period_s
 
     def on_activate(self, state):
         """Start publishing drive commands (a lifecycle cycle re-arms a latched watchdog)."""
@@ -305,9 +315,11 @@ class ActuatorDriverNode(LifecycleNode):
         return super().on_activate(state)
 
     def on_deactivate(self, state):
-        """Stop publishing; the last published command is followed by the safe voltage."""
-        if self.pub is not None and self.core is not None:
+        """Stop following ff + fb; ramp to the safe voltage (realtime) and hold it there."""
+        if self.pub is not None and self.core is not None and self.lockstep:
             self._publish(self.core.safe)
+        elif self.core is not None:
+            self.core.start_safe_ramp(self._now())
         self.active = False
         self._set_held(True, 'deactivated')
         safe = self.core.safe if self.core else 0.0
@@ -345,6 +357,8 @@ class ActuatorDriverNode(LifecycleNode):
     # -- control --------------------------------------------------------------------
     def _on_enable(self, request, response):
         """Enable (true) or disable (false: ramp to the safe voltage) the output."""
+        if self.enabled and not request.data and self.core is not None:
+            self.core.start_safe_ramp(self._now())
         self.enabled = bool(request.data)
         if self.enabled and self.core is not None and self.core.latched:
             self.core.rearm()
@@ -436,12 +450,13 @@ class ActuatorDriverNode(LifecycleNode):
     def _on_tick(self):
         """Realtime watchdog (wall clock)."""
         core = self.core
-        if core is None or not self.active:
+        if core is None:
             return
         t = self._now()
-        if not self.enabled:
-            if core.v != core.safe or core.t_last_out is None:
-                self._publish(core._limit(core.safe, t))
+        if not self.active or not self.enabled:
+            # inactive or disabled: ramp to the safe voltage, then publish no more
+            if core.v != core.safe or (self.active and core.t_last_out is None):
+                self._publish(core.ramp_safe(t))
             return
         before = core.watchdog_count
         was_at = core.v
@@ -496,21 +511,21 @@ class ActuatorDriverNode(LifecycleNode):
 
 
 def main(args=None):
-    """Run the node (demo_nodes_py idiom)."""
-    rclpy.init(args=args)
+    """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
+    stop = c.init(args)
     node = None
     try:
         node = ActuatorDriverNode()
         c.spin(node, realtime=node.get_parameter('sync_mode').value == 'realtime',
-               priority=c.node_priority(node))
+               priority=c.node_priority(node), stop=stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except c.NODE_ERRORS as exc:
+        return c.refuse(NODE_NAME, exc)
     finally:
-        if node is not None:
-            c.report_sent(node, node.sent_counts())
-            node.destroy_node()
-        rclpy.try_shutdown()
+        c.finish(node)
+    return 0
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

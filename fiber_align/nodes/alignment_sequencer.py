@@ -26,9 +26,9 @@ since the previous displacement (the latest one), or none.
 
 import json
 import math
+import sys
 
 from diagnostic_msgs.msg import DiagnosticArray
-import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -173,20 +173,20 @@ class AlignmentSequencerNode(Node):
 
 
 def main(args=None):
-    """Run the node (demo_nodes_py idiom)."""
-    rclpy.init(args=args)
+    """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
+    stop = c.init(args)
     node = None
     try:
         node = AlignmentSequencerNode()
-        rclpy.spin(node)
+        c.spin(node, realtime=not node.lockstep, priority=c.node_priority(node), stop=stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except c.NODE_ERRORS as exc:
+        return c.refuse(NODE_NAME, exc)
     finally:
-        if node is not None:
-            c.report_sent(node, node.sent_counts())
-            node.destroy_node()
-        rclpy.try_shutdown()
+        c.finish(node)
+    return 0
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

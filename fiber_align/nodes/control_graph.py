@@ -21,11 +21,9 @@ import argparse
 import importlib
 import sys
 
-import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.utilities import remove_ros_args
 
-from fiber_align.config import ConfigError
 from fiber_align.nodes import _common as c
 
 #: Nodes a composed process can host: name -> (module, class). The order in which they
@@ -96,27 +94,22 @@ def is_realtime(nodes):
 
 
 def main(args=None):
-    """Run the composed graph (demo_nodes_py idiom)."""
+    """Run the composed graph (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
     argv = sys.argv if args is None else ['control_graph'] + list(args)
     names = parse_nodes(remove_ros_args(argv)[1:])
-    rclpy.init(args=argv)
+    stop = c.init(argv)
     nodes = []
-    code = 0
     try:
         nodes, _ = build(names)
-        c.spin(nodes, realtime=is_realtime(nodes), priority=c.node_priority(nodes))
+        c.spin(nodes, realtime=is_realtime(nodes), priority=c.node_priority(nodes),
+               stop=stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except ConfigError as exc:
-        print('control_graph: error: %s' % exc, file=sys.stderr, flush=True)
-        code = 2
+    except c.NODE_ERRORS as exc:
+        return c.refuse('control_graph', exc)
     finally:
-        for node in nodes:
-            if hasattr(node, 'sent_counts'):
-                c.report_sent(node, node.sent_counts())
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+        c.finish(nodes)
+    return 0
 
 
 if __name__ == '__main__':

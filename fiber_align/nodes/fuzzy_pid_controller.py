@@ -71,9 +71,9 @@ accepted one keeps the controller's state (integral, filter) so the output does 
 """
 
 import math
+import sys
 import time
 
-import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rcl_interfaces.msg import SetParametersResult
@@ -448,20 +448,20 @@ class FuzzyPidControllerNode(Node):
 
 
 def main(args=None):
-    """Run the node (demo_nodes_py idiom)."""
-    rclpy.init(args=args)
+    """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
+    stop = c.init(args)
     node = None
     try:
         node = FuzzyPidControllerNode()
-        c.spin(node, realtime=not node.lockstep, priority=c.node_priority(node))
+        c.spin(node, realtime=not node.lockstep, priority=c.node_priority(node), stop=stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except c.NODE_ERRORS as exc:
+        return c.refuse(NODE_NAME, exc)
     finally:
-        if node is not None:
-            c.report_sent(node, node.sent_counts())
-            node.destroy_node()
-        rclpy.try_shutdown()
+        c.finish(node)
+    return 0
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

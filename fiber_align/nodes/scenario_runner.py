@@ -25,8 +25,8 @@ the launch file) the process then ends, which ends the launch. ``scenario_state`
 """
 
 import math
+import sys
 
-import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -171,20 +171,20 @@ class ScenarioRunnerNode(Node):
 
 
 def main(args=None):
-    """Run the node (demo_nodes_py idiom)."""
-    rclpy.init(args=args)
+    """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
+    stop = c.init(args)
     node = None
     try:
         node = ScenarioRunnerNode()
-        c.spin(node, realtime=not node.lockstep)
+        c.spin(node, realtime=not node.lockstep, priority=c.node_priority(node), stop=stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except c.NODE_ERRORS as exc:
+        return c.refuse(NODE_NAME, exc)
     finally:
-        if node is not None:
-            c.report_sent(node, node.sent_counts())
-            node.destroy_node()
-        rclpy.try_shutdown()
+        c.finish(node)
+    return 0
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

@@ -47,10 +47,10 @@ of missed cycles are on ``/diagnostics`` (``latency_p50_s``, ``latency_p99_s``,
 ``latency_max_s``, ``missed_share``) and in :meth:`SimulatedActuatorNode.latency_stats`.
 """
 
+import sys
 import time
 
 import numpy as np
-import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -400,20 +400,21 @@ class SimulatedActuatorNode(Node):
 
 
 def main(args=None):
-    """Run the node (demo_nodes_py idiom)."""
-    rclpy.init(args=args)
+    """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
+    stop = c.init(args)
     node = None
     try:
         node = SimulatedActuatorNode()
-        c.spin(node, realtime=node.sync_mode == 'realtime', priority=c.node_priority(node))
+        c.spin(node, realtime=node.sync_mode == 'realtime',
+               priority=c.node_priority(node), stop=stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except c.NODE_ERRORS as exc:
+        return c.refuse(NODE_NAME, exc)
     finally:
-        if node is not None:
-            c.report_sent(node, node.sent_counts())
-            node.destroy_node()
-        rclpy.try_shutdown()
+        c.finish(node)
+    return 0
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

@@ -40,13 +40,21 @@ def _namespace(text):
     return ns
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (``bringup: error: ...``), exit 2."""
+
+    def error(self, message):
+        """Print one line naming what is wrong and what is allowed; exit 2."""
+        self.exit(2, '%s: error: %s\n' % (self.prog, message))
+
+
 def parse_args(argv):
     """Parse the command line (ROS arguments after ``--ros-args`` are ignored)."""
     if argv is None:
         argv = sys.argv[1:]
     if '--ros-args' in argv:
         argv = argv[:argv.index('--ros-args')]
-    ap = argparse.ArgumentParser(prog='bringup', description='Start the fiber_align graph, '
+    ap = _Parser(prog='bringup', description='Start the fiber_align graph, '
                                  'run a scenario, record, stop, summarise.')
     ap.add_argument('--scenario', choices=SCENARIOS, default=None,
                     help='scenario to run (default: bringup.scenario of fiber_align.yaml)')

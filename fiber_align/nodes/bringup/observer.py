@@ -24,6 +24,10 @@ class BringupError(RuntimeError):
     """The graph could not be brought up or failed while running."""
 
 
+class BadInput(BringupError):
+    """A node refused its parameters (exit code 2): bringup exits 2 with its line."""
+
+
 class StartStall(BringupError):
     """A lockstep graph did not answer its first sample within the start-up bound."""
 

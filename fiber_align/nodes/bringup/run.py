@@ -16,10 +16,10 @@ import yaml
 from fiber_align.nodes.bringup import summary as sm
 from fiber_align.nodes.bringup.children import Child, cpu_time_s, rss_bytes
 from fiber_align.nodes.bringup.cli import param_overrides, TRACKING_SCENARIOS
-from fiber_align.nodes.bringup.observer import BringupError, Runner, StartStall
+from fiber_align.nodes.bringup.observer import BadInput, BringupError, Runner, StartStall
 from fiber_align.nodes.bringup.params import compose, namespaced, node_params
 
-EXIT_OK, EXIT_FAIL, EXIT_INTERRUPTED = 0, 1, 130
+EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 #: realtime goals ``--strict`` holds a run to: share of missed cycles, watchdog trips
 MISSED_SHARE_GOAL = 0.001
 
@@ -164,6 +164,9 @@ class Bringup:
 
     def _alive(self):
         for ch in self.children:
+            if not ch.alive() and ch.proc.returncode == 2:
+                ch.thread.join(timeout=1.0)
+                raise BadInput(ch.last_error or '%s refused its parameters' % ch.name)
             if not ch.alive():
                 why = (': ' + ch.last_error) if ch.last_error else ''
                 raise BringupError('%s exited with code %s%s'
@@ -215,6 +218,10 @@ class Bringup:
             code = EXIT_INTERRUPTED
             self.interrupted = True
             self.summary['interrupted'] = True
+        except BadInput as exc:
+            print('bringup: error: %s' % exc, file=sys.stderr, flush=True)
+            self.summary['error'] = str(exc)
+            code = EXIT_BAD_INPUT
         except BringupError as exc:
             print('bringup: error: %s' % exc, file=sys.stderr, flush=True)
             self.summary['error'] = str(exc)
