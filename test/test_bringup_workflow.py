@@ -57,7 +57,8 @@ def test_experiment_identify_and_model_on_the_graph(tmp_path):
     _bringup('--scenario', 'sine', '--duration', str(SINE_S), '--model', str(model_file),
              '--record', str(bag), '--composed')
     streams, lock, _ = bagio.read_streams(str(bag), ['displacement', 'clock'])
-    y_bag = streams['displacement'].fields['position']
+    # one displacement per command, plus the sample after the last command
+    y_bag = streams['displacement'].fields['position'][:-1]
     with_model = simulate.run('sine', 'composite', rate_hz=1000.0, duration_s=SINE_S,
                               seed=0, noise=True, model=model)
     default = simulate.run('sine', 'composite', rate_hz=1000.0, duration_s=SINE_S, seed=0,

@@ -172,10 +172,19 @@ def test_compensator_file_is_the_regenerated_identification(tmp_path):
     text = text.replace('thresholds_v: [', 'thresholds_v: [0.0, ', 1)
     dst.write_text(text.replace('thresholds_v: [0.0, 0.0', 'thresholds_v: [0.0, 0.5', 1))
     assert tuning.main(['--compensator', '--output', str(dst)]) == 0
-    assert dst.read_text() == src.read_text()
+
+    def lines_but_weights(text):
+        head, _, rest = text.partition('weights_m_per_v:')
+        return head + rest[rest.index(']'):]
+    # everything but the identified weights is the committed text; the weights are a
+    # least-squares solution, equal to the committed ones to the solver's precision (BLAS
+    # builds and thread counts differ in the last digits, ~1e-13 relative)
+    assert lines_but_weights(dst.read_text()) == lines_but_weights(src.read_text())
     model = simulate.compensator_identified_model('default')
-    back = PIModel.load(str(dst))
-    assert np.array_equal(back.weights, model.weights)
+    back, committed = PIModel.load(str(dst)), PIModel.load(str(src))
+    np.testing.assert_array_equal(back.thresholds, committed.thresholds)
+    np.testing.assert_allclose(back.weights, committed.weights, rtol=1e-9, atol=1e-18)
+    np.testing.assert_allclose(back.weights, model.weights, rtol=1e-12, atol=0)
 
 
 def test_cli_alignment_scenarios_pass_options(capsys):

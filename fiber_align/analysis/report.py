@@ -127,9 +127,12 @@ def loop_metrics(t, r, y, v=None, v_limits=None, skip_s=0.0, step_min_m=1e-6, ba
     out = {'samples': int(t.size)}
     ok = np.isfinite(r)
     if ok.any() and t.size >= 2:
+        # the samples that have a setpoint: a lockstep bag ends with the sample measured
+        # after the last command, which nothing answered
         k0 = int(np.argmax(ok))
-        if t[-1] - t[k0] > skip_s:
-            out['tracking'] = _m.tracking_metrics(t[k0:], r[k0:], y[k0:], skip_s)
+        k1 = r.size - int(np.argmax(ok[::-1]))
+        if t[k1 - 1] - t[k0] > skip_s:
+            out['tracking'] = _m.tracking_metrics(t[k0:k1], r[k0:k1], y[k0:k1], skip_s)
         steps = []
         idx = find_steps(r, step_min_m)
         ends = np.concatenate([idx[1:], [r.size]]) if idx.size else idx

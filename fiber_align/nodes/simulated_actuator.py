@@ -162,6 +162,7 @@ class SimulatedActuatorNode(Node):
         self.v_latest = 0.0
         self.pending = []               # lockstep: drives not yet applied
         self._advancing = False         # lockstep: _advance is on the stack (local bus)
+        self._next = self.create_guard_condition(self._advance)
         self.wait_since = None
         self.holds = 0
         # realtime: sample clock and latency bookkeeping (perf_counter seconds)
@@ -235,7 +236,7 @@ class SimulatedActuatorNode(Node):
                 self._publish_sample(0.0)
         elif self.sync_mode == 'lockstep':
             self.wait_since = time.monotonic()
-            self._advance()
+            self._next.trigger()
 
     # -- publishing -----------------------------------------------------------------
     def _publish_sample(self, t_s):
@@ -282,24 +283,33 @@ class SimulatedActuatorNode(Node):
                     self.n_lat += 1
             return
         self.pending.append(msg.data)
-        if self.running:
-            self._advance()
+        if self.running and not self._advancing:
+            self._next.trigger()
 
     def _advance(self):
-        """Lockstep: apply the drive of sample k, publish sample k + 1."""
-        if self._advancing:
-            return      # in-process delivery: the loop below takes the new drive
+        """
+        Lockstep: apply the drive of sample k, publish sample k + 1 (one per callback).
+
+        Run by the executor through a guard condition, one sample per call: in a composed
+        process the whole loop answers a sample inside ``_publish_sample`` (in-process
+        delivery), and a source in the same process (the sequencer) answers every
+        sample, so stepping in a loop here would never return to the executor, and no
+        service call (``~/run``, ``align``) would ever be answered.
+        """
+        if self._advancing or not (self.pending and self.running):
+            return
         self._advancing = True
         try:
-            while self.pending and self.running:
-                v = self.pending.pop(0)
-                self.v_latest = v
-                self.plant.step(v)
-                self.k += 1
-                self.wait_since = time.monotonic()
-                self._publish_sample(self.k * self.period_s)
+            v = self.pending.pop(0)
+            self.v_latest = v
+            self.plant.step(v)
+            self.k += 1
+            self.wait_since = time.monotonic()
+            self._publish_sample(self.k * self.period_s)
         finally:
             self._advancing = False
+        if self.pending and self.running:
+            self._next.trigger()
 
     def _on_watch(self):
         """Lockstep: warn (and keep holding) when the drive is late."""
