@@ -162,7 +162,9 @@ class SimulatedActuatorNode(Node):
         self.v_latest = 0.0
         self.pending = []               # lockstep: drives not yet applied
         self._advancing = False         # lockstep: _advance is on the stack (local bus)
-        self._next = self.create_guard_condition(self._advance)
+        # lockstep only: the EventsExecutor of a realtime process has no guard conditions
+        self._next = self.create_guard_condition(self._advance) \
+            if self.sync_mode == 'lockstep' else None
         self.wait_since = None
         self.holds = 0
         # realtime: sample clock and latency bookkeeping (perf_counter seconds)

@@ -54,8 +54,8 @@ def parse_args(argv):
         argv = sys.argv[1:]
     if '--ros-args' in argv:
         argv = argv[:argv.index('--ros-args')]
-    ap = _Parser(prog='bringup', description='Start the fiber_align graph, '
-                                 'run a scenario, record, stop, summarise.')
+    ap = _Parser(prog='bringup', description='Start the fiber_align graph, run a scenario, '
+                 'record, stop, summarise.')
     ap.add_argument('--scenario', choices=SCENARIOS, default=None,
                     help='scenario to run (default: bringup.scenario of fiber_align.yaml)')
     ap.add_argument('--duration', type=_positive(float, '--duration'), default=None,
