@@ -398,7 +398,7 @@ def test_param_set_accepted_and_refused(launched, ros2_env):
                           '--no-daemon', '--spin-time', '2')[1]
     ok = param('set', '95.0')
     assert 'Set parameter successful' in ok, ok
-    out_of_range = param('set', '1000.0')
+    out_of_range = param('set', '2000.0')
     assert 'Setting parameter failed' in out_of_range and 'range' in out_of_range, out_of_range
     field = param('set', '160.0')
     assert 'Setting parameter failed' in field and 'field limit' in field, field

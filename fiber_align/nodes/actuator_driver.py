@@ -431,8 +431,8 @@ class ActuatorDriverNode(LifecycleNode):
 
     def _command(self, ff, fb, t):
         core = self.core
-        if core is None:
-            return
+        if core is None or not self.active:
+            return      # inactive: the output ramps to, and stays at, the safe voltage
         if self.enabled:
             was_tripped = core.tripped
             v = core.command(ff, fb, t)
