@@ -16,7 +16,7 @@ import argparse
 import sys
 import time
 
-from fiber_align.alignment import scenarios as sc
+from fiber_align.simulation import alignment_scenarios as sc
 
 
 def main(argv=None):

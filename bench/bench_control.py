@@ -15,9 +15,9 @@ import numpy as np
 from fiber_align.config import load_params
 from fiber_align.control.fuzzy import FuzzyInference, FuzzySurface
 from fiber_align.control.fuzzy_pid import FuzzyPid, make_pid, PlainPid
-from fiber_align.control.playbank import PlayBank
-from fiber_align.control.simulate import run
+from fiber_align.hysteresis.playbank import PlayBank
 from fiber_align.hysteresis.truth import make_hysteresis
+from fiber_align.simulation.simulate import run
 
 REPEATS = 5
 

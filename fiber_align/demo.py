@@ -53,6 +53,9 @@ import subprocess
 import sys
 import time
 
+from fiber_align import cli
+from fiber_align.nodes.bringup import scenario_skip_s
+
 SCENARIOS = ('step', 'sine', 'triangle', 'align')
 DURATION_S = {'step': None, 'sine': 2.0, 'triangle': 2.0, 'align': None}
 QUICK_DURATION_S = {'step': None, 'sine': 0.3, 'triangle': 0.3, 'align': None}
@@ -127,8 +130,6 @@ def run_bringup(name, out, args, log):
 
 def analyze(name, out, summary):
     """Run ``fiber-align analyze`` on the scenario's bag; return its JSON result."""
-    from fiber_align import cli
-    from fiber_align.nodes.bringup import scenario_skip_s
     skip = 0.0
     if name in ('step', 'sine', 'triangle') and summary.get('samples'):
         t_end = (summary['samples'] - 1) / float(summary.get('rate_hz', 1000.0))

@@ -21,7 +21,7 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64, String  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
-from fiber_align.alignment import scenarios as sc  # noqa: E402
+from fiber_align.simulation import alignment_scenarios as sc  # noqa: E402
 from fiber_align.alignment import sequencer as sq  # noqa: E402
 from fiber_align.nodes import _common as c  # noqa: E402
 

@@ -11,8 +11,8 @@ import json
 
 import pytest
 
-from fiber_align.alignment import scenarios as sc
 from fiber_align.alignment import sequencer as sq
+from fiber_align.simulation import alignment_scenarios as sc
 
 
 @pytest.fixture(scope='module')

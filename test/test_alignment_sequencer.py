@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from fiber_align.alignment import scenarios as sc
 from fiber_align.alignment import sequencer as sq
+from fiber_align.simulation import alignment_scenarios as sc
 
 
 def test_log_parabola_fit_is_exact_for_the_gaussian_model():

@@ -9,10 +9,9 @@ import numpy as np
 import pytest
 
 from fiber_align import cli
-from fiber_align.analysis import bagio
-from fiber_align.analysis import report as rp
+from fiber_align.analysis import bagio, report as rp
 from fiber_align.analysis.cli import analyze_bag
-from fiber_align.control import simulate
+from fiber_align.simulation import simulate
 
 LAB = ('error', 'error_rate', 'kp', 'ki', 'kd', 'output')
 

@@ -37,7 +37,7 @@ def run_bringup(tmp_path, tag, *args, timeout=120):
 
 def simulate(scenario, duration, model=None):
     """Return the offline run of the same scenario (composite, 1 kHz, seed 0, noise on)."""
-    from fiber_align.control import simulate as sim
+    from fiber_align.simulation import simulate as sim
     return sim.run(scenario, 'composite', rate_hz=1000.0, duration_s=duration, seed=0,
                    noise=True, model=model)
 

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from fiber_align.control.simulate import run
+from fiber_align.simulation.simulate import run
 
 
 @pytest.mark.parametrize('rate', [1000.0, 10000.0])
@@ -48,7 +48,7 @@ def test_deterministic_for_a_seed():
 
 def test_nan_measurement_holds_and_is_flagged():
     """A NaN measurement holds the controller output and is counted in the metrics."""
-    from fiber_align.control.simulate import make_plant
+    from fiber_align.simulation.simulate import make_plant
     p = make_plant('default', 1000.0)
     p.nan_samples = frozenset([10, 11])
     res = run('step', 'fuzzy', rate_hz=1000.0, duration_s=0.03, plant_obj=p)
@@ -104,7 +104,7 @@ def test_steps_from_non_rest_hysteresis_states(rate, limit):
 
 def test_switch_on_step_at_1khz_does_not_ring():
     """The sequencer's 45 um switch-on after earlier moves lands without ringing."""
-    from fiber_align.alignment.scenarios import CompositeLoop
+    from fiber_align.simulation.alignment_scenarios import CompositeLoop
     loop = CompositeLoop(period_s=1e-3, noise=False)
     for target, n in ((45e-6, 30), (0.0, 30)):
         for _ in range(n):
@@ -125,7 +125,7 @@ def test_paper_plant_composite_step():
 
 def test_metrics_are_analyze_loop_metrics_of_the_measured_signal():
     """The simulate metrics are loop_metrics of the measured displacement; true_* kept."""
-    from fiber_align.analysis.report import loop_metrics
+    from fiber_align.simulation.metrics import loop_metrics
     res = run('step', 'fuzzy', rate_hz=1000.0, duration_s=0.03, noise=True, seed=3)
     m = res.metrics
     lm = loop_metrics(res.t, res.r, res.y_meas, res.v, (-20.0, 100.0),
@@ -143,7 +143,7 @@ def test_metrics_are_analyze_loop_metrics_of_the_measured_signal():
 def test_default_model_is_the_compensator_file():
     """The offline default feedforward model is compensator.yaml's (as on the graph)."""
     from fiber_align.config import config_path
-    from fiber_align.control import simulate
+    from fiber_align.simulation import simulate
     from fiber_align.hysteresis.pi import PIModel
     comp = simulate.compensator_params()
     model = simulate.default_model('default', comp)
@@ -163,7 +163,7 @@ def test_default_model_is_the_compensator_file():
 def test_compensator_file_is_the_regenerated_identification(tmp_path):
     """`tuning --compensator` rewrites only the model; the committed file is up to date."""
     from fiber_align.config import config_path
-    from fiber_align.control import simulate, tuning
+    from fiber_align.simulation import simulate, tuning
     from fiber_align.hysteresis.pi import PIModel
     src = config_path('compensator.yaml')
     dst = tmp_path / 'compensator.yaml'

@@ -26,7 +26,7 @@ def delayed_loop_radius(kp, ki, slope, delay, omega_n, zeta, alpha):
     PI law of :class:`fiber_align.control.pid.Pid` (kd = 0 at 1 kHz); the drive computed
     from y_k is applied ``delay`` periods later than in the offline loop.
     """
-    from fiber_align.plant.actuator import discretise
+    from fiber_align.design.mode import discretise
     ad, bd = discretise(omega_n, zeta, T)
     n = 3 + delay
 
@@ -50,9 +50,10 @@ def test_one_period_delay_keeps_the_fuzzy_gain_box_stable():
     """Every gain the fuzzy layer can reach at 1 kHz is stable with the realtime delay."""
     from fiber_align.config import load_params
     from fiber_align.control.fuzzy_pid import FuzzyPid
+    from fiber_align.design import load_actuator
+    from fiber_align.design.mode import design_dynamics
     from fiber_align.nodes import _common as c
-    from fiber_align.plant.actuator import design_dynamics
-    wn, alpha = design_dynamics()
+    wn, alpha = design_dynamics(load_actuator())
     fz = FuzzyPid.from_params(load_params('controller.yaml', 'fuzzy_pid_controller'),
                               RATE_HZ)
     (kp_lo, kp_hi), (ki_lo, ki_hi), (kd_lo, kd_hi) = fz.gain_bounds()
@@ -76,7 +77,7 @@ def run_realtime_step(target_m=50e-6, n=200, missed_share=0.0, setpoint_one_old=
     except in a missed cycle (probability ``missed_share``), where it holds the old one.
     """
     from fiber_align.config import load_params
-    from fiber_align.control import simulate
+    from fiber_align.simulation import simulate
     from fiber_align.control.driver import DriverCore
     from fiber_align.nodes import _common as c
     rng = np.random.default_rng(seed)
@@ -150,7 +151,7 @@ def run_disturbed_step(rate_m_per_s, seed, skip=0.2, missed=0.3, n=200):
     misses a share ``missed`` of the cycles (holds the previous drive).
     """
     from fiber_align.config import load_params
-    from fiber_align.control import simulate
+    from fiber_align.simulation import simulate
     from fiber_align.control.driver import DriverCore
     from fiber_align.nodes import _common as c
     rng = np.random.default_rng(seed)

@@ -6,13 +6,15 @@ import math
 import numpy as np
 import pytest
 
+from fiber_align.design import load_actuator
+from fiber_align.design.mode import design_dynamics
 from fiber_align.hysteresis.truth import Linear
-from fiber_align.plant.actuator import design_dynamics, SimulatedActuator
+from fiber_align.plant.actuator import SimulatedActuator
 
 
 def _lin(rate=10000.0, **kw):
     """Return a linear-law plant."""
-    wn, alpha = design_dynamics()
+    wn, alpha = design_dynamics(load_actuator())
     return SimulatedActuator(1.0 / rate, Linear(alpha), wn, 0.03, v_min=-20, v_max=100,
                              **kw), wn, alpha
 

@@ -17,12 +17,13 @@ Times: bag (receive) timestamps are int64 ns; header stamps are int64 ns. Values
 """
 
 from dataclasses import dataclass, field
-import importlib
 import itertools
 from pathlib import Path
 import struct
 
 import numpy as np
+
+from fiber_align.analysis.report import align_to_samples
 
 FLOAT64 = 'std_msgs/msg/Float64'
 JOINT_STATE = 'sensor_msgs/msg/JointState'
@@ -910,7 +911,6 @@ def read_hysteresis_experiment(path):
 
     :raises BagError: the bag is unreadable or lacks ``drive_voltage`` or ``displacement``.
     """
-    from fiber_align.analysis.report import align_to_samples
     streams, lockstep, _ = read_streams(path, ['displacement', 'drive_voltage', 'clock'])
     missing = [k for k in ('displacement', 'drive_voltage') if k not in streams]
     if missing:
@@ -920,9 +920,3 @@ def read_hysteresis_experiment(path):
     u = al['drive_voltage']
     ok = np.isfinite(u)
     return al['t'][ok], u[ok], al['y'][ok]
-
-
-def message_class(msgtype):
-    """Return the rclpy message class of a type string such as ``std_msgs/msg/Float64``."""
-    pkg, sub, name = msgtype.split('/')
-    return getattr(importlib.import_module('%s.%s' % (pkg, sub)), name)

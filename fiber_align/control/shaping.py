@@ -17,6 +17,8 @@ import math
 
 import numpy as np
 
+from fiber_align.design.mode import discretise
+
 KINDS = ('none', 'zv', 'zvd')
 
 
@@ -137,7 +139,6 @@ class ReferenceModel:
     def __init__(self, shaper, omega_n, zeta, period_s, lead=None):
         """Discretise the mode and start at rest (``lead``: the compensator's Lead)."""
         self.lead = lead
-        from fiber_align.plant.actuator import discretise
         ad, bd = discretise(omega_n, zeta, period_s)
         self._a = [float(x) for x in ad.ravel()]
         self._b = [float(x) for x in bd]

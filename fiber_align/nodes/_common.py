@@ -22,7 +22,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rcl_interfaces.msg import ParameterType, SetParametersResult
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from fiber_align.config import ConfigError, config_path, read_yaml
+from fiber_align.config import config_path, ConfigError, flatten, read_yaml
 
 GRAPH_FILE = 'fiber_align.yaml'
 PLANT_FILE = 'plant.yaml'
@@ -120,7 +120,6 @@ def flatten_defaults(defaults, key):
     sub = defaults.get(key)
     if not isinstance(sub, dict):
         return {}
-    from fiber_align.config import flatten
     return flatten(sub, key + '.')
 
 

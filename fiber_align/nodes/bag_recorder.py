@@ -34,6 +34,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from fiber_align.analysis import bagio
 from fiber_align.config import ConfigError
+from fiber_align.nodes._msgtypes import message_class
 
 NODE_NAME = 'bag_recorder'
 DEFAULT_TOPICS = ['setpoint', 'displacement', 'feedforward_voltage', 'feedback_voltage',
@@ -109,7 +110,7 @@ class BagRecorder(Node):
             if not self.get_publishers_info_by_topic(topic):
                 continue
             try:
-                cls = bagio.message_class(msgtype)
+                cls = message_class(msgtype)
                 conn = self.writer.add_connection(topic, msgtype, typestore=self.typestore)
             except Exception as exc:  # noqa: BLE001 - unknown type: skip it, say so
                 self.get_logger().warning('cannot record %s (%s): %s' % (topic, msgtype, exc))

@@ -19,7 +19,7 @@ the recorder last; print the run's metrics.
 Scenarios (one setpoint source each, exactly one message per ``displacement`` sample):
 
 - ``step``, ``sine``, ``triangle``, ``staircase``: this process publishes ``setpoint``
-  (m) = reference(t_k) of :mod:`fiber_align.control.scenarios`, clamped to what the
+  (m) = reference(t_k) of :mod:`fiber_align.simulation.scenarios`, clamped to what the
   plant can reach, as the offline simulation does.
 - ``hysteresis-experiment``: open loop, the 0-72 V, 0.1 Hz triangle (one cycle is 10 s
   of sample time). The compensator and the controller are not started; this process
@@ -53,7 +53,15 @@ import time
 import numpy as np
 import yaml
 
-from fiber_align.config import config_path, read_yaml
+from fiber_align.analysis.report import default_params, hysteresis_metrics
+from fiber_align.config import config_path, ConfigError, read_yaml
+from fiber_align.nodes._common import CONTROL_QOS, normalize
+from fiber_align.plant.actuator import SimulatedActuator
+from fiber_align.plant.optics import OpticalLink
+from fiber_align.simulation import scenarios
+from fiber_align.simulation.alignment_scenarios import rise_time
+from fiber_align.simulation.metrics import loop_metrics
+from fiber_align.simulation.simulate import check_model_file, tracking_skip_s
 
 NODES = ('simulated_actuator', 'hysteresis_compensator', 'fuzzy_pid_controller',
          'actuator_driver')
@@ -118,7 +126,6 @@ def compose_params(extra_files=(), overrides=None):
     :param overrides: ``{node or '/**': {name: value}}`` applied last; dotted names
         (``optics.slot_position_m``) are nested.
     """
-    from fiber_align.nodes._common import normalize
     data = {}
     for f in list(AREA_FILES) + [GRAPH_FILE] + list(extra_files):
         try:
@@ -187,7 +194,6 @@ class Reference:
 
     def __init__(self, name, reach_m):
         """Use the scenario generator of the control core; clamp to [0, reach_m] (m)."""
-        from fiber_align.control import scenarios
         self.scenario = scenarios.make(name)
         self.reach = float(reach_m)
 
@@ -202,7 +208,6 @@ class OpenLoopDrive:
 
     def __init__(self):
         """Use the scenario generator of the control core (0-72 V triangle, 0.1 Hz)."""
-        from fiber_align.control import scenarios
         self.scenario = scenarios.make('hysteresis-experiment')
 
     def value(self, t):
@@ -232,7 +237,6 @@ class Runner:
         from std_msgs.msg import Float64, String
         from std_srvs.srv import SetBool, Trigger
 
-        from fiber_align.nodes._common import CONTROL_QOS
         ns = namespace.strip('/') or None
         self.node = Node('bringup', namespace=ns)
         self.cnode = Node('bringup_client', namespace=ns)
@@ -602,7 +606,6 @@ def _param_overrides(args, graph):
     if args.no_noise:
         ov['simulated_actuator']['noise_rms_m'] = 0.0
     if args.model:
-        from fiber_align.control.simulate import check_model_file
         path = os.path.abspath(args.model)
         check_model_file(path)
         ov['hysteresis_compensator'] = {'model_file': path}
@@ -619,7 +622,6 @@ def _param_overrides(args, graph):
 def main(args=None):
     """Bring the graph up, run, stop, summarise; return (and exit with) the exit code."""
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    from fiber_align.config import ConfigError
     a = parse_args(args)
     try:
         b = Bringup(a)
@@ -704,7 +706,6 @@ class Bringup:
         return rec
 
     def _plant(self):
-        from fiber_align.plant.actuator import SimulatedActuator
         p = node_params(self.params, 'simulated_actuator')
         keys = ('rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min', 'v_max',
                 'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m', 'seed')
@@ -991,7 +992,6 @@ class Bringup:
             if t.size > 2 and self.scenario in TRACKING_SCENARIOS:
                 s['metrics'] = scenario_metrics(self.scenario, t, ref, y, r.series('v'))
             elif t.size > 2 and self.scenario == 'hysteresis-experiment':
-                from fiber_align.analysis.report import hysteresis_metrics
                 s['metrics'] = hysteresis_metrics(r.series('v'), y)
             elif t.size > 2 and self.scenario == 'align':
                 s['align'] = align_metrics(t, y, r.series('p'), r.states,
@@ -1040,12 +1040,10 @@ def scenario_skip_s(name, t_end_s):
     """
     Return the leading time (s) left out of the tracking metrics of a scenario.
 
-    As ``fiber-align simulate`` (:func:`fiber_align.control.simulate.tracking_skip_s`):
+    As ``fiber-align simulate`` (:func:`fiber_align.simulation.simulate.tracking_skip_s`):
     step and staircase the first half of the run; sine and triangle one period, or
     nothing when the run (``t_end_s``, s) is not longer than that.
     """
-    from fiber_align.control import scenarios
-    from fiber_align.control.simulate import tracking_skip_s
     return tracking_skip_s(scenarios.make(name), np.array([0.0, float(t_end_s)]))
 
 
@@ -1053,13 +1051,12 @@ def scenario_metrics(name, t, r, y, v=None):
     """
     Return step and tracking metrics (SI) of a measured trace.
 
-    Computed by :func:`fiber_align.analysis.report.loop_metrics`, the function
+    Computed by :func:`fiber_align.simulation.metrics.loop_metrics`, the function
     ``fiber-align analyze`` and ``fiber-align simulate`` use, with the ``analyze``
     settings of ``config/recorder.yaml``: the worst settling time (2 % band), overshoot
     and rise time over the setpoint steps, and the tracking errors after
     :func:`scenario_skip_s`.
     """
-    from fiber_align.analysis.report import default_params, loop_metrics
     ap = default_params()
     lm = loop_metrics(t, r, y, v, skip_s=scenario_skip_s(name, float(t[-1] - t[0])),
                       step_min_m=float(ap.get('step_min_m', 1e-6)),
@@ -1084,8 +1081,6 @@ def align_metrics(t, y, p, states, events, params, rate_hz):
     ``final_loss_db``: mean over the first 20 ms of TRACKING; per switch cycle the loss
     over the last 10 ms of the on time and the 10-90 % rise of the measured power.
     """
-    from fiber_align.alignment.scenarios import rise_time
-    from fiber_align.plant.optics import OpticalLink
     link = OpticalLink.from_params(node_params(params, 'simulated_actuator'))
     loss = np.asarray(link.loss_db(t, y), float)
     period = 1.0 / rate_hz

@@ -3,7 +3,7 @@
 ``fuzzy_pid_controller``: the feedback law of the control core as a ROS 2 node.
 
 Runs once per ``displacement`` sample: ``fb_k = controller.step(r_k, y_k)``, built by
-:func:`fiber_align.control.simulate.build` for the graph's ``controller`` (``composite``
+:func:`fiber_align.simulation.simulate.build` for the graph's ``controller`` (``composite``
 and ``fuzzy``: :class:`~fiber_align.control.fuzzy_pid.FuzzyPid`; ``composite-pid`` and
 ``pid``: :class:`~fiber_align.control.fuzzy_pid.PlainPid`; ``feedforward`` and
 ``open-loop``: 0 V), so the node computes exactly what the offline loop computes.
@@ -80,8 +80,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64, Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import Trigger
 
-from fiber_align.config import ConfigError, flatten
+from fiber_align.config import ConfigError, flatten, load_params
+from fiber_align.hysteresis.pi import PIModel
 from fiber_align.nodes import _common as c
+from fiber_align.simulation.simulate import build
 
 NODE_NAME = 'fuzzy_pid_controller'
 AREA_FILES = ('controller.yaml',)
@@ -129,9 +131,6 @@ def make_controller(controller, params, rate_hz):
     :param rate_hz: control rate (Hz).
     :returns: an object with ``step(r, y) -> V`` or ``None``.
     """
-    from fiber_align.config import load_params
-    from fiber_align.control.simulate import build
-    from fiber_align.hysteresis.pi import PIModel
     comp = load_params('compensator.yaml', 'hysteresis_compensator')
     model = PIModel(comp['thresholds_v'], comp['weights_m_per_v']) \
         if 'thresholds_v' in comp else None

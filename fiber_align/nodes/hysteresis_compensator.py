@@ -5,7 +5,7 @@
 ``ff = Feedforward.step(r)`` (V from m) of :mod:`fiber_align.control.feedforward`, the
 exact inverse of the Prandtl-Ishlinskii model, after the optional resonance-suppression shaper
 (``shaping``: none | zv | zvd, :mod:`fiber_align.control.shaping`), built by
-:func:`fiber_align.control.simulate.build` for the graph's ``controller`` so that it is
+:func:`fiber_align.simulation.simulate.build` for the graph's ``controller`` so that it is
 exactly the offline loop's feedforward (``fuzzy``/``pid``: 0 V; ``open-loop``: linear).
 
 When it steps (the shaper and the inverse model advance once per step, so they must
@@ -56,7 +56,7 @@ from std_msgs.msg import Bool, Float64
 from std_srvs.srv import Trigger
 
 from fiber_align.config import ConfigError
-from fiber_align.control.simulate import build
+from fiber_align.simulation.simulate import build
 from fiber_align.hysteresis.pi import PIModel
 from fiber_align.nodes import _common as c
 

@@ -61,6 +61,7 @@ from std_srvs.srv import SetBool
 
 from fiber_align.nodes import _common as c
 from fiber_align.plant.actuator import SimulatedActuator
+from fiber_align.plant.optics import OpticalLink
 
 NODE_NAME = 'simulated_actuator'
 AREA_FILES = ('plant.yaml', 'optics.yaml')
@@ -78,10 +79,6 @@ def make_optics(params, seed):
     :param params: the node's ``optics.*`` parameters (ROS dotted names, SI units).
     :param seed: detector noise seed.
     """
-    try:
-        from fiber_align.plant.optics import OpticalLink
-    except ImportError:
-        return None
     if not params:
         return None
     return OpticalLink.from_params(params, seed=seed)

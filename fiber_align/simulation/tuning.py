@@ -2,14 +2,14 @@
 """
 Re-runnable gain search, the linearised stability check, and the compensator model.
 
-``python -m fiber_align.control.tuning [--rate HZ]`` grid-searches the plain PID on the
+``python -m fiber_align.simulation.tuning [--rate HZ]`` grid-searches the plain PID on the
 plant without hysteresis (the paper's Figure 20 case, noise off): it keeps the gain sets
 whose linearised closed loop is stable for a plant slope from 0.5 to 1.5 times the
 design's alpha (the hysteresis changes the local slope) and whose 82 um step overshoots
 by at most 2 %, and prints the one with the shortest 2 % settling time. Gains are
 searched as loop gains (gain times alpha: 1/s for ki, s for kd) and printed in SI.
 
-``python -m fiber_align.control.tuning --compensator [--output PATH]`` identifies the
+``python -m fiber_align.simulation.tuning --compensator [--output PATH]`` identifies the
 feedforward model (lsq, ``identification_operators`` operators) from the hysteresis
 experiment (0.1 Hz triangle up to ``identification_peak_v``, 1 kHz, sensor noise on,
 seed 0) on the default simulated plant and writes it inline into
@@ -24,8 +24,15 @@ import re
 
 import numpy as np
 
+from fiber_align.config import config_path, load_params
 from fiber_align.control.pid import Pid
-from fiber_align.plant.actuator import design_dynamics, discretise
+from fiber_align.hysteresis.pi import PIModel
+from fiber_align.hysteresis.truth import Linear
+from fiber_align.design import load_actuator
+from fiber_align.design.mode import design_dynamics, discretise
+from fiber_align.plant.actuator import SimulatedActuator
+from fiber_align.simulation import simulate
+from fiber_align.simulation.metrics import step_metrics
 
 
 def closed_loop_matrix(kp, ki, kd, derivative_filter_hz, period_s, omega_n, zeta, alpha):
@@ -57,9 +64,6 @@ def spectral_radius(*args):
 
 def step_settling(kp, ki, kd, fd, rate_hz, omega_n, alpha, zeta=0.03, duration_s=0.04):
     """Return ``(settling_s, overshoot_pct)`` of an 82 um step on the linear plant."""
-    from fiber_align.analysis.metrics import step_metrics
-    from fiber_align.hysteresis.truth import Linear
-    from fiber_align.plant.actuator import SimulatedActuator
     period = 1.0 / rate_hz
     p = SimulatedActuator(period, Linear(alpha), omega_n, zeta, v_min=-20, v_max=100)
     c = Pid(kp, ki, kd, period, fd, -100, 100)
@@ -74,7 +78,7 @@ def step_settling(kp, ki, kd, fd, rate_hz, omega_n, alpha, zeta=0.03, duration_s
 
 def search(rate_hz, zeta=0.03):
     """Grid-search the PID at ``rate_hz``; return a list of (settling, overshoot, gains)."""
-    wn, alpha = design_dynamics()
+    wn, alpha = design_dynamics(load_actuator())
     period = 1.0 / rate_hz
     kia = [50, 100, 150, 200, 300, 400, 600, 800, 1000, 1400, 2000]
     kpa = [-0.1, 0.0, 0.1, 0.2]
@@ -167,9 +171,6 @@ def write_compensator(path=None, plant='default'):
     :param path: the compensator params file (default ``config/compensator.yaml``).
     :param plant: plant kind the experiment runs on (``default``).
     """
-    from fiber_align.config import config_path, load_params
-    from fiber_align.control import simulate
-    from fiber_align.hysteresis.pi import PIModel
     path = config_path('compensator.yaml') if path is None else path
     comp = load_params(path, simulate.COMPENSATOR_NODE)
     peak, n_ops = simulate.identification_settings(comp)

@@ -1,11 +1,13 @@
 # SPDX-License-Identifier: Apache-2.0
 """``fiber-align simulate`` and ``fiber-align fuzzy-surface``."""
 
-import importlib
 import json
 import math
 
-from fiber_align.cli import UsageError
+from fiber_align.config import load_params
+from fiber_align.control.fuzzy import FuzzyInference
+from fiber_align.simulation import alignment_scenarios, scenarios, simulate
+from fiber_align.tools.common import UsageError
 
 
 def register(sub):
@@ -14,7 +16,7 @@ def register(sub):
     p.add_argument('--scenario', default='step',
                    help='step | sine | triangle | staircase | hysteresis-experiment; '
                         'align | switch | track run the alignment sequencer '
-                        '(fiber_align.alignment.scenarios)')
+                        '(fiber_align.simulation.alignment_scenarios)')
     p.add_argument('--controller', default='composite',
                    help='open-loop | feedforward | pid | fuzzy | composite | composite-pid')
     p.add_argument('--rate', type=float, default=None, help='control rate, Hz')
@@ -94,15 +96,9 @@ def _fmt(v, scale=1.0, digits=3):
 
 def cmd_simulate(args):
     """Run ``simulate``; return an exit code."""
-    from fiber_align.control import scenarios, simulate
     if args.scenario in ALIGN_SCENARIOS:
-        try:
-            mod = importlib.import_module('fiber_align.alignment.scenarios')
-        except ModuleNotFoundError:
-            raise UsageError('scenario %s needs fiber_align.alignment.scenarios, which is '
-                             'not installed' % args.scenario) from None
         _check_alignment_args(args)
-        return mod.run_cli(args)
+        return alignment_scenarios.run_cli(args)
     extra = [o for o, v in (('--loop', args.loop), ('--cycles', args.cycles),
                             ('--slot', args.slot), ('--drift', args.drift)) if v is not None]
     if extra:
@@ -200,8 +196,6 @@ def plot_result(res, path):
 
 def cmd_fuzzy_surface(args):
     """Run ``fuzzy-surface``; return an exit code."""
-    from fiber_align.config import load_params
-    from fiber_align.control.fuzzy import FuzzyInference
     if args.points < 2 or args.points > 1001:
         raise UsageError('--points must be in 2..1001, got %d' % args.points)
     fis = FuzzyInference.from_params(

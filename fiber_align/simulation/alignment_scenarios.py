@@ -33,8 +33,11 @@ import sys
 import numpy as np
 
 from fiber_align.alignment import sequencer as sq
+from fiber_align.alignment.plots import plot_run
 from fiber_align.config import load_params
+from fiber_align.control.driver import DriverCore
 from fiber_align.plant import optics as op
+from fiber_align.simulation import simulate as sim
 
 SCENARIOS = ('align', 'switch', 'track')
 METRIC_KEYS = ('time_to_first_light_s', 'time_to_peak_s', 'final_loss_db', 'peak_samples',
@@ -83,14 +86,14 @@ class CompositeLoop:
     Plant + composite controller (inverse-PI feedforward + fuzzy PID) + driver (SI).
 
     Built from the control core with its config files (:func:`fiber_align.control.
-    simulate.make_plant` and :func:`~fiber_align.control.simulate.build`,
+    simulate.make_plant` and :func:`~fiber_align.simulation.simulate.build`,
     :class:`~fiber_align.control.driver.DriverCore`); ``step(r)`` runs steps 3-6 of a
     control period for the setpoint ``r`` (m), exactly as
-    :func:`fiber_align.control.simulate.run` does, and returns the next reading (m).
+    :func:`fiber_align.simulation.simulate.run` does, and returns the next reading (m).
 
     :param period_s: control period (s).
     :param seed: plant sensor-noise seed.
-    :param controller: a controller name of :mod:`fiber_align.control.simulate`.
+    :param controller: a controller name of :mod:`fiber_align.simulation.simulate`.
     :param plant: plant kind (``default`` = dense-pi truth).
     :param model: feedforward PI model (None: identified from the plant, as simulate does).
     :param noise: sensor noise on.
@@ -101,8 +104,6 @@ class CompositeLoop:
     def __init__(self, period_s=1e-3, seed=0, controller='composite', plant='default',
                  model=None, noise=True):
         """Build the parts from config/ for the control rate ``1 / period_s``."""
-        from fiber_align.control import simulate as sim
-        from fiber_align.control.driver import DriverCore
         self.period_s = float(period_s)
         rate = 1.0 / self.period_s
         self.plant = sim.make_plant(plant, rate, seed, noise)
@@ -466,7 +467,6 @@ def run_cli(args):
     plot = getattr(args, 'plot', None)
     res = run(name, seed=seed, loop=loop, record=bool(plot), **kw)
     if plot:
-        from fiber_align.alignment.plots import plot_run
         plot_run(res, plot)
     clean = _clean(res)
     if getattr(args, 'json', False):

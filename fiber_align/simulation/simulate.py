@@ -23,7 +23,7 @@ plant (``model_plant``); for another plant it is identified from that plant's
 hysteresis experiment (:func:`identified_model`). ``model=`` overrides both.
 
 Metrics (:func:`metrics`) are computed by
-:func:`fiber_align.analysis.report.loop_metrics`, the function ``fiber-align analyze``
+:func:`fiber_align.simulation.metrics.loop_metrics`, the function ``fiber-align analyze``
 applies to a bag, on the measured displacement (what the graph publishes) with the
 ``analyze`` settings of ``config/recorder.yaml``, so a lockstep bag of the same run
 gives the same numbers (``analyze --skip`` = the run's ``tracking_skip_s``). The same
@@ -39,17 +39,22 @@ import os
 import numpy as np
 
 from fiber_align.config import config_path, ConfigError, load_params
-from fiber_align.control import scenarios as scen
 from fiber_align.control.driver import DriverCore
 from fiber_align.control.feedforward import Feedforward
 from fiber_align.control.fuzzy_pid import FuzzyPid, make_pid, PlainPid
 from fiber_align.control.shaping import design, Lead, ReferenceModel, Shaper, shaper_delay_s
+from fiber_align.hysteresis.identify import identify
 from fiber_align.hysteresis.pi import PIModel
-from fiber_align.plant.actuator import design_dynamics, SimulatedActuator
+from fiber_align.design import load_actuator
+from fiber_align.design.mode import design_dynamics
+from fiber_align.plant.actuator import SimulatedActuator
+from fiber_align.simulation import scenarios as scen
+from fiber_align.simulation.metrics import loop_metrics
 
 CONTROLLERS = ('open-loop', 'feedforward', 'pid', 'fuzzy', 'composite', 'composite-pid')
 PLANTS = ('default', 'paper', 'linear', 'dense-pi', 'bouc-wen')
 COMPENSATOR_FILE = 'compensator.yaml'
+DESIGN_FILE = 'actuator.yaml'
 COMPENSATOR_NODE = 'hysteresis_compensator'
 IDENTIFY_RATE_HZ = 1000.0
 IDENTIFY_DURATION_S = 10.0
@@ -158,7 +163,6 @@ def identified_model(plant='default', seed=0, noise=True, peak_v=None, n_operato
     """
     key = (plant, int(seed), bool(noise), peak_v, int(n_operators))
     if key not in _MODEL_CACHE:
-        from fiber_align.hysteresis.identify import identify
         t, u, y = hysteresis_experiment(plant, seed, noise, peak_v=peak_v)
         _MODEL_CACHE[key] = identify(t, u, y, method='lsq',
                                      n_operators=int(n_operators)).model
@@ -229,7 +233,7 @@ def make_shaper(comp, rate_hz, plant_obj):
         return None
     wn = float(comp.get('shaping_omega_n_rad_s', 0.0))
     if wn <= 0:
-        wn = design_dynamics()[0]
+        wn = design_dynamics(load_actuator(DESIGN_FILE))[0]
     zeta = float(comp.get('shaping_damping_ratio', 0.03))
     return Shaper(design(kind, wn, zeta, 1.0 / float(rate_hz)))
 
@@ -273,7 +277,7 @@ def make_reference_model(comp, rate_hz):
     """Return the composite feedback's :class:`ReferenceModel` (shaping from ``comp``)."""
     wn = float(comp.get('shaping_omega_n_rad_s', 0.0))
     if wn <= 0:
-        wn = design_dynamics()[0]
+        wn = design_dynamics(load_actuator(DESIGN_FILE))[0]
     zeta = float(comp.get('shaping_damping_ratio', 0.03))
     shaper = make_shaper(comp, rate_hz, None)
     return ReferenceModel(shaper, wn, zeta, 1.0 / float(rate_hz),
@@ -295,7 +299,7 @@ def run(scenario, controller, rate_hz=None, duration_s=None, seed=0, noise=False
     """
     Simulate one scenario with one controller; return a :class:`SimResult`.
 
-    :param scenario: a name in :data:`fiber_align.control.scenarios.NAMES`.
+    :param scenario: a name in :data:`fiber_align.simulation.scenarios.NAMES`.
     :param controller: a name in :data:`CONTROLLERS`.
     :param rate_hz: control rate (Hz); default ``rate_hz`` of config/controller.yaml.
     :param duration_s: run length (s); default the scenario's.
@@ -438,7 +442,7 @@ def metrics(res, sc, v_limits=None, params=None):
     """
     Return the metrics dict of a run (SI keys; keys that do not apply are None).
 
-    All from :func:`fiber_align.analysis.report.loop_metrics` with the ``analyze``
+    All from :func:`fiber_align.simulation.metrics.loop_metrics` with the ``analyze``
     settings (``step_min_m``, ``settling_band``; default ``config/recorder.yaml``) and
     the tracking window :func:`tracking_skip_s`:
 
@@ -448,7 +452,6 @@ def metrics(res, sc, v_limits=None, params=None):
       dict per step), ``max_voltage_v``, ``saturation``, ``tracking_skip_s``;
     * on the true tip position: ``true_`` + the same scalar keys.
     """
-    from fiber_align.analysis.report import loop_metrics
     if params is None:
         params = cached_params('recorder.yaml', 'analyze')
     kw = {'step_min_m': float(params.get('step_min_m', 1e-6)),
