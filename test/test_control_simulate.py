@@ -145,8 +145,8 @@ def test_default_model_is_the_compensator_file():
     from fiber_align.config import config_path
     from fiber_align.simulation import simulate
     from fiber_align.hysteresis.pi import PIModel
-    comp = simulate.compensator_params()
-    model = simulate.default_model('default', comp)
+    setup = simulate.load_setup()
+    model = simulate.default_model('default', setup)
     ref = PIModel.load(str(config_path('compensator.yaml')))
     assert np.array_equal(model.thresholds, ref.thresholds)
     assert np.array_equal(model.weights, ref.weights)
@@ -157,7 +157,7 @@ def test_default_model_is_the_compensator_file():
             model=str(config_path('hysteresis_paper.yaml')))
     assert not np.array_equal(a.ff, c.ff)                 # --model still overrides
     # on another plant the model is identified on that plant
-    assert not np.array_equal(simulate.default_model('paper', comp).weights, ref.weights)
+    assert not np.array_equal(simulate.default_model('paper', setup).weights, ref.weights)
 
 
 def test_compensator_file_is_the_regenerated_identification(tmp_path):
@@ -173,7 +173,7 @@ def test_compensator_file_is_the_regenerated_identification(tmp_path):
     dst.write_text(text.replace('thresholds_v: [0.0, 0.0', 'thresholds_v: [0.0, 0.5', 1))
     assert tuning.main(['--compensator', '--output', str(dst)]) == 0
     assert dst.read_text() == src.read_text()
-    model = simulate.compensator_identified_model('default')
+    model = simulate.compensator_identified_model('default', simulate.load_setup())
     back = PIModel.load(str(dst))
     assert np.array_equal(back.weights, model.weights)
 

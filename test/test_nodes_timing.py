@@ -82,7 +82,7 @@ def run_realtime_step(target_m=50e-6, n=200, missed_share=0.0, setpoint_one_old=
     from fiber_align.nodes import _common as c
     rng = np.random.default_rng(seed)
     plant = simulate.make_plant('default', RATE_HZ, seed=0, noise=True)
-    comp, fbc = simulate.build('composite', RATE_HZ, plant)
+    comp, fbc = simulate.build_loop_parts('composite', RATE_HZ, simulate.load_setup())
     c.extend_lead(comp, T)
     c.extend_lead(fbc.reference_filter, T)
     drv = DriverCore.from_params(load_params('driver.yaml', 'actuator_driver'))
@@ -156,7 +156,7 @@ def run_disturbed_step(rate_m_per_s, seed, skip=0.2, missed=0.3, n=200):
     from fiber_align.nodes import _common as c
     rng = np.random.default_rng(seed)
     plant = simulate.make_plant('default', RATE_HZ, seed=0, noise=True)
-    comp, fbc = simulate.build('composite', RATE_HZ, plant)
+    comp, fbc = simulate.build_loop_parts('composite', RATE_HZ, simulate.load_setup())
     c.extend_lead(comp, T)
     c.extend_lead(fbc.reference_filter, T)
     drv = DriverCore.from_params(load_params('driver.yaml', 'actuator_driver'))

@@ -55,8 +55,9 @@ import yaml
 
 from fiber_align.analysis.report import default_params, hysteresis_metrics
 from fiber_align.config import config_path, ConfigError, read_yaml
+from fiber_align.control.factory import CONTROLLERS
 from fiber_align.nodes._common import CONTROL_QOS, normalize
-from fiber_align.plant.actuator import SimulatedActuator
+from fiber_align.plant.actuator import PARAM_KEYS, SimulatedActuator
 from fiber_align.plant.optics import OpticalLink
 from fiber_align.simulation import scenarios
 from fiber_align.simulation.alignment_scenarios import rise_time
@@ -76,8 +77,6 @@ GRAPH_FILE = 'fiber_align.yaml'
 SCENARIOS = ('none', 'step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment',
              'align')
 TRACKING_SCENARIOS = ('step', 'sine', 'triangle', 'staircase')
-#: controller names, as in ``fiber-align simulate``
-CONTROLLERS = ('composite', 'composite-pid', 'fuzzy', 'pid', 'feedforward', 'open-loop')
 SENT_PREFIX = 'FIBER_ALIGN_SENT '
 EXIT_OK, EXIT_FAIL, EXIT_INTERRUPTED = 0, 1, 130
 #: align scenario timing (s of sample time): rest before ``align``, loss window after
@@ -707,8 +706,7 @@ class Bringup:
 
     def _plant(self):
         p = node_params(self.params, 'simulated_actuator')
-        keys = ('rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min', 'v_max',
-                'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m', 'seed')
+        keys = PARAM_KEYS + ('seed',)
         return SimulatedActuator.from_params({k: p[k] for k in keys if k in p})
 
     # -- run ------------------------------------------------------------------------

@@ -3,10 +3,11 @@
 ``fuzzy_pid_controller``: the feedback law of the control core as a ROS 2 node.
 
 Runs once per ``displacement`` sample: ``fb_k = controller.step(r_k, y_k)``, built by
-:func:`fiber_align.simulation.simulate.build` for the graph's ``controller`` (``composite``
-and ``fuzzy``: :class:`~fiber_align.control.fuzzy_pid.FuzzyPid`; ``composite-pid`` and
-``pid``: :class:`~fiber_align.control.fuzzy_pid.PlainPid`; ``feedforward`` and
-``open-loop``: 0 V), so the node computes exactly what the offline loop computes.
+:func:`fiber_align.control.factory.build_controller` for the graph's ``controller``
+(``composite`` and ``fuzzy``: :class:`~fiber_align.control.fuzzy_pid.FuzzyPid`;
+``composite-pid`` and ``pid``: :class:`~fiber_align.control.fuzzy_pid.PlainPid`;
+``feedforward`` and ``open-loop``: 0 V), so the node computes exactly what the offline
+loop computes.
 Topics (relative names, SI units):
 
 - sub ``setpoint`` (std_msgs/Float64, m), ``displacement`` (sensor_msgs/JointState, m).
@@ -81,13 +82,14 @@ from std_msgs.msg import Bool, Float64, Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import Trigger
 
 from fiber_align.config import ConfigError, flatten, load_params
-from fiber_align.hysteresis.pi import PIModel
+from fiber_align.control.factory import build_controller, CONTROLLERS
+from fiber_align.design import load_actuator
+from fiber_align.design.mode import design_dynamics
 from fiber_align.nodes import _common as c
-from fiber_align.simulation.simulate import build
 
 NODE_NAME = 'fuzzy_pid_controller'
 AREA_FILES = ('controller.yaml',)
-MODES = ('composite', 'composite-pid', 'fuzzy', 'pid', 'feedforward', 'open-loop')
+MODES = CONTROLLERS
 #: Realtime: the controller holds its output while the newest ``drive_voltage`` is older
 #: than this many periods (the loop is open: nothing may wind up).
 DRIVE_STALE_PERIODS = 3
@@ -132,10 +134,8 @@ def make_controller(controller, params, rate_hz):
     :returns: an object with ``step(r, y) -> V`` or ``None``.
     """
     comp = load_params('compensator.yaml', 'hysteresis_compensator')
-    model = PIModel(comp['thresholds_v'], comp['weights_m_per_v']) \
-        if 'thresholds_v' in comp else None
-    return build(controller, rate_hz, None, model=model, controller_params=params,
-                 comp_params=comp)[1]
+    return build_controller(controller, params, comp,
+                            design_dynamics(load_actuator('actuator.yaml')), rate_hz)
 
 
 def check_values(name, value):

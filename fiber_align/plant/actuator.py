@@ -40,7 +40,7 @@ CONFIG_FILE = 'plant.yaml'
 CONFIG_NODE = 'simulated_actuator'
 DESIGN_FILE = 'actuator.yaml'
 # The plant's hysteresis laws: ``default`` is the dense-PI truth.
-KINDS = ('default', 'dense-pi', 'bouc-wen', 'paper', 'linear')
+KINDS = ('default', 'paper', 'linear', 'dense-pi', 'bouc-wen')
 PARAM_KEYS = ('rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min', 'v_max',
               'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m')
 _NOISE_BLOCK = 4096

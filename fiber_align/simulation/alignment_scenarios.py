@@ -85,8 +85,8 @@ class CompositeLoop:
     """
     Plant + composite controller (inverse-PI feedforward + fuzzy PID) + driver (SI).
 
-    Built from the control core with its config files (:func:`fiber_align.control.
-    simulate.make_plant` and :func:`~fiber_align.simulation.simulate.build`,
+    Built from the loaded configuration (:func:`fiber_align.simulation.simulate.make_plant`,
+    :func:`~fiber_align.simulation.simulate.build_loop_parts`,
     :class:`~fiber_align.control.driver.DriverCore`); ``step(r)`` runs steps 3-6 of a
     control period for the setpoint ``r`` (m), exactly as
     :func:`fiber_align.simulation.simulate.run` does, and returns the next reading (m).
@@ -97,19 +97,21 @@ class CompositeLoop:
     :param plant: plant kind (``default`` = dense-pi truth).
     :param model: feedforward PI model (None: identified from the plant, as simulate does).
     :param noise: sensor noise on.
+    :param setup: the loaded :class:`~fiber_align.simulation.simulate.Setup` (None: read
+        the files).
     """
 
     name = 'composite'
 
     def __init__(self, period_s=1e-3, seed=0, controller='composite', plant='default',
-                 model=None, noise=True):
-        """Build the parts from config/ for the control rate ``1 / period_s``."""
+                 model=None, noise=True, setup=None):
+        """Build the parts for the control rate ``1 / period_s`` (Hz)."""
         self.period_s = float(period_s)
         rate = 1.0 / self.period_s
-        self.plant = sim.make_plant(plant, rate, seed, noise)
-        self.driver = DriverCore.from_params(load_params('driver.yaml', 'actuator_driver'))
-        self.comp, self.fb = sim.build(controller, rate, self.plant, model, plant, seed,
-                                       noise)
+        setup = sim.load_setup() if setup is None else setup
+        self.plant = sim.make_plant(plant, rate, seed, noise, setup.plant, setup.design)
+        self.driver = DriverCore.from_params(setup.driver)
+        self.comp, self.fb = sim.build_loop_parts(controller, rate, setup, model, plant)
         self.reach_m = self.plant.reachable_m()
         self.name = controller
         self.reset()

@@ -12,10 +12,12 @@ in lockstep reproduces it sample for sample::
     v_k  = driver.command(ff_k, fb_k, t_k)
     y_{k+1} = plant.step(v_k)
 
-Controllers: ``open-loop`` (r times a linear gain, V/m), ``feedforward`` (inverse PI),
-``pid`` (tuned plain PID), ``fuzzy`` (fuzzy PID), ``composite`` (inverse PI + fuzzy
-PID, paper Figure 21), ``composite-pid`` (inverse PI + plain PID). Composite and
-feedforward shape the reference (``config/compensator.yaml``) unless shaping is none.
+Controllers: :data:`fiber_align.control.factory.CONTROLLERS`, built by that factory (the
+one the ROS nodes call). Composite and feedforward shape the reference
+(``config/compensator.yaml``) unless shaping is none.
+
+Configuration is read once per :func:`run` (or once by the caller, :func:`load_setup`,
+and passed down as a :class:`Setup`); nothing is kept between calls.
 
 The feedforward's PI model is by default the one held in ``config/compensator.yaml``
 (the model the ROS compensator node uses), when it was identified on the simulated
@@ -30,38 +32,70 @@ gives the same numbers (``analyze --skip`` = the run's ``tracking_skip_s``). The
 figures of the true tip position are reported under ``true_*`` keys.
 """
 
-import copy
 from dataclasses import dataclass, field
 import itertools
 import math
-import os
 
 import numpy as np
 
-from fiber_align.config import config_path, ConfigError, load_params
+from fiber_align.config import ConfigError, load_params
 from fiber_align.control.driver import DriverCore
-from fiber_align.control.feedforward import Feedforward
-from fiber_align.control.fuzzy_pid import FuzzyPid, make_pid, PlainPid
-from fiber_align.control.shaping import design, Lead, ReferenceModel, Shaper, shaper_delay_s
-from fiber_align.hysteresis.identify import identify
-from fiber_align.hysteresis.pi import PIModel
+from fiber_align.control.factory import build_controller, build_feedforward, MODEL_CONTROLLERS
 from fiber_align.design import load_actuator
 from fiber_align.design.mode import design_dynamics
-from fiber_align.plant.actuator import SimulatedActuator
+from fiber_align.hysteresis.identify import identify
+from fiber_align.hysteresis.pi import PIModel
+from fiber_align.plant.actuator import KINDS as PLANTS, SimulatedActuator
 from fiber_align.simulation import scenarios as scen
 from fiber_align.simulation.metrics import loop_metrics
 
-CONTROLLERS = ('open-loop', 'feedforward', 'pid', 'fuzzy', 'composite', 'composite-pid')
-PLANTS = ('default', 'paper', 'linear', 'dense-pi', 'bouc-wen')
 COMPENSATOR_FILE = 'compensator.yaml'
-DESIGN_FILE = 'actuator.yaml'
 COMPENSATOR_NODE = 'hysteresis_compensator'
+DESIGN_FILE = 'actuator.yaml'
 IDENTIFY_RATE_HZ = 1000.0
 IDENTIFY_DURATION_S = 10.0
-_MODEL_CACHE = {}
-_PARAMS_CACHE = {}
 STEP_KEYS = ('settling_time_s', 'overshoot_pct', 'rise_time_s')
 TRACK_KEYS = ('rms_error_m', 'max_error_m')
+# The params files an offline run reads: Setup field -> (file, node).
+SETUP_FILES = {
+    'plant': ('plant.yaml', 'simulated_actuator'),
+    'controller': ('controller.yaml', 'fuzzy_pid_controller'),
+    'compensator': (COMPENSATOR_FILE, COMPENSATOR_NODE),
+    'driver': ('driver.yaml', 'actuator_driver'),
+    'analyze': ('recorder.yaml', 'analyze'),
+}
+
+
+@dataclass(frozen=True)
+class Setup:
+    """
+    The configuration of offline runs, loaded once by the caller and passed down.
+
+    Each mapping is one node's parameters (SI units): ``plant`` (simulated_actuator),
+    ``controller`` (fuzzy_pid_controller), ``compensator`` (hysteresis_compensator),
+    ``driver`` (actuator_driver), ``analyze`` (the metric settings); ``design`` is
+    ``(omega_n_rad_s, alpha_m_per_v)`` of the design model.
+    """
+
+    plant: dict
+    controller: dict
+    compensator: dict
+    driver: dict
+    analyze: dict
+    design: tuple
+
+
+def load_setup(**files):
+    """
+    Read the params files of an offline run and the design model; return a :class:`Setup`.
+
+    :param files: ``field=path`` to read another file for a field of :data:`SETUP_FILES`
+        (``design=path`` for the actuator file).
+    :raises ConfigError: a missing or broken file (named in the message).
+    """
+    kw = {k: load_params(files.get(k, f), node) for k, (f, node) in SETUP_FILES.items()}
+    kw['design'] = design_dynamics(load_actuator(files.get('design', DESIGN_FILE)))
+    return Setup(**kw)
 
 
 @dataclass
@@ -90,58 +124,40 @@ class SimResult:
                           'ki_v_per_m_s,kd_v_s_per_m')
 
 
-def cached_params(name, node):
+def make_plant(plant, rate_hz, seed=0, noise=False, params=None, design=None):
     """
-    Return :func:`fiber_align.config.load_params` of a params file, parsed once.
-
-    The parsed file is kept per process, keyed by its path, size and modification time
-    (an edited file is read again); a deep copy is returned.
-    """
-    try:
-        path = config_path(name)
-        st = os.stat(path)
-    except (ConfigError, OSError):
-        return load_params(name, node)
-    key = (str(path), st.st_mtime_ns, st.st_size, node)
-    if key not in _PARAMS_CACHE:
-        _PARAMS_CACHE[key] = load_params(str(path), node)
-    return copy.deepcopy(_PARAMS_CACHE[key])
-
-
-def compensator_params(path=COMPENSATOR_FILE):
-    """Return the ``hysteresis_compensator`` parameters (shaping, gain, model)."""
-    return cached_params(path, COMPENSATOR_NODE)
-
-
-def make_plant(plant, rate_hz, seed=0, noise=False, params=None):
-    """
-    Return a :class:`SimulatedActuator` of kind ``plant`` at ``rate_hz`` from plant.yaml.
+    Return a :class:`SimulatedActuator` of kind ``plant`` at ``rate_hz`` (Hz).
 
     :param noise: False sets the sensor noise to 0 (the resolution stays).
+    :param params: the ``simulated_actuator`` parameters (None: read ``plant.yaml``).
+    :param design: ``(omega_n_rad_s, alpha_m_per_v)`` of the design model (None: read
+        ``actuator.yaml``).
     """
     if plant not in PLANTS:
         raise ValueError('unknown plant %r (allowed: %s)' % (plant, ', '.join(PLANTS)))
-    p = dict(cached_params('plant.yaml', 'simulated_actuator') if params is None else params)
+    p = dict(load_params(*SETUP_FILES['plant']) if params is None else params)
     p['hysteresis'] = plant
     p['seed'] = int(seed)
     if not noise:
         p['noise_rms_m'] = 0.0
-    return SimulatedActuator.from_params(p, period_s=1.0 / float(rate_hz))
+    return SimulatedActuator.from_params(p, period_s=1.0 / float(rate_hz), dynamics=design)
 
 
 def hysteresis_experiment(plant='default', seed=0, noise=True, rate_hz=IDENTIFY_RATE_HZ,
-                          peak_v=None):
+                          peak_v=None, setup=None):
     """
     Run the open-loop 0.1 Hz triangle on a plant; return ``(t, u, y_meas)`` (s, V, m).
 
     :param peak_v: top of the triangle (V); None is the paper's 72 V
         (scenario ``hysteresis-experiment``).
+    :param setup: the loaded :class:`Setup` (None: read the files).
     """
+    setup = load_setup() if setup is None else setup
     if peak_v is None:
         res = run('hysteresis-experiment', 'open-loop', rate_hz=rate_hz, seed=seed,
-                  noise=noise, plant=plant, model=None)
+                  noise=noise, plant=plant, model=None, setup=setup)
         return res.t, res.v, res.y_meas
-    p = make_plant(plant, rate_hz, seed, noise)
+    p = make_plant(plant, rate_hz, seed, noise, setup.plant, setup.design)
     n = int(round(IDENTIFY_DURATION_S * rate_hz))
     t = np.arange(n) / float(rate_hz)
     u = [float(peak_v) * scen.triangle_wave(scen.HYST_HZ * tk) for tk in t.tolist()]
@@ -152,171 +168,118 @@ def hysteresis_experiment(plant='default', seed=0, noise=True, rate_hz=IDENTIFY_
     return t, np.array(u), np.array(y)
 
 
-def identified_model(plant='default', seed=0, noise=True, peak_v=None, n_operators=10):
+def identified_model(plant='default', seed=0, noise=True, peak_v=None, n_operators=10,
+                     setup=None):
     """
     Return the PI model identified (lsq) from the plant's hysteresis experiment.
 
     The experiment (:func:`hysteresis_experiment`, 0.1 Hz triangle up to ``peak_v``, V)
     runs at 1 kHz for one 10 s period with the plant's sensor (noise on by default, as
     a measurement would be); thresholds by the identification's rule
-    ``r_i = i / n max(u)``. Results are cached per argument set.
+    ``r_i = i / n max(u)``. Nothing is cached: the identification takes tens of ms.
     """
-    key = (plant, int(seed), bool(noise), peak_v, int(n_operators))
-    if key not in _MODEL_CACHE:
-        t, u, y = hysteresis_experiment(plant, seed, noise, peak_v=peak_v)
-        _MODEL_CACHE[key] = identify(t, u, y, method='lsq',
-                                     n_operators=int(n_operators)).model
-    return _MODEL_CACHE[key]
+    t, u, y = hysteresis_experiment(plant, seed, noise, peak_v=peak_v, setup=setup)
+    return identify(t, u, y, method='lsq', n_operators=int(n_operators)).model
 
 
-def compensator_model(comp=None):
+def compensator_model(comp):
     """
-    Return the PI model of the compensator parameters (``model_file`` or inline).
+    Return the PI model of the compensator parameters: ``model_file``, else inline.
 
-    :param comp: the ``hysteresis_compensator`` parameters (default
-        ``config/compensator.yaml``).
+    :param comp: the ``hysteresis_compensator`` parameters.
     """
-    comp = compensator_params() if comp is None else comp
-    path = str(comp.get('model_file', '') or '')
+    path = str(comp['model_file'])
     if path:
         return PIModel.load(path)
     return PIModel.from_params(comp)
 
 
-def default_model(plant='default', comp=None):
+def default_model(plant, setup):
     """
     Return the feedforward model used when none is given (see the module docstring).
 
-    ``compensator.yaml``'s model when its ``model_plant`` is ``plant``; otherwise the
-    model identified from ``plant``'s experiment with the same settings
+    The compensator's model when its ``model_plant`` is ``plant``; otherwise the model
+    identified from ``plant``'s experiment with the same settings
     (:func:`compensator_identified_model`).
     """
-    comp = compensator_params() if comp is None else comp
-    if str(comp.get('model_plant', 'default')) == plant:
-        return compensator_model(comp)
-    return compensator_identified_model(plant, comp)
+    if str(setup.compensator['model_plant']) == plant:
+        return compensator_model(setup.compensator)
+    return compensator_identified_model(plant, setup)
 
 
-def identification_settings(comp=None):
+def identification_settings(comp):
     """
     Return ``(peak_v, n_operators)`` of the compensator's identification experiment.
 
-    From ``identification_peak_v`` (V; None: the paper's 72 V) and
+    From ``identification_peak_v`` (V; null: the paper's 72 V) and
     ``identification_operators`` of the compensator parameters.
     """
-    comp = compensator_params() if comp is None else comp
-    v = comp.get('identification_peak_v')
-    return (None if v is None else float(v)), int(comp.get('identification_operators', 10))
+    v = comp['identification_peak_v']
+    return (None if v is None else float(v)), int(comp['identification_operators'])
 
 
-def compensator_identified_model(plant='default', comp=None):
+def compensator_identified_model(plant, setup):
     """Return the model identified on ``plant`` with the compensator's settings."""
-    peak, n_ops = identification_settings(comp)
-    return identified_model(plant, seed=0, noise=True, peak_v=peak, n_operators=n_ops)
+    peak, n_ops = identification_settings(setup.compensator)
+    return identified_model(plant, seed=0, noise=True, peak_v=peak, n_operators=n_ops,
+                            setup=setup)
 
 
-def _load_model(model, plant, comp):
-    """Resolve ``model`` (PIModel, path, ``'identify'`` or None) to a PIModel."""
+def resolve_model(model, plant, setup):
+    """Resolve ``model`` (PIModel, params file, ``'identify'`` or None) to a PIModel."""
     if isinstance(model, PIModel):
         return model
     if model is None:
-        return default_model(plant, comp)
+        return default_model(plant, setup)
     if model in ('identify', 'identified'):
-        return compensator_identified_model(plant, comp)
+        return compensator_identified_model(plant, setup)
     return PIModel.load(model)
 
 
-def make_shaper(comp, rate_hz, plant_obj):
-    """Return the reference :class:`Shaper` configured in ``comp`` (or None)."""
-    kind = str(comp.get('shaping', 'none'))
-    if kind == 'none':
-        return None
-    wn = float(comp.get('shaping_omega_n_rad_s', 0.0))
-    if wn <= 0:
-        wn = design_dynamics(load_actuator(DESIGN_FILE))[0]
-    zeta = float(comp.get('shaping_damping_ratio', 0.03))
-    return Shaper(design(kind, wn, zeta, 1.0 / float(rate_hz)))
-
-
-def build(controller, rate_hz, plant_obj, model=None, plant='default', seed=0, noise=False,
-          controller_params=None, comp_params=None):
+def build_loop_parts(controller, rate_hz, setup, model=None, plant='default'):
     """
-    Return ``(compensator, feedback)`` objects for a controller name.
+    Return ``(compensator, feedback)`` of a controller, built by the control factory.
 
-    The compensator has ``step(r) -> V``; the feedback has ``step(r, y) -> V``
-    (or is None for open-loop controllers). ``model``: a PIModel, a params file,
-    ``'identify'`` or None (:func:`default_model`); ``seed`` and ``noise`` are kept
-    for compatibility and not used.
+    :param model: as in :func:`resolve_model`; resolved only for the controllers that
+        invert a model (:data:`fiber_align.control.factory.MODEL_CONTROLLERS`).
     """
-    if controller not in CONTROLLERS:
-        raise ValueError('unknown controller %r (allowed: %s)'
-                         % (controller, ', '.join(CONTROLLERS)))
-    comp = compensator_params() if comp_params is None else comp_params
-    ctl = (cached_params('controller.yaml', 'fuzzy_pid_controller')
-           if controller_params is None else controller_params)
-    if controller == 'open-loop':
-        return Feedforward(gain_v_per_m=float(comp['open_loop_gain_v_per_m'])), None
-    if controller in ('feedforward', 'composite', 'composite-pid'):
-        shaper = make_shaper(comp, rate_hz, plant_obj)
-        ff = Feedforward(_load_model(model, plant, comp), shaper=shaper,
-                         lead=make_lead(comp, rate_hz, shaper))
-    else:
-        ff = Feedforward(gain_v_per_m=0.0)
-    if controller == 'feedforward':
-        return ff, None
-    refm = None
-    if controller.startswith('composite') and str(
-            ctl.get('composite_feedback_reference', 'model')) == 'model':
-        refm = make_reference_model(comp, rate_hz)
-    if controller in ('pid', 'composite-pid'):
-        return ff, PlainPid(make_pid(ctl, rate_hz), refm)
-    return ff, FuzzyPid.from_params(ctl, rate_hz, reference_filter=refm)
-
-
-def make_reference_model(comp, rate_hz):
-    """Return the composite feedback's :class:`ReferenceModel` (shaping from ``comp``)."""
-    wn = float(comp.get('shaping_omega_n_rad_s', 0.0))
-    if wn <= 0:
-        wn = design_dynamics(load_actuator(DESIGN_FILE))[0]
-    zeta = float(comp.get('shaping_damping_ratio', 0.03))
-    shaper = make_shaper(comp, rate_hz, None)
-    return ReferenceModel(shaper, wn, zeta, 1.0 / float(rate_hz),
-                          lead=make_lead(comp, rate_hz, shaper))
-
-
-def make_lead(comp, rate_hz, shaper):
-    """Return the :class:`Lead` of ``comp`` (horizon: shaper delay + one period) or None."""
-    if not bool(comp.get('delay_compensation', True)):
-        return None
-    period = 1.0 / float(rate_hz)
-    return Lead(period, shaper_delay_s(shaper, period) + period,
-                float(comp.get('delay_compensation_max_accel_m_per_s2', 0.01)))
+    pi = resolve_model(model, plant, setup) if controller in MODEL_CONTROLLERS else None
+    comp = build_feedforward(controller, setup.compensator, pi, setup.design, rate_hz)
+    fb = build_controller(controller, setup.controller, setup.compensator, setup.design,
+                          rate_hz)
+    return comp, fb
 
 
 def run(scenario, controller, rate_hz=None, duration_s=None, seed=0, noise=False,
         plant='default', model=None, plant_obj=None, controller_params=None,
-        comp_params=None, driver_params=None, reference_scale=1.0, analyze_params=None):
+        comp_params=None, driver_params=None, reference_scale=1.0, analyze_params=None,
+        setup=None):
     """
     Simulate one scenario with one controller; return a :class:`SimResult`.
 
     :param scenario: a name in :data:`fiber_align.simulation.scenarios.NAMES`.
-    :param controller: a name in :data:`CONTROLLERS`.
-    :param rate_hz: control rate (Hz); default ``rate_hz`` of config/controller.yaml.
+    :param controller: a name in :data:`fiber_align.control.factory.CONTROLLERS`.
+    :param rate_hz: control rate (Hz); default ``rate_hz`` of the controller parameters.
     :param duration_s: run length (s); default the scenario's.
     :param seed: seed of the plant's sensor noise.
     :param noise: sensor noise on (the plant.yaml value) or off.
     :param plant: plant kind (``default`` = dense-pi truth, ``paper``, ``linear``, ...).
     :param model: feedforward PI model: a PIModel, a params file, ``'identify'``, or
-        None for :func:`default_model` (compensator.yaml's model on its plant).
+        None for :func:`default_model` (the compensator's model on its plant).
     :param plant_obj: a ready plant (overrides ``plant``, ``seed``, ``noise``).
     :param reference_scale: multiplies the reference (to test unreachable targets).
-    :param analyze_params: metric settings (default the ``analyze`` node of
-        ``config/recorder.yaml``: ``step_min_m``, ``settling_band``).
+    :param setup: the loaded configuration (:func:`load_setup`; None reads the files);
+        ``controller_params``, ``comp_params``, ``driver_params`` and ``analyze_params``
+        replace one of its mappings.
     """
     sc = scen.make(scenario)
-    ctl_params = (cached_params('controller.yaml', 'fuzzy_pid_controller')
-                  if controller_params is None else controller_params)
-    rate = float(ctl_params.get('rate_hz', 1000.0) if rate_hz is None else rate_hz)
+    setup = load_setup() if setup is None else setup
+    over = {k: v for k, v in (('controller', controller_params), ('compensator', comp_params),
+                              ('driver', driver_params), ('analyze', analyze_params))
+            if v is not None}
+    if over:
+        setup = Setup(**dict(setup.__dict__, **over))
+    rate = float(setup.controller['rate_hz'] if rate_hz is None else rate_hz)
     if not rate > 0:
         raise ValueError('rate must be > 0 Hz, got %g' % rate)
     dur = sc.duration_s if duration_s is None else float(duration_s)
@@ -324,16 +287,15 @@ def run(scenario, controller, rate_hz=None, duration_s=None, seed=0, noise=False
         raise ValueError('duration must be > 0 s, got %g' % dur)
     n = int(round(dur * rate))
     period = 1.0 / rate
-    p = plant_obj if plant_obj is not None else make_plant(plant, rate, seed, noise)
-    drv = DriverCore.from_params(cached_params('driver.yaml', 'actuator_driver')
-                                 if driver_params is None else driver_params)
+    p = plant_obj if plant_obj is not None else make_plant(plant, rate, seed, noise,
+                                                           setup.plant, setup.design)
+    drv = DriverCore.from_params(setup.driver)
     reach = p.reachable_m()
     if sc.open_loop:
         loop = _run_open_loop(sc, n, period, p, drv)
         clamped = held = 0
     else:
-        comp, fbc = build(controller, rate, p, model, plant, seed, noise, ctl_params,
-                          comp_params)
+        comp, fbc = build_loop_parts(controller, rate, setup, model, plant)
         loop = _run_closed_loop(sc, n, period, p, drv, comp, fbc, reach, reference_scale)
         clamped, held = loop[-2:]
     t = np.arange(n) * period
@@ -342,7 +304,7 @@ def run(scenario, controller, rate_hz=None, duration_s=None, seed=0, noise=False
              if loop[6] else np.zeros(3 * n))
     res = SimResult(scenario, controller, rate, t, r, ym, yt, v, ffa, fba,
                     gains.reshape(n, 3))
-    res.metrics = metrics(res, sc, (p.v_min, p.v_max), analyze_params)
+    res.metrics = metrics(res, sc, (p.v_min, p.v_max), setup.analyze)
     res.metrics.update({
         'scenario': scenario, 'controller': controller if not sc.open_loop else 'open-loop',
         'plant': plant, 'rate_hz': rate, 'duration_s': n * period, 'seed': int(seed),
@@ -438,7 +400,7 @@ def tracking_skip_s(sc, t):
     return sc.skip_s if span > sc.skip_s else 0.0
 
 
-def metrics(res, sc, v_limits=None, params=None):
+def metrics(res, sc, v_limits, params):
     """
     Return the metrics dict of a run (SI keys; keys that do not apply are None).
 
@@ -452,10 +414,7 @@ def metrics(res, sc, v_limits=None, params=None):
       dict per step), ``max_voltage_v``, ``saturation``, ``tracking_skip_s``;
     * on the true tip position: ``true_`` + the same scalar keys.
     """
-    if params is None:
-        params = cached_params('recorder.yaml', 'analyze')
-    kw = {'step_min_m': float(params.get('step_min_m', 1e-6)),
-          'band': float(params.get('settling_band', 0.02))}
+    kw = {'step_min_m': float(params['step_min_m']), 'band': float(params['settling_band'])}
     skip = tracking_skip_s(sc, res.t) if res.t.size else 0.0
     out = {'max_voltage_v': float(np.max(res.v)) if res.v.size else 0.0,
            'tracking_skip_s': skip}

@@ -173,8 +173,9 @@ def write_compensator(path=None, plant='default'):
     """
     path = config_path('compensator.yaml') if path is None else path
     comp = load_params(path, simulate.COMPENSATOR_NODE)
+    setup = simulate.load_setup(compensator=path)
     peak, n_ops = simulate.identification_settings(comp)
-    model = simulate.compensator_identified_model(plant, comp)
+    model = simulate.compensator_identified_model(plant, setup)
     source = ('lsq %d operators, 0.1 Hz 0-%g V triangle on the %s plant (1 kHz, noise, '
               'seed 0)' % (n_ops, 72.0 if peak is None else peak, plant))
     with open(path, encoding='utf-8') as f:

@@ -5,7 +5,9 @@ import json
 import math
 
 from fiber_align.config import load_params
+from fiber_align.control.factory import CONTROLLERS
 from fiber_align.control.fuzzy import FuzzyInference
+from fiber_align.plant.actuator import KINDS as PLANTS
 from fiber_align.simulation import alignment_scenarios, scenarios, simulate
 from fiber_align.tools.common import UsageError
 
@@ -108,16 +110,16 @@ def cmd_simulate(args):
         raise UsageError('--rate must be > 0 Hz, got %g' % args.rate)
     if args.duration is not None and not args.duration > 0:
         raise UsageError('--duration must be > 0 s, got %g' % args.duration)
-    if args.plant not in simulate.PLANTS:
+    if args.plant not in PLANTS:
         raise UsageError('unknown --plant %r (allowed: %s)'
-                         % (args.plant, ', '.join(simulate.PLANTS)))
+                         % (args.plant, ', '.join(PLANTS)))
     if args.model is not None and args.model not in ('identify', 'identified'):
         simulate.check_model_file(args.model)
     noise = args.noise == 'on'
     if args.compare:
         rows = []
         for sc in ('step', 'sine', 'triangle'):
-            for c in simulate.CONTROLLERS:
+            for c in CONTROLLERS:
                 res = simulate.run(sc, c, rate_hz=args.rate, duration_s=args.duration,
                                    seed=args.seed, noise=noise, plant=args.plant,
                                    model=args.model)
@@ -141,9 +143,9 @@ def cmd_simulate(args):
         raise UsageError('unknown --scenario %r (allowed: %s, %s)'
                          % (args.scenario, ', '.join(scenarios.NAMES),
                             ', '.join(ALIGN_SCENARIOS)))
-    if args.controller not in simulate.CONTROLLERS:
+    if args.controller not in CONTROLLERS:
         raise UsageError('unknown --controller %r (allowed: %s)'
-                         % (args.controller, ', '.join(simulate.CONTROLLERS)))
+                         % (args.controller, ', '.join(CONTROLLERS)))
     res = simulate.run(args.scenario, args.controller, rate_hz=args.rate,
                        duration_s=args.duration, seed=args.seed, noise=noise,
                        plant=args.plant, model=args.model)
