@@ -22,26 +22,29 @@ def delayed_loop_radius(kp, ki, slope, delay, omega_n, zeta, alpha):
     """
     Return the largest pole magnitude of the linearised PI loop with ``delay`` periods.
 
-    Plant: ``slope * alpha`` (m/V) times the exactly discretised mode; controller: the
-    PI law of :class:`fiber_align.control.pid.Pid` (kd = 0 at 1 kHz); the drive computed
-    from y_k is applied ``delay`` periods later than in the offline loop.
+    Plant: ``slope * alpha`` (m/V) times the exactly discretised mode; controller: one
+    period of the real :class:`fiber_align.control.pid.Pid` (kd = 0 at 1 kHz) from each
+    unit state; the drive computed from y_k is applied ``delay`` periods later than in
+    the offline loop.
     """
+    from fiber_align.control.pid import Pid
     from fiber_align.design.mode import discretise
     ad, bd = discretise(omega_n, zeta, T)
+    pid = Pid(kp, ki, 0.0, T)
     n = 3 + delay
 
     def f(z):
         x, xd, integ = z[:3]
         hist = list(z[3:])
-        e = -x
-        i2 = integ + ki * T * e
-        u = kp * e + i2
+        pid.reset()
+        pid.integral = integ
+        u = pid.step(-x)
         if delay:
             ua, hist = hist[0], hist[1:] + [u]
         else:
             ua = u
         xn = ad @ np.array([x, xd]) + bd * alpha * slope * ua
-        return np.array([xn[0], xn[1], i2] + hist)
+        return np.array([xn[0], xn[1], pid.integral] + hist)
     m = np.column_stack([f(col) for col in np.eye(n)])
     return float(np.max(np.abs(np.linalg.eigvals(m))))
 
@@ -59,7 +62,8 @@ def test_one_period_delay_keeps_the_fuzzy_gain_box_stable():
     (kp_lo, kp_hi), (ki_lo, ki_hi), (kd_lo, kd_hi) = fz.gain_bounds()
     assert kd_lo == kd_hi == 0.0
     delay = c.REALTIME_EXTRA_DELAY_PERIODS
-    worst = max(delayed_loop_radius(kp, ki, s, delay, wn, 0.03, alpha)
+    zeta = load_params('plant.yaml', 'simulated_actuator')['damping_ratio']
+    worst = max(delayed_loop_radius(kp, ki, s, delay, wn, zeta, alpha)
                 for kp in (kp_lo, 0.5 * (kp_lo + kp_hi), kp_hi)
                 for ki in (ki_lo, 0.5 * (ki_lo + ki_hi), ki_hi)
                 for s in (0.5, 0.75, 1.0, 1.5, 2.0))

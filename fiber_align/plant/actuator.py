@@ -110,12 +110,9 @@ class SimulatedActuator:
         self._a = [float(x) for x in ad.ravel()]
         self._b = [float(x) for x in bd]
         self._c = tuple(self._a + self._b)
-        self._bank = None
-        if isinstance(hysteresis, PIModel):
-            try:
-                self._bank = PlayBank.from_model(hysteresis)
-            except ValueError:
-                self._bank = None
+        # A PI law is stepped by a bank of its own, so the law object is only reset.
+        self._bank = PlayBank.from_model(hysteresis) if isinstance(hysteresis, PIModel) \
+            else None
         self.reset()
 
     @classmethod

@@ -38,6 +38,7 @@ from fiber_align.config import load_params
 from fiber_align.control.driver import DriverCore
 from fiber_align.plant import optics as op
 from fiber_align.simulation import simulate as sim
+from fiber_align.simulation.loop import ClosedLoop
 
 SCENARIOS = ('align', 'switch', 'track')
 METRIC_KEYS = ('time_to_first_light_s', 'time_to_peak_s', 'final_loss_db', 'peak_samples',
@@ -112,18 +113,14 @@ class CompositeLoop:
         self.plant = sim.make_plant(plant, rate, seed, noise, setup.plant, setup.design)
         self.driver = DriverCore.from_params(setup.driver)
         self.comp, self.fb = sim.build_loop_parts(controller, rate, setup, model, plant)
+        self.loop = ClosedLoop(self.plant, self.driver, self.comp, self.fb, self.period_s)
         self.reach_m = self.plant.reachable_m()
         self.name = controller
         self.reset()
 
     def reset(self):
         """Return every part to rest; take the first reading."""
-        for part in (self.comp, self.fb):
-            if part is not None:
-                part.reset()
-        self.driver.reset()
-        self.y_meas = self.plant.reset()
-        self.k = 0
+        self.y_meas = self.loop.reset()
 
     @property
     def position_m(self):
@@ -132,13 +129,7 @@ class CompositeLoop:
 
     def step(self, r_m):
         """Run one control period for setpoint ``r_m`` (m); return the new reading (m)."""
-        t = self.k * self.period_s
-        r = min(max(r_m, 0.0), self.reach_m)
-        ff = self.comp.step(r)
-        fb = self.fb.step(r, self.y_meas) if self.fb is not None else 0.0
-        v = self.driver.command(ff, fb, t)
-        self.y_meas = self.plant.step(v)
-        self.k += 1
+        self.y_meas = self.loop.step(min(max(r_m, 0.0), self.reach_m))
         return self.y_meas
 
 

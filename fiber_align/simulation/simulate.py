@@ -47,6 +47,7 @@ from fiber_align.hysteresis.identify import identify
 from fiber_align.hysteresis.pi import PIModel
 from fiber_align.plant.actuator import KINDS as PLANTS, SimulatedActuator
 from fiber_align.simulation import scenarios as scen
+from fiber_align.simulation.loop import ClosedLoop
 from fiber_align.simulation.metrics import loop_metrics
 
 COMPENSATOR_FILE = 'compensator.yaml'
@@ -334,8 +335,8 @@ def _run_closed_loop(sc, n, period, p, drv, comp, fbc, reach, scale):
     """
     Run the per-period loop of docs/CONTRACTS.md; return the lists and the counters.
 
-    The hot path of the offline simulation: bound methods and appends in locals, no
-    numpy on scalars; the arithmetic is that of the core objects the ROS nodes call.
+    The periods are :meth:`fiber_align.simulation.loop.ClosedLoop.step` (the one loop
+    body); this records what each period measured and commanded.
     """
     ref = sc.reference
     rs = [ref(k * period) * scale for k in range(n)]
@@ -349,41 +350,20 @@ def _run_closed_loop(sc, n, period, p, drv, comp, fbc, reach, scale):
             rs[k] = 0.0
             clamped += 1
     ym, yt, v, ffa, fba, gains = [], [], [], [], [], []
-    held = 0
-    comp_step = comp.step
-    drv_command = drv.command
-    p_step = p.step
     ym_add, yt_add, v_add = ym.append, yt.append, v.append
     ff_add, fb_add, g_add = ffa.append, fba.append, gains.append
-    y = p.reset()
-    if fbc is None:
-        zero = (0.0, 0.0, 0.0)
-        for k in range(n):
-            ff = comp_step(rs[k])
-            vk = drv_command(ff, 0.0, k * period)
-            ym_add(y)
-            yt_add(p.x)
-            v_add(vk)
-            ff_add(ff)
-            fb_add(0.0)
-            g_add(zero)
-            y = p_step(vk)
-        return rs, ym, yt, v, ffa, fba, gains, clamped, held
-    fb_step = fbc.step
-    nan0 = fbc.nan_count
+    loop = ClosedLoop(p, drv, comp, fbc, period)
+    step = loop.step
+    nan0 = fbc.nan_count if fbc is not None else 0
     for k in range(n):
-        rk = rs[k]
-        ff = comp_step(rk)
-        fb = fb_step(rk, y)
-        vk = drv_command(ff, fb, k * period)
-        ym_add(y)
+        ym_add(loop.y)
         yt_add(p.x)
-        v_add(vk)
-        ff_add(ff)
-        fb_add(fb)
-        g_add(fbc.gains)
-        y = p_step(vk)
-    held = fbc.nan_count - nan0      # periods whose output was held (NaN error)
+        step(rs[k])
+        v_add(loop.v)
+        ff_add(loop.ff)
+        fb_add(loop.fb)
+        g_add(loop.gains)
+    held = fbc.nan_count - nan0 if fbc is not None else 0   # periods held (NaN error)
     return rs, ym, yt, v, ffa, fba, gains, clamped, held
 
 

@@ -39,21 +39,20 @@ def closed_loop_matrix(kp, ki, kd, derivative_filter_hz, period_s, omega_n, zeta
     """
     Return the state matrix of the linearised loop (plant mode + PID), reference 0.
 
-    State ``[x, x', I, d, e_prev]``; the plant is ``alpha`` (m/V) times the exactly
-    discretised mode, the PID is :class:`fiber_align.control.pid.Pid` without limits.
+    State ``[x (m), x' (m/s), I (V), d (m/s), e_prev (m)]``; the plant is ``alpha`` (m/V)
+    times the exactly discretised mode, the controller is one period of the real
+    :class:`fiber_align.control.pid.Pid` without limits (linear in the state), applied
+    to each unit state to give the matrix's columns.
     """
     ad, bd = discretise(omega_n, zeta, period_s)
-    a = np.exp(-2 * np.pi * derivative_filter_hz * period_s) if derivative_filter_hz > 0 \
-        else 0.0
+    pid = Pid(kp, ki, kd, period_s, derivative_filter_hz)
 
     def f(z):
         x, xd, integ, d, ep = z
-        e = -x
-        d2 = a * d + (1 - a) * (e - ep) / period_s
-        i2 = integ + ki * period_s * e
-        u = kp * e + i2 + kd * d2
+        pid.integral, pid.deriv, pid.e_prev = integ, d, ep
+        u = pid.step(-x)
         xn = ad @ np.array([x, xd]) + bd * alpha * u
-        return np.array([xn[0], xn[1], i2, d2, e])
+        return np.array([xn[0], xn[1], pid.integral, pid.deriv, pid.e_prev])
     return np.column_stack([f(col) for col in np.eye(5)])
 
 
