@@ -55,6 +55,7 @@ import time
 
 from fiber_align import cli
 from fiber_align.nodes.bringup import scenario_skip_s
+from fiber_align.simulation.metrics import run_scores
 
 SCENARIOS = ('step', 'sine', 'triangle', 'align')
 DURATION_S = {'step': None, 'sine': 2.0, 'triangle': 2.0, 'align': None}
@@ -149,20 +150,18 @@ def analyze(name, out, summary):
 
 def row(name, summary, res, wall_s):
     """Return the summary table row of one scenario (SI values)."""
-    loop = res.get('metrics', {}).get('loop', {})
-    tr = loop.get('tracking', {})
-    steps = loop.get('steps') or [{}]
+    scores = run_scores(res.get('metrics', {}).get('loop', {}))
     al = summary.get('align', {})
     out = {'scenario': name, 'samples': summary.get('samples'), 'wall_s': wall_s,
            'ok': summary.get('exit_code') == 0 and 'error' not in res,
            'settling_time_s': None, 'overshoot_pct': None, 'rms_error_m': None,
            'max_error_m': None, 'loss_db': None, 'cycle_loss_max_db': None}
     if name == 'step':
-        out['settling_time_s'] = steps[0].get('settling_time_s')
-        out['overshoot_pct'] = steps[0].get('overshoot_pct')
+        out['settling_time_s'] = scores['settling_time_s']
+        out['overshoot_pct'] = scores['overshoot_pct']
     if name in ('step', 'sine', 'triangle'):
-        out['rms_error_m'] = tr.get('rms_error_m')
-        out['max_error_m'] = tr.get('max_error_m')
+        out['rms_error_m'] = scores['rms_error_m']
+        out['max_error_m'] = scores['max_error_m']
     if name == 'align':
         out['loss_db'] = al.get('final_loss_db')
         out['cycle_loss_max_db'] = al.get('cycle_loss_max_db')

@@ -19,7 +19,8 @@ LAB = ('error', 'error_rate', 'kp', 'ki', 'kd', 'output')
 @pytest.fixture(scope='module')
 def sim():
     """Return a short offline closed-loop step run (fuzzy PID, no noise)."""
-    return simulate.run('step', 'fuzzy', duration_s=0.12, noise=False)
+    return simulate.run('step', 'fuzzy', duration_s=0.12, noise=False,
+                        setup=simulate.load_setup())
 
 
 def _lockstep_series(res, wall0=1_700_000_000_000_000_000):

@@ -67,7 +67,7 @@ def test_fuzzy_surface_error_is_proven_below_1e3_of_span():
     assert np.all(bound < 1e-3), bound
     # the bound shrinks as 1/q^2 (the pieces are smooth: no kink inside a triangle)
     assert surface_error_bound(fis, q // 2) / bound == pytest.approx(4.0, rel=0.1)
-    surf = FuzzySurface.cached(fis, q)
+    surf = FuzzySurface(fis, q)
     spans = np.array([hi - lo for lo, hi in fis.out_domains])
     rng = np.random.default_rng(11)
     pts = list(rng.uniform([-13.0, -21.0], [13.0, 21.0], (1500, 2)))

@@ -9,7 +9,16 @@ import sys
 import numpy as np
 import pytest
 
-from fiber_align.simulation.simulate import run
+from fiber_align.simulation import simulate
+
+# The configuration, loaded once and passed down, as a program does (the fuzzy surface in
+# it takes ~0.1 s to build).
+SETUP = simulate.load_setup()
+
+
+def run(*args, **kw):
+    """Return :func:`fiber_align.simulation.simulate.run` with the loaded configuration."""
+    return simulate.run(*args, setup=SETUP, **kw)
 
 
 @pytest.mark.parametrize('rate', [1000.0, 10000.0])

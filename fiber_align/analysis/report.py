@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from fiber_align.config import load_params
+from fiber_align.jsonout import json_clean, json_default
 
 FLOAT_STREAMS = ('setpoint', 'feedforward_voltage', 'feedback_voltage', 'drive_voltage',
                  'optical_power')
@@ -299,7 +300,7 @@ def write_report(path, res, figures):
                          % (e(title), e(f), e(title)))
         parts.append('<details><summary>metrics (JSON, SI units)</summary><pre>%s</pre>'
                      '</details></body></html>' % e(json.dumps(res['metrics'], indent=1,
-                                                               default=_json_default)))
+                                                               default=json_default)))
         text = '\n'.join(parts)
     else:
         parts = ['# Run report', '',
@@ -317,22 +318,6 @@ def write_report(path, res, figures):
     return path
 
 
-def _json_default(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
-
-
 def to_json(res):
     """Return the analysis result as JSON text (SI units; inf/nan as strings)."""
-    def clean(x):
-        if isinstance(x, dict):
-            return {k: clean(v) for k, v in x.items()}
-        if isinstance(x, (list, tuple)):
-            return [clean(v) for v in x]
-        if isinstance(x, (float, np.floating)) and not math.isfinite(float(x)):
-            return str(float(x))
-        return x
-    return json.dumps(clean(res), indent=2, default=_json_default)
+    return json.dumps(json_clean(res, nonfinite_as_text=True), indent=2, default=json_default)

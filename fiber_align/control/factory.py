@@ -104,7 +104,7 @@ def build_feedforward(controller, comp, model, design_dynamics, rate_hz):
     return Feedforward(model, shaper=shaper, lead=build_lead(comp, rate_hz, shaper))
 
 
-def build_controller(controller, params, comp, design_dynamics, rate_hz):
+def build_controller(controller, params, comp, design_dynamics, rate_hz, surface=None):
     """
     Return the feedback law (``step(r m, y m) -> V``) of a controller, or None.
 
@@ -115,6 +115,9 @@ def build_controller(controller, params, comp, design_dynamics, rate_hz):
         shaped reference, :func:`build_reference_model`).
     :param design_dynamics: ``(omega_n_rad_s, alpha_m_per_v)`` of the design model.
     :param rate_hz: control rate (Hz).
+    :param surface: a :class:`~fiber_align.control.fuzzy.FuzzySurface` built before
+        (:func:`~fiber_align.control.fuzzy_pid.surface_for`), reused when it fits
+        ``params``.
     """
     check_controller(controller)
     if controller in ('open-loop', 'feedforward'):
@@ -125,4 +128,4 @@ def build_controller(controller, params, comp, design_dynamics, rate_hz):
         refm = build_reference_model(comp, design_dynamics, rate_hz)
     if controller in ('pid', 'composite-pid'):
         return PlainPid(make_pid(params, rate_hz), refm)
-    return FuzzyPid.from_params(params, rate_hz, reference_filter=refm)
+    return FuzzyPid.from_params(params, rate_hz, reference_filter=refm, surface=surface)

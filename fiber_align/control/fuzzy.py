@@ -306,9 +306,6 @@ class FuzzyInference:
 # differences give exactly for polynomials of degree <= 3.
 # --------------------------------------------------------------------------------------
 
-_SURFACES = {}
-
-
 def _regions():
     """Return the 8 triangles (vertices in cell coordinates s, t) of a rule cell."""
     out = []
@@ -379,8 +376,9 @@ class FuzzySurface:
 
     :meth:`evaluate` matches :meth:`FuzzyInference.evaluate` within
     :func:`surface_error_bound` (about 7.2e-4 of each output's span for q = 48 with the
-    paper's rule base) at a fraction of the cost; the tables are built once per process
-    and rule base (vectorised, about 0.1 s).
+    paper's rule base) at a fraction of the cost; building the tables takes about 0.1 s
+    (vectorised), so a caller that builds controllers repeatedly passes one surface down
+    (:meth:`matches`).
 
     :param fis: the :class:`FuzzyInference` to tabulate.
     :param intervals: ``q``, sub-intervals per rule cell and axis (even, >= 2).
@@ -409,14 +407,9 @@ class FuzzySurface:
         self._top = float(n - 1)
         self._out = list(fis._out)
 
-    @classmethod
-    def cached(cls, fis, intervals):
-        """Return the surface of ``fis`` with ``intervals``, built once per process."""
-        key = (fis.key(), int(intervals))
-        surf = _SURFACES.get(key)
-        if surf is None:
-            surf = _SURFACES[key] = cls(fis, intervals)
-        return surf
+    def matches(self, fis, intervals):
+        """Return whether this surface tabulates ``fis`` with ``intervals`` (reusable)."""
+        return self.q == int(intervals) and self.fis.key() == fis.key()
 
     def area_moment(self, e, ec):
         """Return ``(A0, M0, A1, M1, A2, M2)`` interpolated at E, EC (fuzzy units)."""
@@ -467,53 +460,13 @@ class FuzzySurface:
         """
         Return ``(g0 + g1 M0/A0, g2 + g3 M1/A1, g4 + g5 M2/A2)`` for E, EC (fuzzy units).
 
-        :meth:`area_moment` and the centroid in one call (the controller's fast path):
-        with ``g`` the affine map of each centroid (about the domain centre, in output
+        The centroids of :meth:`area_moment` mapped affinely to gains (the controller's
+        fast path): ``g`` maps each centroid (about the domain centre, in output
         spacings) to its gain (:class:`fiber_align.control.fuzzy_pid.FuzzyPid`).
         """
-        x = (e - self._e0) * self._einv
-        y = (ec - self._ec0) * self._ecinv
-        top = self._top
-        if x <= 0.0:
-            x = 0.0
-        elif x >= top:
-            x = top
-        if y <= 0.0:
-            y = 0.0
-        elif y >= top:
-            y = top
-        i = int(x)
-        j = int(y)
-        n = self.n
-        if i >= n - 1:
-            i = n - 2
-        if j >= n - 1:
-            j = n - 2
-        fx = x - i
-        fy = y - j
-        q = self.q
-        nodes = self.nodes
-        base = i * n + j
-        if (i % q + j % q) == q - 1:
-            if fx + fy <= 1.0:
-                wa, wb, wc = 1.0 - fx - fy, fx, fy
-                za, zb, zc = nodes[base], nodes[base + n], nodes[base + 1]
-            else:
-                wa, wb, wc = fx + fy - 1.0, 1.0 - fy, 1.0 - fx
-                za, zb, zc = nodes[base + n + 1], nodes[base + n], nodes[base + 1]
-        elif fx >= fy:
-            wa, wb, wc = 1.0 - fx, fx - fy, fy
-            za, zb, zc = nodes[base], nodes[base + n], nodes[base + n + 1]
-        else:
-            wa, wb, wc = 1.0 - fy, fy - fx, fx
-            za, zb, zc = nodes[base], nodes[base + 1], nodes[base + n + 1]
-        a0, a1, a2, a3, a4, a5 = za
-        b0, b1, b2, b3, b4, b5 = zb
-        c0, c1, c2, c3, c4, c5 = zc
+        a0, m0, a1, m1, a2, m2 = self.area_moment(e, ec)
         g0, g1, g2, g3, g4, g5 = g
-        return (g0 + g1 * ((wa * a1 + wb * b1 + wc * c1) / (wa * a0 + wb * b0 + wc * c0)),
-                g2 + g3 * ((wa * a3 + wb * b3 + wc * c3) / (wa * a2 + wb * b2 + wc * c2)),
-                g4 + g5 * ((wa * a5 + wb * b5 + wc * c5) / (wa * a4 + wb * b4 + wc * c4)))
+        return g0 + g1 * (m0 / a0), g2 + g3 * (m1 / a1), g4 + g5 * (m2 / a2)
 
     def evaluate(self, e, ec):
         """Return ``(dkp, dki, dkd)`` (fuzzy units) for E, EC (fuzzy units)."""

@@ -56,12 +56,13 @@ import yaml
 from fiber_align.analysis.report import default_params, hysteresis_metrics
 from fiber_align.config import config_path, ConfigError, read_yaml
 from fiber_align.control.factory import CONTROLLERS
+from fiber_align.jsonout import json_default
 from fiber_align.nodes._common import CONTROL_QOS, normalize
 from fiber_align.plant.actuator import PARAM_KEYS, SimulatedActuator
 from fiber_align.plant.optics import OpticalLink
 from fiber_align.simulation import scenarios
 from fiber_align.simulation.alignment_scenarios import rise_time
-from fiber_align.simulation.metrics import loop_metrics
+from fiber_align.simulation.metrics import loop_metrics, run_scores, STEP_KEYS
 from fiber_align.simulation.simulate import check_model_file, tracking_skip_s
 
 NODES = ('simulated_actuator', 'hysteresis_compensator', 'fuzzy_pid_controller',
@@ -1000,7 +1001,7 @@ class Bringup:
         print(format_summary(s), flush=True)
         if self.args.summary:
             with open(self.args.summary, 'w', encoding='utf-8') as f:
-                json.dump(s, f, indent=1, default=_json_default)
+                json.dump(s, f, indent=1, default=json_default)
 
 
 def cpu_time_s(pid):
@@ -1059,13 +1060,10 @@ def scenario_metrics(name, t, r, y, v=None):
     lm = loop_metrics(t, r, y, v, skip_s=scenario_skip_s(name, float(t[-1] - t[0])),
                       step_min_m=float(ap.get('step_min_m', 1e-6)),
                       band=float(ap.get('settling_band', 0.02)))
-    out = {}
-    steps = lm.get('steps') or []
-    for k in ('settling_time_s', 'overshoot_pct', 'rise_time_s'):
-        vals = [st[k] for st in steps if st.get(k) is not None]
-        if vals and name in ('step', 'staircase'):
-            out[k] = max(vals)
-    out.update(lm.get('tracking', {}))
+    out = run_scores(lm)
+    if name not in ('step', 'staircase'):
+        out = {k: v for k, v in out.items() if k not in STEP_KEYS}
+    out.update(lm.get('tracking', {}))      # with mean_error_m
     return {k: float(v) for k, v in out.items() if isinstance(v, (int, float))}
 
 
@@ -1117,14 +1115,6 @@ def align_metrics(t, y, p, states, events, params, rate_hz):
     if tracking.any():
         out['tracking_max_loss_db'] = float(np.max(loss[tracking]))
     return out
-
-
-def _json_default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
 
 
 def format_summary(s):

@@ -123,7 +123,7 @@ def unflatten(flat):
     return out
 
 
-def make_controller(controller, params, rate_hz):
+def make_controller(controller, params, rate_hz, surface=None):
     """
     Build the feedback law exactly as the offline simulation does.
 
@@ -131,11 +131,12 @@ def make_controller(controller, params, rate_hz):
         composite-pid, fuzzy, pid, feedforward, open-loop); the last two have no feedback.
     :param params: controller parameters (nested, SI).
     :param rate_hz: control rate (Hz).
+    :param surface: the fuzzy surface of the controller it replaces (reused if it fits).
     :returns: an object with ``step(r, y) -> V`` or ``None``.
     """
     comp = load_params('compensator.yaml', 'hysteresis_compensator')
     return build_controller(controller, params, comp,
-                            design_dynamics(load_actuator('actuator.yaml')), rate_hz)
+                            design_dynamics(load_actuator('actuator.yaml')), rate_hz, surface)
 
 
 def check_values(name, value):
@@ -228,7 +229,8 @@ class FuzzyPidControllerNode(Node):
     # -- parameters -----------------------------------------------------------------
     def _make(self, mode, params):
         """Build the feedback law; realtime: its reference model's lead covers one more T."""
-        ctl = make_controller(mode, params, self.rate_hz)
+        ctl = make_controller(mode, params, self.rate_hz,
+                              getattr(getattr(self, 'ctl', None), 'surface', None))
         if ctl is not None and not self.lockstep:
             c.extend_lead(getattr(ctl, 'reference_filter', None), 1.0 / self.rate_hz)
         return ctl

@@ -36,6 +36,7 @@ from fiber_align.alignment import sequencer as sq
 from fiber_align.alignment.plots import plot_run
 from fiber_align.config import load_params
 from fiber_align.control.driver import DriverCore
+from fiber_align.jsonout import json_clean
 from fiber_align.plant import optics as op
 from fiber_align.simulation import simulate as sim
 from fiber_align.simulation.loop import ClosedLoop
@@ -133,11 +134,16 @@ class CompositeLoop:
         return self.y_meas
 
 
-def make_loop(kind='composite', period_s=1e-3, seed=0):
-    """Return a closed loop: ``ideal`` (stand-in) or a controller of the control core."""
+def make_loop(kind='composite', period_s=1e-3, seed=0, setup=None):
+    """
+    Return a closed loop: ``ideal`` (stand-in) or a controller of the control core.
+
+    :param setup: the loaded :class:`~fiber_align.simulation.simulate.Setup` for the
+        control core's loop (None: read the files).
+    """
     if kind == 'ideal':
         return FirstOrderLoop(period_s=period_s, seed=seed)
-    return CompositeLoop(period_s=period_s, seed=seed, controller=kind)
+    return CompositeLoop(period_s=period_s, seed=seed, controller=kind, setup=setup)
 
 
 class Record:
@@ -212,10 +218,12 @@ def _true_loss(bench):
 
 
 def build(seed=0, loop='composite', slot_m=None, period_s=1e-3, record=True,
-          seq_params=None, optics_params=None, **optics_overrides):
+          seq_params=None, optics_params=None, setup=None, **optics_overrides):
     """
     Return a :class:`Bench` with the slot at ``slot_m`` (m; random in the range if None).
 
+    :param setup: the loaded :class:`~fiber_align.simulation.simulate.Setup` (None: read
+        the files).
     :param optics_overrides: keys of ``config/optics.yaml`` (e.g. ``fiber_broken=True``,
         ``slot_drift_m_per_s``).
     """
@@ -231,7 +239,7 @@ def build(seed=0, loop='composite', slot_m=None, period_s=1e-3, record=True,
     ov['slot_position_m'] = slot_m
     ov.setdefault('sample_period_s', period_s)
     link = op.OpticalLink.from_params(oparams, seed=seed + 1000, **ov)
-    lp = loop if not isinstance(loop, str) else make_loop(loop, period_s, seed)
+    lp = loop if not isinstance(loop, str) else make_loop(loop, period_s, seed, setup)
     lp.reset()
     return Bench(lp, link, seq, period_s, record)
 
@@ -361,7 +369,8 @@ def run(name, seed=0, loop='composite', record=False, **kw):
 
     Keyword arguments: ``slot_m`` (m), ``cycles``, ``duration_s`` (s),
     ``drift_m_per_s`` (m/s), ``period_s`` (s), ``seq_params`` / ``optics_params``
-    (mappings replacing the config files), other keys of ``config/optics.yaml``.
+    (mappings replacing the config files), ``setup`` (the loaded
+    :class:`~fiber_align.simulation.simulate.Setup`), other keys of ``config/optics.yaml``.
     With ``record=True`` the result holds ``trace`` (dict of arrays) for plotting.
     """
     if name not in SCENARIOS:
@@ -422,19 +431,6 @@ def align_trials(n=20, seed=0, loop='ideal', **kw):
     return trials, summary
 
 
-def _clean(obj):
-    """Return ``obj`` with numpy scalars and arrays made JSON-serialisable."""
-    if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items() if k != 'trace'}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
 def run_cli(args):
     """
     Run ``fiber-align simulate --scenario align|switch|track``; return an exit code.
@@ -461,7 +457,7 @@ def run_cli(args):
     res = run(name, seed=seed, loop=loop, record=bool(plot), **kw)
     if plot:
         plot_run(res, plot)
-    clean = _clean(res)
+    clean = json_clean(res, drop=('trace',))
     if getattr(args, 'json', False):
         print(json.dumps(clean, indent=2, sort_keys=True))
     else:

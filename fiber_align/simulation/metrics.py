@@ -10,6 +10,9 @@ import math
 
 import numpy as np
 
+STEP_KEYS = ('settling_time_s', 'overshoot_pct', 'rise_time_s')
+TRACK_KEYS = ('rms_error_m', 'max_error_m')
+
 
 def step_metrics(t, y, r_final, y0=0.0, t0=None, band=0.02):
     """
@@ -186,4 +189,24 @@ def saturation_metrics(t, v, v_limits=None, tol_v=1e-6):
     else:
         out['episodes'] = 0
         out['longest_s'] = 0.0
+    return out
+
+
+def run_scores(loop):
+    """
+    Return the scores of one run from :func:`loop_metrics`'s result (the one scoring rule).
+
+    ``settling_time_s``, ``overshoot_pct``, ``rise_time_s``: the worst over the setpoint
+    steps (None without a step); ``rms_error_m``, ``max_error_m``: of the tracking
+    window (None without one). ``fiber-align simulate``, ``bringup`` and the demo table
+    all score a run with this.
+    """
+    steps = loop.get('steps') or []
+    out = {}
+    for k in STEP_KEYS:
+        vals = [st[k] for st in steps if st.get(k) is not None]
+        out[k] = max(vals) if vals else None
+    tr = loop.get('tracking') or {}
+    for k in TRACK_KEYS:
+        out[k] = tr.get(k)
     return out

@@ -41,6 +41,7 @@ import numpy as np
 from fiber_align.config import ConfigError, load_params
 from fiber_align.control.driver import DriverCore
 from fiber_align.control.factory import build_controller, build_feedforward, MODEL_CONTROLLERS
+from fiber_align.control.fuzzy_pid import surface_for
 from fiber_align.design import load_actuator
 from fiber_align.design.mode import design_dynamics
 from fiber_align.hysteresis.identify import identify
@@ -48,15 +49,13 @@ from fiber_align.hysteresis.pi import PIModel
 from fiber_align.plant.actuator import KINDS as PLANTS, SimulatedActuator
 from fiber_align.simulation import scenarios as scen
 from fiber_align.simulation.loop import ClosedLoop
-from fiber_align.simulation.metrics import loop_metrics
+from fiber_align.simulation.metrics import loop_metrics, run_scores, STEP_KEYS, TRACK_KEYS
 
 COMPENSATOR_FILE = 'compensator.yaml'
 COMPENSATOR_NODE = 'hysteresis_compensator'
 DESIGN_FILE = 'actuator.yaml'
 IDENTIFY_RATE_HZ = 1000.0
 IDENTIFY_DURATION_S = 10.0
-STEP_KEYS = ('settling_time_s', 'overshoot_pct', 'rise_time_s')
-TRACK_KEYS = ('rms_error_m', 'max_error_m')
 # The params files an offline run reads: Setup field -> (file, node).
 SETUP_FILES = {
     'plant': ('plant.yaml', 'simulated_actuator'),
@@ -75,7 +74,9 @@ class Setup:
     Each mapping is one node's parameters (SI units): ``plant`` (simulated_actuator),
     ``controller`` (fuzzy_pid_controller), ``compensator`` (hysteresis_compensator),
     ``driver`` (actuator_driver), ``analyze`` (the metric settings); ``design`` is
-    ``(omega_n_rad_s, alpha_m_per_v)`` of the design model.
+    ``(omega_n_rad_s, alpha_m_per_v)`` of the design model; ``surface`` the fuzzy
+    controller's :class:`~fiber_align.control.fuzzy.FuzzySurface` (or None), built
+    once with the setup because building it takes ~0.1 s.
     """
 
     plant: dict
@@ -84,6 +85,7 @@ class Setup:
     driver: dict
     analyze: dict
     design: tuple
+    surface: object
 
 
 def load_setup(**files):
@@ -96,6 +98,7 @@ def load_setup(**files):
     """
     kw = {k: load_params(files.get(k, f), node) for k, (f, node) in SETUP_FILES.items()}
     kw['design'] = design_dynamics(load_actuator(files.get('design', DESIGN_FILE)))
+    kw['surface'] = surface_for(kw['controller'])
     return Setup(**kw)
 
 
@@ -247,7 +250,7 @@ def build_loop_parts(controller, rate_hz, setup, model=None, plant='default'):
     pi = resolve_model(model, plant, setup) if controller in MODEL_CONTROLLERS else None
     comp = build_feedforward(controller, setup.compensator, pi, setup.design, rate_hz)
     fb = build_controller(controller, setup.controller, setup.compensator, setup.design,
-                          rate_hz)
+                          rate_hz, setup.surface)
     return comp, fb
 
 
@@ -405,16 +408,9 @@ def metrics(res, sc, v_limits, params):
             continue
         lm = loop_metrics(res.t, res.r, y, res.v if not prefix else None, v_limits,
                           skip_s=skip, **kw)
-        steps = lm.get('steps', [])
-        for k in STEP_KEYS:
-            vals = [st[k] for st in steps]
-            out[prefix + k] = max(vals) if vals else None
-        tr = lm.get('tracking')
-        if tr:
-            for k in TRACK_KEYS:
-                out[prefix + k] = tr[k]
+        out.update({prefix + k: v for k, v in run_scores(lm).items()})
         if not prefix:
-            out['steps'] = steps
+            out['steps'] = lm.get('steps', [])
             if 'saturation' in lm:
                 out['saturation'] = lm['saturation']
                 out['max_voltage_v'] = lm['saturation'].get('v_max_seen_v',

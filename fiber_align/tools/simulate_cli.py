@@ -6,6 +6,7 @@ import math
 
 from fiber_align.config import load_params
 from fiber_align.control.factory import CONTROLLERS
+from fiber_align.jsonout import json_clean
 from fiber_align.control.fuzzy import FuzzyInference
 from fiber_align.plant.actuator import KINDS as PLANTS
 from fiber_align.simulation import alignment_scenarios, scenarios, simulate
@@ -74,19 +75,6 @@ def _check_alignment_args(args):
         raise UsageError('--rate must be > 0 Hz, got %g' % args.rate)
 
 
-def _json_clean(x):
-    """Return ``x`` with non-finite floats as None and numpy scalars as Python numbers."""
-    if isinstance(x, dict):
-        return {k: _json_clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_clean(v) for v in x]
-    if hasattr(x, 'item') and not isinstance(x, (str, bytes)):
-        x = x.item()
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    return x
-
-
 def _fmt(v, scale=1.0, digits=3):
     """Format a metric for the table (None -> '-')."""
     if v is None:
@@ -125,7 +113,7 @@ def cmd_simulate(args):
                                    model=args.model)
                 rows.append(res.metrics)
         if args.json:
-            print(json.dumps(_json_clean(rows), indent=1))
+            print(json.dumps(json_clean(rows), indent=1))
             return 0
         print('plant %s, rate %g Hz, noise %s (measured displacement, as analyze scores a '
               'bag; true_* keys in --json)' % (args.plant, rows[0]['rate_hz'], args.noise))
@@ -155,7 +143,7 @@ def cmd_simulate(args):
         plot_result(res, args.plot)
     m = res.metrics
     if args.json:
-        print(json.dumps(_json_clean(m), indent=1))
+        print(json.dumps(json_clean(m), indent=1))
     else:
         for k, v in m.items():
             if k == 'steps':
