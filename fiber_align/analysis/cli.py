@@ -8,7 +8,7 @@ import sys
 import numpy as np
 
 from fiber_align.analysis import bagio, plots, report as rp
-from fiber_align.config import load_params
+from fiber_align.config import ConfigError, load_params
 from fiber_align.simulation.metrics import loop_metrics, saturation_metrics
 
 NEEDS = {
@@ -74,15 +74,21 @@ def run(args):
 
 
 def _v_limits(args, params):
-    """Return (v_min, v_max) in V from the command line, else the plant config, else None."""
+    """
+    Return (v_min, v_max) in V from the command line, else the plant config.
+
+    :raises ConfigError: the plant config (``plant_config`` of the analyze settings) is
+        missing or lacks ``v_min`` / ``v_max`` (named in the message).
+    """
     lo, hi = args.v_min, args.v_max
     if lo is None or hi is None:
+        name = params['plant_config']
+        plant = load_params(name, 'simulated_actuator')
         try:
-            plant = load_params(params.get('plant_config', 'plant.yaml'), 'simulated_actuator')
             lo = float(plant['v_min']) if lo is None else lo
             hi = float(plant['v_max']) if hi is None else hi
-        except Exception:  # noqa: BLE001 - limits are optional
-            return None if lo is None or hi is None else (lo, hi)
+        except KeyError as exc:
+            raise ConfigError('%s: node simulated_actuator lacks %s' % (name, exc)) from None
     if not hi > lo:
         raise ValueError('--v-max (%g V) must be above --v-min (%g V)' % (hi, lo))
     return (lo, hi)

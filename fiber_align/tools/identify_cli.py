@@ -93,12 +93,13 @@ def plot_fit(path, u, y, result):
 def run(args):
     """Run ``identify``; return the exit code."""
     t, u, y = read_data(args.data)
-    method = args.method or load_params(args.config, 'identify')['method']
+    settings = load_params(args.config, 'identify')
+    method = args.method or settings['method']
     if method not in METHODS:
         raise ValueError('method %r in %s is not one of %s'
                          % (method, args.config, ', '.join(METHODS)))
     res = identify(t, u, y, method=method, n_operators=args.operators, seed=args.seed,
-                   config=args.config)
+                   config=args.config, settings=settings)
     out = Path(args.out)
     if out.parent and not out.parent.is_dir():
         raise ValueError('output directory %s does not exist' % out.parent)
