@@ -26,6 +26,8 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         (os.path.join('share', package_name, 'config'), glob('config/*.yaml')),
+        (os.path.join('share', package_name, 'config', 'models'),
+         glob('config/models/*.yaml')),
     ],
     python_requires='>=3.10',
     # The ROS 2 client libraries are deliberately not here: a real Jazzy workspace

@@ -150,13 +150,13 @@ def test_metrics_are_analyze_loop_metrics_of_the_measured_signal():
 
 
 def test_default_model_is_the_compensator_file():
-    """The offline default feedforward model is compensator.yaml's (as on the graph)."""
+    """The offline default feedforward model is the generated model file (as on the graph)."""
     from fiber_align.config import config_path
     from fiber_align.simulation import simulate
     from fiber_align.hysteresis.pi import PIModel
     setup = simulate.load_setup()
     model = simulate.default_model('default', setup)
-    ref = PIModel.load(str(config_path('compensator.yaml')))
+    ref = PIModel.load(str(config_path(simulate.MODEL_FILE)))
     assert np.array_equal(model.thresholds, ref.thresholds)
     assert np.array_equal(model.weights, ref.weights)
     a = run('step', 'composite', rate_hz=1000.0, duration_s=0.01)
@@ -169,22 +169,33 @@ def test_default_model_is_the_compensator_file():
     assert not np.array_equal(simulate.default_model('paper', setup).weights, ref.weights)
 
 
-def test_compensator_file_is_the_regenerated_identification(tmp_path):
-    """`tuning --compensator` rewrites only the model; the committed file is up to date."""
-    from fiber_align.config import config_path
-    from fiber_align.simulation import simulate, tuning
+def test_compensator_model_file_is_the_regenerated_identification(tmp_path):
+    """
+    `tuning --compensator` writes the model as a file of its own; the committed one is it.
+
+    The hand-edited compensator.yaml is not touched. The least-squares solve differs in
+    the last bits between BLAS builds, so the committed weights are compared to a
+    relative 1e-9 (measured here: 3.3e-11 at most), the file written here
+    exactly.
+    """
+    from fiber_align.config import config_path, load_params
     from fiber_align.hysteresis.pi import PIModel
-    src = config_path('compensator.yaml')
-    dst = tmp_path / 'compensator.yaml'
-    text = src.read_text().replace('model_source: "', 'model_source: "old ')
-    text = text.replace('weights_m_per_v: [', 'weights_m_per_v: [1.0e-7, ', 1)
-    text = text.replace('thresholds_v: [', 'thresholds_v: [0.0, ', 1)
-    dst.write_text(text.replace('thresholds_v: [0.0, 0.0', 'thresholds_v: [0.0, 0.5', 1))
+    from fiber_align.simulation import simulate, tuning
+    settings = config_path('compensator.yaml')
+    before = settings.read_bytes()
+    dst = tmp_path / 'compensator_model.yaml'
     assert tuning.main(['--compensator', '--output', str(dst)]) == 0
-    assert dst.read_text() == src.read_text()
+    assert settings.read_bytes() == before
+    written = load_params(str(dst), simulate.COMPENSATOR_NODE)
+    assert written['model_plant'] == 'default'
+    assert written['model_source'].startswith('lsq 20 operators, 0.1 Hz 0-100 V triangle')
     model = simulate.compensator_identified_model('default', simulate.load_setup())
     back = PIModel.load(str(dst))
+    assert np.array_equal(back.thresholds, model.thresholds)
     assert np.array_equal(back.weights, model.weights)
+    committed = PIModel.load(str(config_path(simulate.MODEL_FILE)))
+    assert np.array_equal(committed.thresholds, model.thresholds)
+    np.testing.assert_allclose(committed.weights, model.weights, rtol=1e-9, atol=0.0)
 
 
 def test_cli_alignment_scenarios_pass_options(capsys):

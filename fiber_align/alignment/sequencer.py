@@ -40,7 +40,7 @@ import math
 
 import numpy as np
 
-from fiber_align.config import load_params
+from fiber_align.config import ConfigError, load_params
 
 CONFIG_FILE = 'sequencer.yaml'
 CONFIG_NODE = 'alignment_sequencer'
@@ -54,27 +54,23 @@ FAULT = 'FAULT'
 STATES = (IDLE, SEARCHING, PEAKING, TRACKING, RELEASING, FAULT)
 ACTIVE = (SEARCHING, PEAKING, TRACKING)
 
-DEFAULTS = dict(
-    range_min_m=0.0, range_max_m=65e-6, park_position_m=0.0,
-    floor_samples=10, threshold_sigma=6.0, floor_max_w=1e-8, min_threshold_w=1e-12,
-    confirm_samples=2, search_speed_m_per_s=0.5e-3, search_timeout_s=0.4,
-    peak_speed_m_per_s=1.0e-3, peak_drop_db=3.0, peak_fit_window_db=10.0,
-    peak_min_fit_samples=5, power_lag_s=0.16e-3, range_tolerance_m=0.5e-6,
-    settle_tolerance_m=0.15e-6, settle_samples=3, settle_timeout_s=0.05,
-    verify_samples=4, verify_tolerance_db=0.08, max_refits=2,
-    repeak_span_m=1.5e-6, repeak_speed_m_per_s=0.5e-3, switch_ramp_time_s=0.0,
-    dither_amplitude_m=0.3e-6, dither_frequency_hz=25.0, tracking_bandwidth_rad_s=10.0,
-    gradient_time_s=0.04, track_loss_db=10.0, track_loss_timeout_s=0.02,
-    sensor_timeout_s=0.01, follow_error_m=10e-6, follow_timeout_s=0.05,
-    release_tolerance_m=1e-6, release_timeout_s=0.1,
+# The sequencer's parameters (SI); their values live in config/sequencer.yaml only.
+KEYS = (
+    'range_min_m', 'range_max_m', 'park_position_m',
+    'floor_samples', 'threshold_sigma', 'floor_max_w', 'min_threshold_w',
+    'confirm_samples', 'search_speed_m_per_s', 'search_timeout_s',
+    'peak_speed_m_per_s', 'peak_drop_db', 'peak_fit_window_db',
+    'peak_min_fit_samples', 'power_lag_s', 'range_tolerance_m',
+    'settle_tolerance_m', 'settle_samples', 'settle_timeout_s',
+    'verify_samples', 'verify_tolerance_db', 'max_refits',
+    'repeak_span_m', 'repeak_speed_m_per_s', 'switch_ramp_time_s',
+    'dither_amplitude_m', 'dither_frequency_hz', 'tracking_bandwidth_rad_s',
+    'gradient_time_s', 'track_loss_db', 'track_loss_timeout_s',
+    'sensor_timeout_s', 'follow_error_m', 'follow_timeout_s',
+    'release_tolerance_m', 'release_timeout_s',
 )
-
-
-def load_sequencer_params(path=CONFIG_FILE, **overrides):
-    """Return the sequencer parameters from a params file, ``overrides`` applied."""
-    p = dict(load_params(path, CONFIG_NODE))
-    p.update(overrides)
-    return p
+# Read by the node only (the expected period of its input samples, s).
+NODE_KEYS = ('control_period_s',)
 
 
 def fit_log_parabola(x_m, p_w, curvature=None):
@@ -116,18 +112,29 @@ class Sequencer:
     """Find, peak, track and switch the light on one axis (see the module docstring)."""
 
     def __init__(self, params=None, **overrides):
-        """Build a sequencer from a parameter mapping (``None``: config/sequencer.yaml)."""
-        p = dict(DEFAULTS)
+        """
+        Build a sequencer from a parameter mapping (``None``: config/sequencer.yaml).
+
+        :param params: every key of :data:`KEYS` (SI units); :data:`NODE_KEYS` are
+            allowed and ignored.
+        :param overrides: keys of :data:`KEYS` that win over ``params``.
+        :raises ValueError: an unknown key; ConfigError: a missing one.
+        """
         if params is None:
             params = load_params(CONFIG_FILE, CONFIG_NODE)
-        unknown = sorted(set(params) - set(DEFAULTS) - {'control_period_s'})
+        unknown = sorted(set(params) - set(KEYS) - set(NODE_KEYS))
         if unknown:
             raise ValueError('unknown sequencer parameter(s): %s' % ', '.join(unknown))
-        p.update({k: v for k, v in params.items() if k in DEFAULTS})
-        bad = sorted(set(overrides) - set(DEFAULTS))
+        bad = sorted(set(overrides) - set(KEYS))
         if bad:
             raise ValueError('unknown sequencer parameter(s): %s' % ', '.join(bad))
+        p = {k: v for k, v in params.items() if k in KEYS}
         p.update(overrides)
+        missing = [k for k in KEYS if k not in p]
+        if missing:
+            raise ConfigError('%s: node %s lacks %s' % (CONFIG_FILE, CONFIG_NODE,
+                                                        ', '.join(missing)))
+        p = {k: p[k] for k in KEYS}
         if not p['range_max_m'] > p['range_min_m']:
             raise ValueError('range_max_m must exceed range_min_m')
         self.p = p

@@ -30,6 +30,18 @@ CONFIG_FILE = 'controller.yaml'
 CONFIG_NODE = 'fuzzy_pid_controller'
 
 
+# The limits and anti-windup keys of the controller parameters (config/controller.yaml).
+LIMIT_KEYS = ('u_min', 'u_max', 'anti_windup', 'tracking_time_s')
+
+
+def _param(params, key):
+    """Return ``params[key]``; a missing key is a ConfigError naming the file and the key."""
+    try:
+        return params[key]
+    except KeyError:
+        raise ConfigError('%s: node %s lacks %s' % (CONFIG_FILE, CONFIG_NODE, key)) from None
+
+
 def gains_for_rate(params, section, rate_hz):
     """
     Return ``(mapping, rate_used)``: the entries of ``params[section]`` for ``rate_hz``.
@@ -57,10 +69,9 @@ def gains_for_rate(params, section, rate_hz):
 def make_pid(params, rate_hz):
     """Return the tuned plain :class:`Pid` for ``rate_hz`` from controller parameters."""
     g, _ = gains_for_rate(params, 'pid', rate_hz)
-    g.setdefault('u_min', params.get('u_min', -math.inf))
-    g.setdefault('u_max', params.get('u_max', math.inf))
-    g.setdefault('anti_windup', params.get('anti_windup', 'back-calculation'))
-    g.setdefault('tracking_time_s', params.get('tracking_time_s', 0.0))
+    for k in LIMIT_KEYS:
+        if k not in g:
+            g[k] = _param(params, k)
     return Pid.from_params(g, 1.0 / float(rate_hz))
 
 
@@ -141,19 +152,18 @@ class FuzzyPid:
         if not isinstance(fz, dict):
             raise ConfigError('%s lacks the fuzzy section' % CONFIG_FILE)
         g, _ = gains_for_rate(params, 'fuzzy_pid', rate_hz)
-        pid = Pid(g['kp0'], g['ki0'], g['kd0'], 1.0 / float(rate_hz),
-                  derivative_filter_hz=float(g.get('derivative_filter_hz', 0.0)),
-                  u_min=float(params.get('u_min', -math.inf)),
-                  u_max=float(params.get('u_max', math.inf)),
-                  anti_windup=str(params.get('anti_windup', 'back-calculation')),
-                  tracking_time_s=float(params.get('tracking_time_s', 0.0)))
         try:
+            pid = Pid(g['kp0'], g['ki0'], g['kd0'], 1.0 / float(rate_hz),
+                      derivative_filter_hz=float(g['derivative_filter_hz']),
+                      u_min=float(_param(params, 'u_min')),
+                      u_max=float(_param(params, 'u_max')),
+                      anti_windup=str(_param(params, 'anti_windup')),
+                      tracking_time_s=float(_param(params, 'tracking_time_s')))
             fis = FuzzyInference.from_params(fz)
             return cls(fis, pid, g['kp0'], g['ki0'], g['kd0'],
                        (g['kp_unit'], g['ki_unit'], g['kd_unit']),
-                       output_scale=fz.get('output_scale', (0.8, 0.8, 0.6)),
-                       e_scale_per_m=fz.get('e_scale_per_m', 1e6),
-                       ec_scale_s_per_m=fz.get('ec_scale_s_per_m', 1e3), enabled=enabled,
+                       output_scale=fz['output_scale'], e_scale_per_m=fz['e_scale_per_m'],
+                       ec_scale_s_per_m=fz['ec_scale_s_per_m'], enabled=enabled,
                        reference_filter=reference_filter,
                        surface=surface_for(params, fis, surface))
         except KeyError as exc:

@@ -266,11 +266,16 @@ class PIModel(_PlayModel):
         return {'thresholds_v': [float(x) for x in self.thresholds],
                 'weights_m_per_v': [float(x) for x in self.weights]}
 
-    def save(self, path, node='hysteresis_compensator', extra=None):
-        """Write the model as a ROS params file (the compensator loads this)."""
+    def save(self, path, node='hysteresis_compensator', extra=None, header=''):
+        """
+        Write the model as a ROS params file (the compensator loads this).
+
+        :param extra: more parameters written before the model (e.g. ``model_source``).
+        :param header: comment lines put first (see :func:`fiber_align.config.write_params`).
+        """
         params = dict(extra or {})
         params.update(self.to_params())
-        write_params(path, node, params)
+        write_params(path, node, params, header)
 
     @classmethod
     def from_params(cls, params):

@@ -59,7 +59,7 @@ class AlignmentSequencerNode(Node):
         diag = c.declare(self, d, 'diagnostics_period_s', '/diagnostics period (s)', 0.01,
                          60.0, True)
         core = {}
-        for name in list(sq.DEFAULTS) + ['control_period_s']:
+        for name in sq.KEYS + sq.NODE_KEYS:
             if name in d:
                 core[name] = c.declare(self, d, name, 'sequencer parameter (SI, see '
                                        'sequencer.yaml)', read_only=True)

@@ -73,7 +73,8 @@ CLASSES = {'simulated_actuator': 'SimulatedActuatorNode',
            'actuator_driver': 'ActuatorDriverNode',
            'alignment_sequencer': 'AlignmentSequencerNode'}
 AREA_FILES = ('plant.yaml', 'optics.yaml', 'controller.yaml', 'compensator.yaml',
-              'driver.yaml', 'sequencer.yaml', 'recorder.yaml')
+              'models/compensator_model.yaml', 'driver.yaml', 'sequencer.yaml',
+              'recorder.yaml')
 GRAPH_FILE = 'fiber_align.yaml'
 SCENARIOS = ('none', 'step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment',
              'align')

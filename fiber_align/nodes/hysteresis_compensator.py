@@ -63,7 +63,7 @@ from fiber_align.hysteresis.pi import PIModel
 from fiber_align.nodes import _common as c
 
 NODE_NAME = 'hysteresis_compensator'
-AREA_FILES = ('compensator.yaml',)
+AREA_FILES = ('compensator.yaml', 'models/compensator_model.yaml')
 SHAPING = ('none', 'zv', 'zvd')
 
 

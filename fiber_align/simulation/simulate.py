@@ -52,6 +52,8 @@ from fiber_align.simulation.loop import ClosedLoop
 from fiber_align.simulation.metrics import loop_metrics, run_scores, STEP_KEYS, TRACK_KEYS
 
 COMPENSATOR_FILE = 'compensator.yaml'
+# The generated feedforward model (tuning --compensator), read after compensator.yaml.
+MODEL_FILE = 'models/compensator_model.yaml'
 COMPENSATOR_NODE = 'hysteresis_compensator'
 DESIGN_FILE = 'actuator.yaml'
 IDENTIFY_RATE_HZ = 1000.0
@@ -93,10 +95,12 @@ def load_setup(**files):
     Read the params files of an offline run and the design model; return a :class:`Setup`.
 
     :param files: ``field=path`` to read another file for a field of :data:`SETUP_FILES`
-        (``design=path`` for the actuator file).
+        (``design=path`` for the actuator file, ``model=path`` for the generated model
+        merged into ``compensator``).
     :raises ConfigError: a missing or broken file (named in the message).
     """
     kw = {k: load_params(files.get(k, f), node) for k, (f, node) in SETUP_FILES.items()}
+    kw['compensator'].update(load_params(files.get('model', MODEL_FILE), COMPENSATOR_NODE))
     kw['design'] = design_dynamics(load_actuator(files.get('design', DESIGN_FILE)))
     kw['surface'] = surface_for(kw['controller'])
     return Setup(**kw)
