@@ -121,13 +121,6 @@ def _cdr_i32(buf, v):
     buf.extend(struct.pack('<i', v))
 
 
-def _cdr_f64s(buf, values):
-    _cdr_u32(buf, len(values))
-    if len(values):
-        buf.extend(b'\x00' * (_align(len(buf), 8) - len(buf)))
-        buf.extend(np.asarray(values, '<f8').tobytes())
-
-
 def joint_state_template(name='bimorph_tip', frame_id=''):
     """
     Return (template bytes, stamp offset, position offset, velocity offset) of a JointState.

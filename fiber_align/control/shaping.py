@@ -88,11 +88,6 @@ class Shaper:
         self.initial = float(initial)
         self.reset()
 
-    @property
-    def delay_s_per_period(self):
-        """Length of the shaper in periods (the added delay of a step, in samples)."""
-        return len(self.taps) - 1
-
     def reset(self, initial=None):
         """Refill the history with ``initial`` (m; default the constructor's value)."""
         v = self.initial if initial is None else float(initial)

@@ -19,7 +19,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rcl_interfaces.msg import ParameterType, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from fiber_align.config import config_path, ConfigError, flatten, read_yaml
@@ -456,31 +456,3 @@ def spin(node, realtime=False):
         except Exception:  # noqa: BLE001 - context already shut down
             pass
         executor.shutdown(timeout_sec=1.0)
-
-
-def is_param_type_numeric(ptype):
-    """Return True for rcl_interfaces double/integer parameter types."""
-    return ptype in (ParameterType.PARAMETER_DOUBLE, ParameterType.PARAMETER_INTEGER)
-
-
-def run(node_factory, args=None):
-    """
-    Run one node in the demo_nodes_py idiom; print its sent counts on exit.
-
-    :param node_factory: callable returning the node (after ``rclpy.init``).
-    """
-    import rclpy
-    from rclpy.executors import ExternalShutdownException
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = node_factory()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            if hasattr(node, 'sent_counts'):
-                report_sent(node, node.sent_counts())
-            node.destroy_node()
-        rclpy.try_shutdown()
