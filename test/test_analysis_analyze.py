@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from fiber_align import cli
-from fiber_align.analysis import bagio, report as rp
+from fiber_align.analysis import bag as bagio, report as rp
 from fiber_align.analysis.cli import analyze_bag
 from fiber_align.simulation import simulate
 

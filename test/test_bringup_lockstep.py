@@ -44,7 +44,7 @@ def simulate(scenario, duration, model=None):
 
 def bag_arrays(bag):
     """Return per-sample arrays of a lockstep bag, read with the analysis bag reader."""
-    from fiber_align.analysis import bagio
+    from fiber_align.analysis import bag as bagio
     from fiber_align.analysis.report import align_to_samples
     streams, lockstep, _ = bagio.read_streams(str(bag), ['displacement', 'setpoint',
                                                          'drive_voltage', 'clock'])

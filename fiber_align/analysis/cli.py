@@ -7,7 +7,7 @@ import sys
 
 import numpy as np
 
-from fiber_align.analysis import bagio, plots, report as rp
+from fiber_align.analysis import bag as bagio, plots, report as rp
 from fiber_align.config import ConfigError, load_params
 from fiber_align.simulation.metrics import loop_metrics, saturation_metrics
 
@@ -110,7 +110,7 @@ def analyze_bag(path, params=None, v_limits=None, keep_arrays=False):
     The result holds ``bag``, ``lockstep``, ``alignment``, ``topics`` (found streams),
     ``notes`` (what is missing and what was analysed anyway) and ``metrics`` (SI units).
 
-    :raises fiber_align.analysis.bagio.BagError: unreadable, truncated or corrupt bag, or
+    :raises fiber_align.analysis.bag.BagError: unreadable, truncated or corrupt bag, or
         a bag with none of the graph's topics.
     """
     params = dict(rp.default_params() if params is None else params)

@@ -69,7 +69,7 @@ def align_to_samples(streams, lockstep):
     """
     Return per-control-period arrays from decoded streams (see the module docstring).
 
-    :param streams: mapping of stream key -> :class:`fiber_align.analysis.bagio.Stream`;
+    :param streams: mapping of stream key -> :class:`fiber_align.analysis.bag.Stream`;
         needs ``displacement``.
     :param lockstep: True to align Float64 streams by message order.
     :returns: dict with ``t`` (s), ``y`` (m), ``stamp_ns``, ``recv_ns`` (displacement

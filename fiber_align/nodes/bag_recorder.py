@@ -32,7 +32,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from fiber_align.analysis import bagio
+from fiber_align.analysis import bag as bagio
 from fiber_align.config import ConfigError
 from fiber_align.nodes._msgtypes import message_class
 
@@ -75,7 +75,7 @@ class BagRecorder(Node):
             raise ConfigError('output %s exists already; choose a new bag directory'
                               % self.output)
         self.writer = Writer(self.output, version=9,
-                             storage_plugin=bagio._storage_plugin(storage))
+                             storage_plugin=bagio.storage_plugin(storage))
         self.writer.open()
         self.closed = False
         self.subs = {}

@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 
-from fiber_align.analysis.bagio import read_hysteresis_experiment
+from fiber_align.analysis.bag import read_hysteresis_experiment
 from fiber_align.config import load_params
 from fiber_align.hysteresis import data as hdata
 from fiber_align.hysteresis.identify import identify, METHODS
