@@ -13,7 +13,8 @@ import time
 import numpy as np
 
 from fiber_align.config import load_params
-from fiber_align.control.fuzzy import FuzzyInference, FuzzySurface
+from fiber_align.control.fuzzy import FuzzyInference
+from fiber_align.control.fuzzy_surface import FuzzySurface
 from fiber_align.control.fuzzy_pid import FuzzyPid, make_pid, PlainPid
 from fiber_align.hysteresis.playbank import PlayBank
 from fiber_align.hysteresis.truth import make_hysteresis

@@ -8,7 +8,8 @@ import pytest
 
 from fiber_align.config import load_params
 from fiber_align.control.feedforward import Feedforward
-from fiber_align.control.fuzzy import FuzzyInference, FuzzySurface, surface_error_bound
+from fiber_align.control.fuzzy import FuzzyInference
+from fiber_align.control.fuzzy_surface import FuzzySurface, surface_error_bound
 from fiber_align.control.shaping import design, Lead, Shaper
 from fiber_align.design import load_actuator
 from fiber_align.design.mode import design_dynamics, discretise

@@ -113,7 +113,7 @@ def test_steps_from_non_rest_hysteresis_states(rate, limit):
 
 def test_switch_on_step_at_1khz_does_not_ring():
     """The sequencer's 45 um switch-on after earlier moves lands without ringing."""
-    from fiber_align.simulation.alignment_scenarios import CompositeLoop
+    from fiber_align.simulation.alignment_bench import CompositeLoop
     loop = CompositeLoop(period_s=1e-3, noise=False)
     for target, n in ((45e-6, 30), (0.0, 30)):
         for _ in range(n):

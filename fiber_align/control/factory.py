@@ -115,7 +115,7 @@ def build_controller(controller, params, comp, design_dynamics, rate_hz, surface
         shaped reference, :func:`build_reference_model`).
     :param design_dynamics: ``(omega_n_rad_s, alpha_m_per_v)`` of the design model.
     :param rate_hz: control rate (Hz).
-    :param surface: a :class:`~fiber_align.control.fuzzy.FuzzySurface` built before
+    :param surface: a :class:`~fiber_align.control.fuzzy_surface.FuzzySurface` built before
         (:func:`~fiber_align.control.fuzzy_pid.surface_for`), reused when it fits
         ``params``.
     """

@@ -23,7 +23,8 @@ derivative, a 1 kHz loop cannot), so ``config/controller.yaml`` lists them per r
 import math
 
 from fiber_align.config import ConfigError, load_params
-from fiber_align.control.fuzzy import FuzzyInference, FuzzySurface
+from fiber_align.control.fuzzy import FuzzyInference
+from fiber_align.control.fuzzy_surface import FuzzySurface
 from fiber_align.control.pid import Pid
 
 CONFIG_FILE = 'controller.yaml'
@@ -83,7 +84,7 @@ def surface_for(params, fis=None, surface=None):
         none, else an even ``q``).
     :param fis: their :class:`~fiber_align.control.fuzzy.FuzzyInference` (None: built).
     :param surface: a surface built before, returned when it :meth:`matches
-        <fiber_align.control.fuzzy.FuzzySurface.matches>` (building one takes ~0.1 s).
+        <fiber_align.control.fuzzy_surface.FuzzySurface.matches>` (building one takes ~0.1 s).
     """
     fz = params['fuzzy']
     q = int(fz['surface_intervals'])
@@ -113,8 +114,8 @@ class FuzzyPid:
         (a :class:`fiber_align.control.shaping.ReferenceModel`) whose output replaces
         the reference in the error, as the composite controller does.
     :param surface: None evaluates the exact closed-form inference every period; a
-        :class:`~fiber_align.control.fuzzy.FuzzySurface` of ``fis`` interpolates its
-        tables (error bound :func:`~fiber_align.control.fuzzy.surface_error_bound`).
+        :class:`~fiber_align.control.fuzzy_surface.FuzzySurface` of ``fis`` interpolates its
+        tables (error bound :func:`~fiber_align.control.fuzzy_surface.surface_error_bound`).
     """
 
     def __init__(self, fis, pid, kp0, ki0, kd0, units, output_scale=(0.8, 0.8, 0.6),
@@ -144,7 +145,7 @@ class FuzzyPid:
         """
         Build from the ``fuzzy_pid_controller`` parameters for a control rate (Hz).
 
-        :param surface: a :class:`~fiber_align.control.fuzzy.FuzzySurface` built before;
+        :param surface: a :class:`~fiber_align.control.fuzzy_surface.FuzzySurface` built before;
             used when it tabulates these rules with ``fuzzy.surface_intervals``
             (:func:`surface_for`), otherwise a new one is built.
         """

@@ -77,7 +77,7 @@ class Setup:
     ``controller`` (fuzzy_pid_controller), ``compensator`` (hysteresis_compensator),
     ``driver`` (actuator_driver), ``analyze`` (the metric settings); ``design`` is
     ``(omega_n_rad_s, alpha_m_per_v)`` of the design model; ``surface`` the fuzzy
-    controller's :class:`~fiber_align.control.fuzzy.FuzzySurface` (or None), built
+    controller's :class:`~fiber_align.control.fuzzy_surface.FuzzySurface` (or None), built
     once with the setup because building it takes ~0.1 s.
     """
 
