@@ -83,8 +83,7 @@ from std_srvs.srv import Trigger
 
 from fiber_align.config import ConfigError, flatten, load_params
 from fiber_align.control.factory import build_controller, CONTROLLERS
-from fiber_align.design import load_actuator
-from fiber_align.design.mode import design_dynamics
+from fiber_align.design import design_dynamics, load_actuator
 from fiber_align.nodes import _common as c
 
 NODE_NAME = 'fuzzy_pid_controller'

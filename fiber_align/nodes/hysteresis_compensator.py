@@ -57,8 +57,7 @@ from std_srvs.srv import Trigger
 
 from fiber_align.config import ConfigError
 from fiber_align.control.factory import build_feedforward, CONTROLLERS
-from fiber_align.design import load_actuator
-from fiber_align.design.mode import design_dynamics
+from fiber_align.design import design_dynamics, load_actuator
 from fiber_align.hysteresis.pi import PIModel
 from fiber_align.nodes import _common as c
 
