@@ -74,6 +74,39 @@ def _check_domain(dom, name):
     return lo, hi
 
 
+def _aggregate(c, minimum, zero):
+    """
+    Return ``(A, M)`` of the aggregated output set from its clip levels (the one formula).
+
+    :param c: clip levels of the 7 sets NB..PB and a trailing 0 (floats, or arrays of one
+        shape for a grid), fuzzy units.
+    :param minimum: ``min`` for floats, ``numpy.minimum`` for arrays.
+    :param zero: the starting sum (0.0, or an array of zeros).
+    :returns: area and first moment about the domain centre, in output peak spacings (see
+        :meth:`FuzzyInference.area_moment`).
+    """
+    area = zero
+    mom = zero
+    for k in range(7):
+        a = c[k]
+        ha = a - 0.5 * a * a
+        ma = 0.5 * a - 0.5 * a * a + a * a * a / 6.0
+        if k == 0:
+            area = area + ha
+            mom = mom + (-3.0 * ha + ma)
+        elif k == 6:
+            area = area + ha
+            mom = mom + (3.0 * ha - ma)
+        else:
+            area = area + 2.0 * ha
+            mom = mom + 2.0 * (k - 3) * ha
+        m = minimum(minimum(a, c[k + 1]), 0.5)
+        am = m - m * m
+        area = area - am
+        mom = mom - (k - 2.5) * am
+    return area, mom
+
+
 class FuzzyInference:
     """
     Two-input, three-output Mamdani system with seven evenly spaced triangles per variable.
@@ -166,32 +199,7 @@ class FuzzyInference:
                 k = ks[o]
                 if w > c[k]:
                     c[k] = w
-            area = 0.0
-            mom = 0.0
-            for k in range(7):
-                a = c[k]
-                if a == 0.0:
-                    continue
-                ha = a - 0.5 * a * a
-                ma = 0.5 * a - 0.5 * a * a + a * a * a / 6.0
-                if k == 0:
-                    area += ha
-                    mom += -3.0 * ha + ma
-                elif k == 6:
-                    area += ha
-                    mom += 3.0 * ha - ma
-                else:
-                    area += 2.0 * ha
-                    mom += 2.0 * (k - 3) * ha
-                b = c[k + 1]
-                if b > 0.0:
-                    m = a if a < b else b
-                    if m > 0.5:
-                        m = 0.5
-                    am = m - m * m
-                    area -= am
-                    mom -= (k - 2.5) * am
-            out.append((area, mom))
+            out.append(_aggregate(c, min, 0.0))
         return out[0], out[1], out[2]
 
     def evaluate(self, e, ec):
@@ -231,25 +239,7 @@ class FuzzyInference:
                 for kk in range(7):
                     sel = k == kk
                     c[kk] = np.where(sel, np.maximum(c[kk], wr), c[kk])
-            area = np.zeros(e.shape)
-            mom = np.zeros(e.shape)
-            for k in range(7):
-                a = c[k]
-                ha = a - 0.5 * a * a
-                ma = 0.5 * a - 0.5 * a * a + a * a * a / 6.0
-                if k == 0:
-                    area += ha
-                    mom += -3.0 * ha + ma
-                elif k == 6:
-                    area += ha
-                    mom += 3.0 * ha - ma
-                else:
-                    area += 2.0 * ha
-                    mom += 2.0 * (k - 3) * ha
-                m = np.minimum(np.minimum(a, c[k + 1]), 0.5)
-                am = m - m * m
-                area -= am
-                mom -= (k - 2.5) * am
+            area, mom = _aggregate(c, np.minimum, np.zeros(e.shape))
             out[o, 0] = area
             out[o, 1] = mom
         return out
