@@ -258,7 +258,7 @@ def _pso_weights(u, y, r, eps, seed, cfg, rel_tol):
     slope = float(np.ptp(y) / np.ptp(u))
     bound = float(cfg['bound_factor']) * slope
     n = r.size
-    coords = cfg.get('coordinates', 'partial-sums')
+    coords = cfg['coordinates']
     if coords == 'partial-sums':
         basis = partial_sum_basis(ops)
         lo, hi = np.full(n, eps), np.full(n, max(bound, 2.0 * eps))
@@ -311,7 +311,7 @@ def _pso_thresholds(u, y, n, eps, seed, cfg, rel_tol):
         basis = partial_sum_basis(np.moveaxis(ops, 0, 1))   # (P, N, n)
         return bounded_lsq_batch(basis, y, eps)[1]
 
-    init = paper_thresholds(u, n)[1:][None, :] if cfg.get('seed_paper_thresholds') else None
+    init = paper_thresholds(u, n)[1:][None, :] if cfg['seed_paper_thresholds'] else None
     res = pso_minimize(fitness, lo, hi, population=cfg['population'],
                        generations=cfg['generations'], seed=seed,
                        inertia=(cfg['inertia_start'], cfg['inertia_end']),

@@ -708,7 +708,7 @@ class Bringup:
 
     def _plant(self):
         p = node_params(self.params, 'simulated_actuator')
-        keys = PARAM_KEYS + ('seed',)
+        keys = PARAM_KEYS
         return SimulatedActuator.from_params({k: p[k] for k in keys if k in p})
 
     # -- run ------------------------------------------------------------------------

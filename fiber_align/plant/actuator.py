@@ -42,7 +42,7 @@ DESIGN_FILE = 'actuator.yaml'
 # The plant's hysteresis laws: ``default`` is the dense-PI truth.
 KINDS = ('default', 'paper', 'linear', 'dense-pi', 'bouc-wen')
 PARAM_KEYS = ('rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min', 'v_max',
-              'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m')
+              'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m', 'seed')
 _NOISE_BLOCK = 4096
 
 
@@ -120,8 +120,8 @@ class SimulatedActuator:
         """
         Build from a ``simulated_actuator`` parameter mapping (see ``config/plant.yaml``).
 
-        :param params: the mapping (every key of ``config/plant.yaml`` except ``seed``
-            and ``nan_samples``, which default to 0 and none); ``hysteresis`` names the
+        :param params: the mapping (every key of ``config/plant.yaml``; ``nan_samples``,
+            a fault-injection list of tests, is optional); ``hysteresis`` names the
             law, ``omega_n_rad_s`` <= 0 takes the design model's value, ``rate_hz`` sets
             the period unless ``period_s`` (s) is given.
         :param dynamics: ``(omega_n_rad_s, alpha_m_per_v)`` of the design model
@@ -133,7 +133,7 @@ class SimulatedActuator:
         """
         p = dict(params)
         p.update({k: v for k, v in overrides.items() if v is not None})
-        unknown = sorted(set(p) - set(PARAM_KEYS) - {'seed', 'nan_samples'})
+        unknown = sorted(set(p) - set(PARAM_KEYS) - {'nan_samples'})
         if unknown:
             raise ConfigError('unknown simulated_actuator parameter(s): %s (allowed: %s)'
                               % (', '.join(unknown), ', '.join(PARAM_KEYS)))
@@ -157,7 +157,7 @@ class SimulatedActuator:
                    slew_rate_v_per_s=float(p['slew_rate_v_per_s']),
                    noise_rms_m=float(p['noise_rms_m']),
                    resolution_m=float(p['resolution_m']),
-                   seed=int(p.get('seed', 0)), nan_samples=p.get('nan_samples', ()))
+                   seed=int(p['seed']), nan_samples=p.get('nan_samples', ()))
 
     @classmethod
     def from_config(cls, path=CONFIG_FILE, period_s=None, dynamics=None, **overrides):
