@@ -74,7 +74,7 @@ def _check_domain(dom, name):
     return lo, hi
 
 
-def _aggregate(c, minimum, zero):
+def _aggregate(c, minimum, zero, sets=range(7)):
     """
     Return ``(A, M)`` of the aggregated output set from its clip levels (the one formula).
 
@@ -82,12 +82,14 @@ def _aggregate(c, minimum, zero):
         shape for a grid), fuzzy units.
     :param minimum: ``min`` for floats, ``numpy.minimum`` for arrays.
     :param zero: the starting sum (0.0, or an array of zeros).
+    :param sets: the sets to add; a set clipped at 0 adds exactly 0 to both sums (its
+        overlap term too), so the scalar path passes only the fired ones.
     :returns: area and first moment about the domain centre, in output peak spacings (see
         :meth:`FuzzyInference.area_moment`).
     """
     area = zero
     mom = zero
-    for k in range(7):
+    for k in sets:
         a = c[k]
         ha = a - 0.5 * a * a
         ma = 0.5 * a - 0.5 * a * a + a * a * a / 6.0
@@ -199,7 +201,7 @@ class FuzzyInference:
                 k = ks[o]
                 if w > c[k]:
                     c[k] = w
-            out.append(_aggregate(c, min, 0.0))
+            out.append(_aggregate(c, min, 0.0, [k for k in range(7) if c[k] != 0.0]))
         return out[0], out[1], out[2]
 
     def evaluate(self, e, ec):

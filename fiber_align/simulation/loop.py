@@ -58,15 +58,54 @@ class ClosedLoop:
 
     def step(self, r):
         """Run one control period for the reference ``r`` (m); return ``y_{k+1}`` (m)."""
-        ff = self.ff = self._comp_step(r)
+        return self.run((r,))
+
+    def run(self, refs, record=None):
+        """
+        Run one control period per reference in ``refs`` (m); return the last ``y`` (m).
+
+        :param record: None, or a mapping of lists that each period appends to: ``y``
+            (the measurement the period used, m), ``x`` (the true position then, m),
+            ``v``, ``ff``, ``fb`` (V) and ``gains`` (the feedback's gains after its step).
+        """
+        comp_step = self._comp_step
         fb_step = self._fb_step
-        if fb_step is None:
-            fb = 0.0
-        else:
-            fb = fb_step(r, self.y)
-            self.gains = self.feedback.gains
+        feedback = self.feedback
+        command = self._command
+        plant_step = self._plant_step
+        plant = self.plant
+        period = self.period_s
+        k = self.k
+        y = self.y
+        ff = self.ff
+        fb = self.fb
+        v = self.v
+        gains = self.gains
+        if record is not None:
+            y_add, x_add = record['y'].append, record['x'].append
+            v_add, ff_add = record['v'].append, record['ff'].append
+            fb_add, g_add = record['fb'].append, record['gains'].append
+        for r in refs:
+            ff = comp_step(r)
+            if fb_step is None:
+                fb = 0.0
+            else:
+                fb = fb_step(r, y)
+                gains = feedback.gains
+            v = command(ff, fb, k * period)
+            if record is not None:
+                y_add(y)
+                x_add(plant.x)
+                v_add(v)
+                ff_add(ff)
+                fb_add(fb)
+                g_add(gains)
+            y = plant_step(v)
+            k += 1
+        self.k = k
+        self.y = y
+        self.ff = ff
         self.fb = fb
-        v = self.v = self._command(ff, fb, self.k * self.period_s)
-        self.k += 1
-        y = self.y = self._plant_step(v)
+        self.v = v
+        self.gains = gains
         return y

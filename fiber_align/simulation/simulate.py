@@ -342,7 +342,7 @@ def _run_closed_loop(sc, n, period, p, drv, comp, fbc, reach, scale):
     """
     Run the per-period loop of docs/CONTRACTS.md; return the lists and the counters.
 
-    The periods are :meth:`fiber_align.simulation.loop.ClosedLoop.step` (the one loop
+    The periods are :meth:`fiber_align.simulation.loop.ClosedLoop.run` (the one loop
     body); this records what each period measured and commanded.
     """
     ref = sc.reference
@@ -356,22 +356,12 @@ def _run_closed_loop(sc, n, period, p, drv, comp, fbc, reach, scale):
         elif rk < 0.0:
             rs[k] = 0.0
             clamped += 1
-    ym, yt, v, ffa, fba, gains = [], [], [], [], [], []
-    ym_add, yt_add, v_add = ym.append, yt.append, v.append
-    ff_add, fb_add, g_add = ffa.append, fba.append, gains.append
-    loop = ClosedLoop(p, drv, comp, fbc, period)
-    step = loop.step
+    rec = {'y': [], 'x': [], 'v': [], 'ff': [], 'fb': [], 'gains': []}
     nan0 = fbc.nan_count if fbc is not None else 0
-    for k in range(n):
-        ym_add(loop.y)
-        yt_add(p.x)
-        step(rs[k])
-        v_add(loop.v)
-        ff_add(loop.ff)
-        fb_add(loop.fb)
-        g_add(loop.gains)
+    ClosedLoop(p, drv, comp, fbc, period).run(rs, rec)
     held = fbc.nan_count - nan0 if fbc is not None else 0   # periods held (NaN error)
-    return rs, ym, yt, v, ffa, fba, gains, clamped, held
+    return (rs, rec['y'], rec['x'], rec['v'], rec['ff'], rec['fb'], rec['gains'], clamped,
+            held)
 
 
 def tracking_skip_s(sc, t):
