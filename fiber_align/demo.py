@@ -54,6 +54,7 @@ import sys
 import time
 
 from fiber_align import cli
+from fiber_align.jsonout import json_restore
 from fiber_align.nodes.bringup import scenario_skip_s
 from fiber_align.simulation.metrics import run_scores
 
@@ -150,7 +151,8 @@ def analyze(name, out, summary):
 
 def row(name, summary, res, wall_s):
     """Return the summary table row of one scenario (SI values)."""
-    scores = run_scores(res.get('metrics', {}).get('loop', {}))
+    # analyze's JSON writes inf and NaN as text; the scoring compares numbers
+    scores = run_scores(json_restore(res.get('metrics', {}).get('loop', {})))
     al = summary.get('align', {})
     out = {'scenario': name, 'samples': summary.get('samples'), 'wall_s': wall_s,
            'ok': summary.get('exit_code') == 0 and 'error' not in res,

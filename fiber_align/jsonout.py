@@ -39,3 +39,18 @@ def json_default(o):
     if isinstance(o, np.ndarray):
         return o.tolist()
     return str(o)
+
+
+# What json_clean(nonfinite_as_text=True) writes for the non-finite floats.
+NONFINITE_TEXT = {'inf': math.inf, '-inf': -math.inf, 'nan': math.nan}
+
+
+def json_restore(x):
+    """Return ``x`` (parsed JSON) with the texts of :data:`NONFINITE_TEXT` as floats again."""
+    if isinstance(x, dict):
+        return {k: json_restore(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [json_restore(v) for v in x]
+    if isinstance(x, str) and x in NONFINITE_TEXT:
+        return NONFINITE_TEXT[x]
+    return x
