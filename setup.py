@@ -35,6 +35,8 @@ setup(
         ('share/' + package_name, ['package.xml']),
         (os.path.join('share', package_name, 'config'),
          glob('config/*.yaml') + glob('config/*.xml')),
+        (os.path.join('share', package_name, 'config', 'models'),
+         glob('config/models/*.yaml')),
         (os.path.join('share', package_name, 'launch'), glob('launch/*.launch.py')),
     ],
     python_requires='>=3.10',

@@ -16,7 +16,7 @@ import argparse
 import sys
 import time
 
-from fiber_align.alignment import scenarios as sc
+from fiber_align.simulation import alignment_bench as ab, alignment_scenarios as sc
 
 
 def main(argv=None):
@@ -26,7 +26,7 @@ def main(argv=None):
     ap.add_argument('--loop', default='composite', help='composite or ideal')
     args = ap.parse_args([] if argv is None else argv)
     n_cycles, track_s = (50, 5.0) if args.quick else (1000, 60.0)
-    loop = sc.make_loop(args.loop)
+    loop = ab.make_loop(args.loop)
     t0 = time.time()
     trials, s = sc.align_trials(20, seed=0, loop=loop)
     print('| slot (um) | state | loss (dB) | time to light (ms) | time to peak (ms) '

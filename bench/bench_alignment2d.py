@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 
-from fiber_align.alignment import scenarios2d as sc
+from fiber_align.simulation import alignment2d_scenarios as sc
 from fiber_align.alignment import sequencer2d as s2d
 
 

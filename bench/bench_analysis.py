@@ -77,7 +77,7 @@ def _series(n, rate_hz=RATE_HZ):
 
 def generate(path, seconds, storage='mcap'):
     """Write the benchmark bag; return (messages, seconds taken)."""
-    from fiber_align.analysis import bagio
+    from fiber_align.analysis import bag as bagio
     n = int(round(seconds * RATE_HZ))
     series = _series(n)
     t0 = time.perf_counter()

@@ -8,24 +8,24 @@ A sub-command module provides ``register(subparsers)`` which adds its parser and
 """
 
 import argparse
-import importlib
 import sys
 
+from fiber_align.analysis import bag_repair, cli as analysis_cli
 from fiber_align.config import ConfigError
+from fiber_align.design import cli as design_cli
+from fiber_align.hardware import cli as hardware_cli
+from fiber_align.tools import identify_cli, simulate_cli
+from fiber_align.tools.common import UsageError
 
-# (module, what it adds) -- imported lazily so `fiber-align design` never loads ROS.
-COMMAND_MODULES = [
-    'fiber_align.design.cli',        # design
-    'fiber_align.hysteresis.cli',    # identify
-    'fiber_align.control.cli',       # simulate, fuzzy-surface
-    'fiber_align.analysis.cli',      # analyze
-    'fiber_align.analysis.bag_repair',  # bag-repair
-    'fiber_align.hardware.cli',      # emulate
-]
-
-
-class UsageError(Exception):
-    """Bad command-line usage; exits 2 with the message."""
+# The sub-command modules, in the order of the help text; none of them imports ROS.
+COMMAND_MODULES = (
+    design_cli,          # design
+    identify_cli,        # identify
+    simulate_cli,        # simulate, fuzzy-surface
+    analysis_cli,        # analyze
+    bag_repair,          # bag-repair
+    hardware_cli,        # emulate
+)
 
 
 def build_parser():
@@ -34,13 +34,7 @@ def build_parser():
         prog='fiber-align',
         description='Design, identify, simulate and analyse the piezo bimorph fiber aligner.')
     sub = parser.add_subparsers(dest='command', metavar='COMMAND')
-    for name in COMMAND_MODULES:
-        try:
-            mod = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name == name:
-                continue
-            raise
+    for mod in COMMAND_MODULES:
         mod.register(sub)
     return parser
 
@@ -62,7 +56,4 @@ def main(argv=None):
 
 
 if __name__ == '__main__':
-    # Run through the package module so ``python -m fiber_align.cli`` and the console
-    # script share one UsageError class.
-    from fiber_align.cli import main as _main
-    sys.exit(_main())
+    sys.exit(main())

@@ -121,7 +121,13 @@ def flatten(params, prefix=''):
     return out
 
 
-def write_params(path, node, params):
-    """Write ``params`` as a ROS params file with one ``node`` section."""
+def write_params(path, node, params, header=''):
+    """
+    Write ``params`` as a ROS params file with one ``node`` section.
+
+    :param header: comment text put first, one ``#`` line per line (what wrote the file).
+    """
     with open(path, 'w', encoding='utf-8') as f:
+        for line in header.splitlines():
+            f.write(('# ' + line).rstrip() + '\n')
         yaml.safe_dump({node: {'ros__parameters': params}}, f, sort_keys=False)

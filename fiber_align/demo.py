@@ -53,6 +53,11 @@ import subprocess
 import sys
 import time
 
+from fiber_align import cli
+from fiber_align.jsonout import json_restore
+from fiber_align.nodes.bringup import scenario_skip_s
+from fiber_align.simulation.metrics import run_scores
+
 SCENARIOS = ('step', 'sine', 'triangle', 'align')
 DURATION_S = {'step': None, 'sine': 2.0, 'triangle': 2.0, 'align': None}
 QUICK_DURATION_S = {'step': None, 'sine': 0.3, 'triangle': 0.3, 'align': None}
@@ -127,8 +132,6 @@ def run_bringup(name, out, args, log):
 
 def analyze(name, out, summary):
     """Run ``fiber-align analyze`` on the scenario's bag; return its JSON result."""
-    from fiber_align import cli
-    from fiber_align.nodes.bringup import scenario_skip_s
     skip = 0.0
     if name in ('step', 'sine', 'triangle') and summary.get('samples'):
         t_end = (summary['samples'] - 1) / float(summary.get('rate_hz', 1000.0))
@@ -148,20 +151,19 @@ def analyze(name, out, summary):
 
 def row(name, summary, res, wall_s):
     """Return the summary table row of one scenario (SI values)."""
-    loop = res.get('metrics', {}).get('loop', {})
-    tr = loop.get('tracking', {})
-    steps = loop.get('steps') or [{}]
+    # analyze's JSON writes inf and NaN as text; the scoring compares numbers
+    scores = run_scores(json_restore(res.get('metrics', {}).get('loop', {})))
     al = summary.get('align', {})
     out = {'scenario': name, 'samples': summary.get('samples'), 'wall_s': wall_s,
            'ok': summary.get('exit_code') == 0 and 'error' not in res,
            'settling_time_s': None, 'overshoot_pct': None, 'rms_error_m': None,
            'max_error_m': None, 'loss_db': None, 'cycle_loss_max_db': None}
     if name == 'step':
-        out['settling_time_s'] = steps[0].get('settling_time_s')
-        out['overshoot_pct'] = steps[0].get('overshoot_pct')
+        out['settling_time_s'] = scores['settling_time_s']
+        out['overshoot_pct'] = scores['overshoot_pct']
     if name in ('step', 'sine', 'triangle'):
-        out['rms_error_m'] = tr.get('rms_error_m')
-        out['max_error_m'] = tr.get('max_error_m')
+        out['rms_error_m'] = scores['rms_error_m']
+        out['max_error_m'] = scores['max_error_m']
     if name == 'align':
         out['loss_db'] = al.get('final_loss_db')
         out['cycle_loss_max_db'] = al.get('cycle_loss_max_db')

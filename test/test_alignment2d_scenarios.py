@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from fiber_align import cli
-from fiber_align.alignment import scenarios2d as sc
+from fiber_align.simulation import alignment2d_scenarios as sc
 from fiber_align.alignment import sequencer2d as s2d
 
 

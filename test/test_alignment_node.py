@@ -21,7 +21,7 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64, String  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
-from fiber_align.alignment import scenarios as sc  # noqa: E402
+from fiber_align.simulation import alignment_bench as ab  # noqa: E402
 from fiber_align.alignment import sequencer as sq  # noqa: E402
 from fiber_align.nodes import _common as c  # noqa: E402
 
@@ -84,7 +84,7 @@ def test_node_lockstep_matches_offline_core():
     try:
         node = AlignmentSequencerNode(
             parameter_overrides=[Parameter('sync_mode', value='lockstep')])
-        bench = sc.build(seed=9, loop=sc.FirstOrderLoop(seed=9), slot_m=SLOT, record=False)
+        bench = ab.build(seed=9, loop=ab.FirstOrderLoop(seed=9), slot_m=SLOT, record=False)
         harness = Harness(bench)
         harness.inputs = []
         ex.add_node(node)

@@ -11,13 +11,13 @@ import json
 
 import pytest
 
-from fiber_align.alignment import scenarios as sc
 from fiber_align.alignment import sequencer as sq
+from fiber_align.simulation import alignment_bench as ab, alignment_scenarios as sc
 
 
 @pytest.fixture(scope='module')
 def loop():
-    return sc.make_loop('composite')
+    return ab.make_loop('composite')
 
 
 def test_align_composite_six_slots_across_the_range(loop):

@@ -6,22 +6,23 @@ import math
 import numpy as np
 import pytest
 
-from fiber_align.alignment import scenarios as sc
 from fiber_align.alignment import sequencer as sq
+from fiber_align.alignment.peaking import fit_log_parabola
+from fiber_align.simulation import alignment_bench as ab, alignment_scenarios as sc
 
 
 def test_log_parabola_fit_is_exact_for_the_gaussian_model():
     x = np.linspace(30e-6, 38e-6, 9)
     p = 1e-3 * np.exp(-((x - 35.3e-6) / 5.2e-6) ** 2)
-    x0, c, lp0 = sq.fit_log_parabola(x, p)
+    x0, c, lp0 = fit_log_parabola(x, p)
     assert x0 == pytest.approx(35.3e-6, abs=1e-12)
     assert c == pytest.approx(1 / 5.2e-6 ** 2, rel=1e-6)
     assert math.exp(lp0) == pytest.approx(1e-3, rel=1e-6)
     # one side only and with a known curvature
-    x0b, _, _ = sq.fit_log_parabola(x[:4], p[:4], curvature=c)
+    x0b, _, _ = fit_log_parabola(x[:4], p[:4], curvature=c)
     assert x0b == pytest.approx(35.3e-6, abs=1e-12)
     # a valley is not a peak
-    assert sq.fit_log_parabola(x, 1e-3 / p) is None
+    assert fit_log_parabola(x, 1e-3 / p) is None
 
 
 def test_commands_and_states_from_idle():
@@ -78,7 +79,7 @@ def test_slot_outside_the_reachable_range_says_so(slot_um, word):
 
 
 def _bench(slot=30e-6, loop=None, **kw):
-    return sc.build(seed=4, loop=loop or sc.FirstOrderLoop(seed=4), slot_m=slot, **kw)
+    return ab.build(seed=4, loop=loop or ab.FirstOrderLoop(seed=4), slot_m=slot, **kw)
 
 
 def test_silent_power_sensor_faults():
@@ -110,7 +111,7 @@ def test_driver_inactive_flag_and_actuator_that_does_not_move():
     seq.update(1e-3, 0.0, 1.2e-10, driver_active=False)
     assert seq.state == sq.FAULT and 'driver inactive' in seq.fault_reason
 
-    class Dead(sc.FirstOrderLoop):
+    class Dead(ab.FirstOrderLoop):
         def step(self, r_m):
             return self.measure()
 

@@ -9,10 +9,9 @@ import numpy as np
 import pytest
 
 from fiber_align import cli
-from fiber_align.analysis import bagio
-from fiber_align.analysis import report as rp
+from fiber_align.analysis import bag as bagio, report as rp
 from fiber_align.analysis.cli import analyze_bag
-from fiber_align.control import simulate
+from fiber_align.simulation import simulate
 
 LAB = ('error', 'error_rate', 'kp', 'ki', 'kd', 'output')
 
@@ -20,7 +19,8 @@ LAB = ('error', 'error_rate', 'kp', 'ki', 'kd', 'output')
 @pytest.fixture(scope='module')
 def sim():
     """Return a short offline closed-loop step run (fuzzy PID, no noise)."""
-    return simulate.run('step', 'fuzzy', duration_s=0.12, noise=False)
+    return simulate.run('step', 'fuzzy', duration_s=0.12, noise=False,
+                        setup=simulate.load_setup())
 
 
 def _lockstep_series(res, wall0=1_700_000_000_000_000_000):

@@ -4,7 +4,7 @@
 import numpy as np
 import pytest
 
-from fiber_align.analysis import bagio
+from fiber_align.analysis import bag as bagio
 
 
 def _series(n=1500):

@@ -37,14 +37,14 @@ def run_bringup(tmp_path, tag, *args, timeout=120):
 
 def simulate(scenario, duration, model=None):
     """Return the offline run of the same scenario (composite, 1 kHz, seed 0, noise on)."""
-    from fiber_align.control import simulate as sim
+    from fiber_align.simulation import simulate as sim
     return sim.run(scenario, 'composite', rate_hz=1000.0, duration_s=duration, seed=0,
                    noise=True, model=model)
 
 
 def bag_arrays(bag):
     """Return per-sample arrays of a lockstep bag, read with the analysis bag reader."""
-    from fiber_align.analysis import bagio
+    from fiber_align.analysis import bag as bagio
     from fiber_align.analysis.report import align_to_samples
     streams, lockstep, _ = bagio.read_streams(str(bag), ['displacement', 'setpoint',
                                                          'drive_voltage', 'clock'])

@@ -65,7 +65,7 @@ def _kill_all(pids):
 
 
 def _readable(bag):
-    from fiber_align.analysis import bagio
+    from fiber_align.analysis import bag as bagio
     streams, _, topics = bagio.read_streams(str(bag))
     return topics
 

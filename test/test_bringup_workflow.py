@@ -30,8 +30,8 @@ def _bringup(*args):
 
 def test_experiment_identify_and_model_on_the_graph(tmp_path):
     """The open-loop bag is the offline experiment; its model drives the compensator."""
-    from fiber_align.analysis import bagio
-    from fiber_align.control import simulate
+    from fiber_align.analysis import bag as bagio
+    from fiber_align.simulation import simulate
     from fiber_align.hysteresis.pi import PIModel
     exp = tmp_path / 'experiment'
     _bringup('--scenario', 'hysteresis-experiment', '--rate', str(EXPERIMENT_HZ),

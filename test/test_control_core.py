@@ -7,15 +7,16 @@ import math
 import numpy as np
 import pytest
 
-from fiber_align.analysis.metrics import step_metrics, tracking_metrics
 from fiber_align.config import load_params
 from fiber_align.control.driver import DriverCore
 from fiber_align.control.fuzzy import FuzzyInference, reference_mamdani
 from fiber_align.control.fuzzy_pid import FuzzyPid
 from fiber_align.control.pid import Pid
 from fiber_align.control.shaping import design, sampled_pole
-from fiber_align.control.tuning import spectral_radius
-from fiber_align.plant.actuator import design_dynamics
+from fiber_align.design import load_actuator
+from fiber_align.design.mode import design_dynamics
+from fiber_align.simulation.metrics import step_metrics, tracking_metrics
+from fiber_align.simulation.tuning import spectral_radius
 
 
 def _fis():
@@ -119,7 +120,7 @@ def test_driver_trips_spread_beyond_the_window_do_not_latch():
 @pytest.mark.parametrize('kind', ['zv', 'zvd'])
 def test_shaper_taps_cancel_sampled_mode(rate, kind):
     """Shaper taps are non-negative, sum to 1 and vanish at the sampled pole."""
-    wn, _ = design_dynamics()
+    wn, _ = design_dynamics(load_actuator())
     h = design(kind, wn, 0.03, 1.0 / rate)
     p = sampled_pole(wn, 0.03, 1.0 / rate)
     assert np.all(h >= 0) and h.sum() == pytest.approx(1.0)
@@ -134,7 +135,7 @@ def test_every_fuzzy_gain_set_is_stable(rate):
     Checked on a 5 x 5 x 5 grid of the reachable (kp, ki, kd) box (corners included) and
     for plant slopes from 0.5 to 1.5 times the design alpha (hysteresis changes it).
     """
-    wn, alpha = design_dynamics()
+    wn, alpha = design_dynamics(load_actuator())
     fp = FuzzyPid.from_config(rate)
     (kp0, kp1), (ki0, ki1), (kd0, kd1) = fp.gain_bounds()
     fd = -math.log(fp.pid.deriv_pole) / (2 * math.pi / rate) if fp.pid.deriv_pole else 0.0

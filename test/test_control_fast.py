@@ -8,12 +8,14 @@ import pytest
 
 from fiber_align.config import load_params
 from fiber_align.control.feedforward import Feedforward
-from fiber_align.control.fuzzy import FuzzyInference, FuzzySurface, surface_error_bound
-from fiber_align.control.playbank import PlayBank
+from fiber_align.control.fuzzy import FuzzyInference
+from fiber_align.control.fuzzy_surface import FuzzySurface, surface_error_bound
 from fiber_align.control.shaping import design, Lead, Shaper
+from fiber_align.design import load_actuator
+from fiber_align.design.mode import design_dynamics, discretise
 from fiber_align.hysteresis.pi import paper_model, PIModel
+from fiber_align.hysteresis.playbank import PlayBank
 from fiber_align.hysteresis.truth import make_hysteresis
-from fiber_align.plant.actuator import design_dynamics, discretise
 
 
 def _fis():
@@ -66,7 +68,7 @@ def test_fuzzy_surface_error_is_proven_below_1e3_of_span():
     assert np.all(bound < 1e-3), bound
     # the bound shrinks as 1/q^2 (the pieces are smooth: no kink inside a triangle)
     assert surface_error_bound(fis, q // 2) / bound == pytest.approx(4.0, rel=0.1)
-    surf = FuzzySurface.cached(fis, q)
+    surf = FuzzySurface(fis, q)
     spans = np.array([hi - lo for lo, hi in fis.out_domains])
     rng = np.random.default_rng(11)
     pts = list(rng.uniform([-13.0, -21.0], [13.0, 21.0], (1500, 2)))
@@ -117,7 +119,7 @@ def test_lead_does_not_extrapolate_steps_but_predicts_smooth_references(rate):
 
 def test_unrolled_shaper_equals_the_tap_sum():
     """The unrolled three-tap shaper is bit-identical to the plain FIR sum over all taps."""
-    wn, _ = design_dynamics()
+    wn, _ = design_dynamics(load_actuator())
     for t in (1e-3, 1e-4):
         taps = design('zv', wn, 0.03, t)
         sh = Shaper(taps)
@@ -146,7 +148,7 @@ def test_closed_form_discretisation_equals_expm():
 
 def test_feedforward_start_at_holds_without_transient():
     """start_at(r) settles the compensator at r: the next periods give the same voltage."""
-    wn, _ = design_dynamics()
+    wn, _ = design_dynamics(load_actuator())
     t = 1e-3
     ff = Feedforward(paper_model(), shaper=Shaper(design('zv', wn, 0.03, t)),
                      lead=Lead(t, 2 * t, 0.01))

@@ -5,9 +5,8 @@ import numpy as np
 import pytest
 
 from fiber_align.config import ConfigError
-from fiber_align.design import (blocked_force, deflection, deflection_fe, dynamics,
+from fiber_align.design import (blocked_force, deflection, deflection_fe, dynamics, fe,
                                 load_actuator, report, tip_compliance, tip_displacement)
-from fiber_align.design import fe
 from fiber_align.design.model import d12
 from fiber_align.design.sweeps import evaluate, sweep
 

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from fiber_align.hysteresis import data
-from fiber_align.hysteresis.pi import (InversePIModel, NotInvertibleError, paper_model,
-                                       PIModel, play_operators)
+from fiber_align.hysteresis.pi import (InversePIModel, NotInvertibleError, paper_model, PIModel,
+                                       play_operators)
 
 # The paper's Table 4 ("inverse model"): thresholds printed as 0, 8, ..., 72 and these
 # weights (1/(um/V) = V/um).

@@ -4,8 +4,17 @@
 import numpy as np
 import pytest
 
+from fiber_align.design import load_actuator
+from fiber_align.design.mode import design_dynamics
 from fiber_align.hysteresis import data
 from fiber_align.hysteresis.truth import BoucWen, make_hysteresis
+
+ALPHA_M_PER_V = design_dynamics(load_actuator())[1]
+
+
+def _law(kind):
+    """Return the law ``kind``; ``linear`` with the design model's slope (m/V), as the plant."""
+    return make_hysteresis(kind, alpha_m_per_v=ALPHA_M_PER_V if kind == 'linear' else None)
 
 
 def _loop(h, n=1001):
@@ -25,7 +34,7 @@ def test_rich_laws_are_calibrated_like_the_measured_loop(kind):
 
 @pytest.mark.parametrize('kind', ['dense-pi', 'bouc-wen', 'linear'])
 def test_monotone_up_to_100_v(kind):
-    h = make_hysteresis(kind)
+    h = _law(kind)
     up = np.linspace(0, 100, 801)
     u = np.concatenate([up, up[::-1][1:], up[1:] * 0.6])
     y = h.simulate(u)
@@ -38,7 +47,7 @@ def test_monotone_up_to_100_v(kind):
 
 @pytest.mark.parametrize('kind', ['dense-pi', 'bouc-wen', 'paper', 'linear'])
 def test_step_matches_simulate_and_reset(kind):
-    h = make_hysteresis(kind)
+    h = _law(kind)
     _, u = data.experiment_signal(n_samples=301)
     y = h.simulate(u)
     h.reset()
@@ -69,3 +78,11 @@ def test_bad_kind_and_bad_bouc_wen_parameters():
 def test_paper_kind_is_table3():
     h = make_hysteresis('paper')
     assert h.n == 10 and abs(h.weights[0] - 0.4437e-6) < 1e-15
+
+
+def test_linear_law_needs_the_design_slope():
+    """No silent default slope: the caller passes the design model's alpha (m/V)."""
+    with pytest.raises(ValueError, match='alpha_m_per_v'):
+        make_hysteresis('linear')
+    assert make_hysteresis('linear', alpha_m_per_v=ALPHA_M_PER_V).step(10.0) == \
+        ALPHA_M_PER_V * 10.0

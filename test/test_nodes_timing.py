@@ -22,26 +22,29 @@ def delayed_loop_radius(kp, ki, slope, delay, omega_n, zeta, alpha):
     """
     Return the largest pole magnitude of the linearised PI loop with ``delay`` periods.
 
-    Plant: ``slope * alpha`` (m/V) times the exactly discretised mode; controller: the
-    PI law of :class:`fiber_align.control.pid.Pid` (kd = 0 at 1 kHz); the drive computed
-    from y_k is applied ``delay`` periods later than in the offline loop.
+    Plant: ``slope * alpha`` (m/V) times the exactly discretised mode; controller: one
+    period of the real :class:`fiber_align.control.pid.Pid` (kd = 0 at 1 kHz) from each
+    unit state; the drive computed from y_k is applied ``delay`` periods later than in
+    the offline loop.
     """
-    from fiber_align.plant.actuator import discretise
+    from fiber_align.control.pid import Pid
+    from fiber_align.design.mode import discretise
     ad, bd = discretise(omega_n, zeta, T)
+    pid = Pid(kp, ki, 0.0, T)
     n = 3 + delay
 
     def f(z):
         x, xd, integ = z[:3]
         hist = list(z[3:])
-        e = -x
-        i2 = integ + ki * T * e
-        u = kp * e + i2
+        pid.reset()
+        pid.integral = integ
+        u = pid.step(-x)
         if delay:
             ua, hist = hist[0], hist[1:] + [u]
         else:
             ua = u
         xn = ad @ np.array([x, xd]) + bd * alpha * slope * ua
-        return np.array([xn[0], xn[1], i2] + hist)
+        return np.array([xn[0], xn[1], pid.integral] + hist)
     m = np.column_stack([f(col) for col in np.eye(n)])
     return float(np.max(np.abs(np.linalg.eigvals(m))))
 
@@ -50,15 +53,17 @@ def test_one_period_delay_keeps_the_fuzzy_gain_box_stable():
     """Every gain the fuzzy layer can reach at 1 kHz is stable with the realtime delay."""
     from fiber_align.config import load_params
     from fiber_align.control.fuzzy_pid import FuzzyPid
+    from fiber_align.design import load_actuator
+    from fiber_align.design.mode import design_dynamics
     from fiber_align.nodes import _common as c
-    from fiber_align.plant.actuator import design_dynamics
-    wn, alpha = design_dynamics()
+    wn, alpha = design_dynamics(load_actuator())
     fz = FuzzyPid.from_params(load_params('controller.yaml', 'fuzzy_pid_controller'),
                               RATE_HZ)
     (kp_lo, kp_hi), (ki_lo, ki_hi), (kd_lo, kd_hi) = fz.gain_bounds()
     assert kd_lo == kd_hi == 0.0
     delay = c.REALTIME_EXTRA_DELAY_PERIODS
-    worst = max(delayed_loop_radius(kp, ki, s, delay, wn, 0.03, alpha)
+    zeta = load_params('plant.yaml', 'simulated_actuator')['damping_ratio']
+    worst = max(delayed_loop_radius(kp, ki, s, delay, wn, zeta, alpha)
                 for kp in (kp_lo, 0.5 * (kp_lo + kp_hi), kp_hi)
                 for ki in (ki_lo, 0.5 * (ki_lo + ki_hi), ki_hi)
                 for s in (0.5, 0.75, 1.0, 1.5, 2.0))
@@ -76,12 +81,12 @@ def run_realtime_step(target_m=50e-6, n=200, missed_share=0.0, setpoint_one_old=
     except in a missed cycle (probability ``missed_share``), where it holds the old one.
     """
     from fiber_align.config import load_params
-    from fiber_align.control import simulate
+    from fiber_align.simulation import simulate
     from fiber_align.control.driver import DriverCore
     from fiber_align.nodes import _common as c
     rng = np.random.default_rng(seed)
     plant = simulate.make_plant('default', RATE_HZ, seed=0, noise=True)
-    comp, fbc = simulate.build('composite', RATE_HZ, plant)
+    comp, fbc = simulate.build_loop_parts('composite', RATE_HZ, simulate.load_setup())
     c.extend_lead(comp, T)
     c.extend_lead(fbc.reference_filter, T)
     drv = DriverCore.from_params(load_params('driver.yaml', 'actuator_driver'))
@@ -150,12 +155,12 @@ def run_disturbed_step(rate_m_per_s, seed, skip=0.2, missed=0.3, n=200):
     misses a share ``missed`` of the cycles (holds the previous drive).
     """
     from fiber_align.config import load_params
-    from fiber_align.control import simulate
+    from fiber_align.simulation import simulate
     from fiber_align.control.driver import DriverCore
     from fiber_align.nodes import _common as c
     rng = np.random.default_rng(seed)
     plant = simulate.make_plant('default', RATE_HZ, seed=0, noise=True)
-    comp, fbc = simulate.build('composite', RATE_HZ, plant)
+    comp, fbc = simulate.build_loop_parts('composite', RATE_HZ, simulate.load_setup())
     c.extend_lead(comp, T)
     c.extend_lead(fbc.reference_filter, T)
     drv = DriverCore.from_params(load_params('driver.yaml', 'actuator_driver'))

@@ -6,13 +6,16 @@ import math
 import numpy as np
 import pytest
 
+from fiber_align.config import config_path, ConfigError, load_params
+from fiber_align.design import load_actuator
+from fiber_align.design.mode import design_dynamics
 from fiber_align.hysteresis.truth import Linear
-from fiber_align.plant.actuator import design_dynamics, SimulatedActuator
+from fiber_align.plant.actuator import SimulatedActuator
 
 
 def _lin(rate=10000.0, **kw):
     """Return a linear-law plant."""
-    wn, alpha = design_dynamics()
+    wn, alpha = design_dynamics(load_actuator())
     return SimulatedActuator(1.0 / rate, Linear(alpha), wn, 0.03, v_min=-20, v_max=100,
                              **kw), wn, alpha
 
@@ -61,3 +64,20 @@ def test_config_plant_defaults_reach_82_um():
     p = SimulatedActuator.from_config()
     assert p.reachable_m() > 82e-6
     assert p.v_max == 100.0
+
+
+def test_broken_or_missing_config_is_one_clear_error(tmp_path):
+    """No silent default resonance: a bad actuator or plant config names file and key."""
+    good = (config_path('actuator.yaml')).read_text(encoding='utf-8')
+    bad = tmp_path / 'actuator.yaml'
+    bad.write_text(good.replace('youngs_modulus', 'youngs_modulus_typo', 1)
+                   if 'youngs_modulus' in good else good + '    surprise_key: 1.0\n',
+                   encoding='utf-8')
+    with pytest.raises(ConfigError, match='actuator.yaml'):
+        load_actuator(str(bad))
+    with pytest.raises(ConfigError, match='missing'):
+        load_actuator(str(tmp_path / 'missing.yaml'))
+    params = load_params('plant.yaml', 'simulated_actuator')
+    del params['damping_ratio']
+    with pytest.raises(ConfigError, match='plant.yaml.*damping_ratio'):
+        SimulatedActuator.from_params(params)

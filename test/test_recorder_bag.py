@@ -13,7 +13,7 @@ import pytest
 
 import rclpy  # noqa: E402 - a hard dependency of the recorder tests
 
-from fiber_align.analysis import bagio  # noqa: E402
+from fiber_align.analysis import bag as bagio  # noqa: E402
 
 N = 200
 pytestmark = pytest.mark.ros

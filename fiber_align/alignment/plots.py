@@ -2,7 +2,7 @@
 """
 Plot an alignment run for people: optical power (dBm) and displacement (um) over time.
 
-The arrays are SI (s, m, W, from :func:`fiber_align.alignment.scenarios.run` with
+The arrays are SI (s, m, W, from :func:`fiber_align.simulation.alignment_scenarios.run` with
 ``record=True``); only the axes are in dBm, um and ms for reading. The background is
 shaded by sequencer state (search, peak, track, ...).
 """

@@ -2,7 +2,7 @@
 """
 Plot a two-axis run for people: the path over the coupling map and the power over time.
 
-The arrays are SI (s, m, W, from :func:`fiber_align.alignment.scenarios2d.run` with
+The arrays are SI (s, m, W, from :func:`fiber_align.simulation.alignment2d_scenarios.run` with
 ``record=True``); only the axes are in um, dB, dBm and ms. Left: contours of the true loss
 (dB) over x-y with the target where the sequencer first saw light, the sequencer's path
 (coloured by state) and the hill climb's path; right: measured power (dBm) against time
@@ -53,7 +53,7 @@ def plot_run2d(res, path, title=None):
     """
     Write the figure of a recorded 2-D run to ``path`` (PNG, SVG or PDF); return ``path``.
 
-    :param res: the dict of ``scenarios2d.run(..., record=True)`` (``trace`` in it and in
+    :param res: the dict of ``alignment2d_scenarios.run(..., record=True)`` (``trace`` in it and in
         ``res['baseline']``).
     :param path: output file.
     :param title: figure title; default names the scenario and both outcomes.

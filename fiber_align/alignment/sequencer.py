@@ -40,94 +40,61 @@ import math
 
 import numpy as np
 
-from fiber_align.config import load_params
+from fiber_align.alignment.peaking import Peaking
+from fiber_align.alignment.states import (ACTIVE, FAULT, IDLE, PEAKING, RELEASING,
+                                          SEARCHING, TRACKING)
+from fiber_align.config import ConfigError, load_params
 
 CONFIG_FILE = 'sequencer.yaml'
 CONFIG_NODE = 'alignment_sequencer'
 
-IDLE = 'IDLE'
-SEARCHING = 'SEARCHING'
-PEAKING = 'PEAKING'
-TRACKING = 'TRACKING'
-RELEASING = 'RELEASING'
-FAULT = 'FAULT'
-STATES = (IDLE, SEARCHING, PEAKING, TRACKING, RELEASING, FAULT)
-ACTIVE = (SEARCHING, PEAKING, TRACKING)
 
-DEFAULTS = dict(
-    range_min_m=0.0, range_max_m=65e-6, park_position_m=0.0,
-    floor_samples=10, threshold_sigma=6.0, floor_max_w=1e-8, min_threshold_w=1e-12,
-    confirm_samples=2, search_speed_m_per_s=0.5e-3, search_timeout_s=0.4,
-    peak_speed_m_per_s=1.0e-3, peak_drop_db=3.0, peak_fit_window_db=10.0,
-    peak_min_fit_samples=5, power_lag_s=0.16e-3, range_tolerance_m=0.5e-6,
-    settle_tolerance_m=0.15e-6, settle_samples=3, settle_timeout_s=0.05,
-    verify_samples=4, verify_tolerance_db=0.08, max_refits=2,
-    repeak_span_m=1.5e-6, repeak_speed_m_per_s=0.5e-3, switch_ramp_time_s=0.0,
-    dither_amplitude_m=0.3e-6, dither_frequency_hz=25.0, tracking_bandwidth_rad_s=10.0,
-    gradient_time_s=0.04, track_loss_db=10.0, track_loss_timeout_s=0.02,
-    sensor_timeout_s=0.01, follow_error_m=10e-6, follow_timeout_s=0.05,
-    release_tolerance_m=1e-6, release_timeout_s=0.1,
+# The sequencer's parameters (SI); their values live in config/sequencer.yaml only.
+KEYS = (
+    'range_min_m', 'range_max_m', 'park_position_m',
+    'floor_samples', 'threshold_sigma', 'floor_max_w', 'min_threshold_w',
+    'confirm_samples', 'search_speed_m_per_s', 'search_timeout_s',
+    'peak_speed_m_per_s', 'peak_drop_db', 'peak_fit_window_db',
+    'peak_min_fit_samples', 'power_lag_s', 'range_tolerance_m',
+    'settle_tolerance_m', 'settle_samples', 'settle_timeout_s',
+    'verify_samples', 'verify_tolerance_db', 'max_refits',
+    'repeak_span_m', 'repeak_speed_m_per_s', 'switch_ramp_time_s',
+    'dither_amplitude_m', 'dither_frequency_hz', 'tracking_bandwidth_rad_s',
+    'gradient_time_s', 'track_loss_db', 'track_loss_timeout_s',
+    'sensor_timeout_s', 'follow_error_m', 'follow_timeout_s',
+    'release_tolerance_m', 'release_timeout_s',
 )
+# Read by the node only (the expected period of its input samples, s).
+NODE_KEYS = ('control_period_s',)
 
 
-def load_sequencer_params(path=CONFIG_FILE, **overrides):
-    """Return the sequencer parameters from a params file, ``overrides`` applied."""
-    p = dict(load_params(path, CONFIG_NODE))
-    p.update(overrides)
-    return p
-
-
-def fit_log_parabola(x_m, p_w, curvature=None):
-    """
-    Fit ``ln P = a - c (x - x0)^2`` to samples; return ``(x0, c, ln_p0)`` or ``None``.
-
-    :param x_m: positions (m).
-    :param p_w: powers (W), all > 0.
-    :param curvature: known ``c`` (1/m^2); then only ``x0`` and ``ln_p0`` are fitted.
-    :returns: vertex ``x0`` (m), curvature ``c`` (1/m^2, > 0 for a peak) and ``ln P`` at
-        the vertex, or ``None`` when the samples do not define a peak.
-    """
-    x = np.asarray(x_m, dtype=float)
-    lp = np.log(np.asarray(p_w, dtype=float))
-    if x.size < (2 if curvature else 3):
-        return None
-    xm = x.mean()
-    xs = (x - xm) * 1e6                         # um, for conditioning
-    if curvature:
-        c_um = curvature * 1e-12
-        a = np.vstack([np.ones_like(xs), xs]).T
-        coef, *_ = np.linalg.lstsq(a, lp + c_um * xs ** 2, rcond=None)
-        x0_um = coef[1] / (2.0 * c_um)
-        lp0 = coef[0] + c_um * x0_um ** 2
-        return xm + x0_um * 1e-6, curvature, float(lp0)
-    if np.ptp(xs) <= 0:
-        return None
-    a = np.vstack([np.ones_like(xs), xs, xs ** 2]).T
-    coef, *_ = np.linalg.lstsq(a, lp, rcond=None)
-    c_um = -coef[2]
-    if not c_um > 0:
-        return None
-    x0_um = coef[1] / (2.0 * c_um)
-    lp0 = coef[0] + c_um * x0_um ** 2
-    return xm + x0_um * 1e-6, c_um * 1e12, float(lp0)
-
-
-class Sequencer:
+class Sequencer(Peaking):
     """Find, peak, track and switch the light on one axis (see the module docstring)."""
 
     def __init__(self, params=None, **overrides):
-        """Build a sequencer from a parameter mapping (``None``: config/sequencer.yaml)."""
-        p = dict(DEFAULTS)
+        """
+        Build a sequencer from a parameter mapping (``None``: config/sequencer.yaml).
+
+        :param params: every key of :data:`KEYS` (SI units); :data:`NODE_KEYS` are
+            allowed and ignored.
+        :param overrides: keys of :data:`KEYS` that win over ``params``.
+        :raises ValueError: an unknown key; ConfigError: a missing one.
+        """
         if params is None:
             params = load_params(CONFIG_FILE, CONFIG_NODE)
-        unknown = sorted(set(params) - set(DEFAULTS) - {'control_period_s'})
+        unknown = sorted(set(params) - set(KEYS) - set(NODE_KEYS))
         if unknown:
             raise ValueError('unknown sequencer parameter(s): %s' % ', '.join(unknown))
-        p.update({k: v for k, v in params.items() if k in DEFAULTS})
-        bad = sorted(set(overrides) - set(DEFAULTS))
+        bad = sorted(set(overrides) - set(KEYS))
         if bad:
             raise ValueError('unknown sequencer parameter(s): %s' % ', '.join(bad))
+        p = {k: v for k, v in params.items() if k in KEYS}
         p.update(overrides)
+        missing = [k for k in KEYS if k not in p]
+        if missing:
+            raise ConfigError('%s: node %s lacks %s' % (CONFIG_FILE, CONFIG_NODE,
+                                                        ', '.join(missing)))
+        p = {k: p[k] for k in KEYS}
         if not p['range_max_m'] > p['range_min_m']:
             raise ValueError('range_max_m must exceed range_min_m')
         self.p = p
@@ -352,140 +319,6 @@ class Sequencer:
                             'outside the reachable range'
                             % (p['range_min_m'] * 1e6, p['range_max_m'] * 1e6,
                                _dbm(self.threshold_w)))
-
-    # PEAKING --------------------------------------------------------------------------
-    def _start_peaking(self, t, y, pw):
-        self._enter(PEAKING)
-        self.first_light_t = t
-        self._phase = 'sweep'
-        self._sweep_end = self.p['range_max_m']
-        self._sweep_speed = self.p['peak_speed_m_per_s']
-        self._samples = []
-        self._refits = 0
-        self._setpoint = max(self._setpoint, y)
-
-    def _start_local(self, center):
-        """Begin a local sweep over ``center +- repeak_span_m``."""
-        p = self.p
-        lo = max(center - p['repeak_span_m'], p['range_min_m'])
-        self._sweep_end = min(center + p['repeak_span_m'], p['range_max_m'])
-        self._sweep_speed = p['repeak_speed_m_per_s']
-        self._samples = []
-        self._goal = lo
-        self._phase = 'goto_sweep'
-
-    def _settled(self, y):
-        if abs(y - self._goal) < self.p['settle_tolerance_m']:
-            self._settle_count += 1
-        else:
-            self._settle_count = 0
-        return self._settle_count >= int(self.p['settle_samples'])
-
-    def _do_peaking(self, t, y, pw):
-        p = self.p
-        if self._phase in ('goto', 'goto_sweep', 'goto_peak'):
-            if not hasattr(self, '_goto_t') or self._goto_phase != self._phase:
-                self._goto_t, self._goto_phase, self._settle_count = t, self._phase, 0
-            ramp = p['switch_ramp_time_s'] if self._phase == 'goto' else 0.0
-            tau = t - self._goto_t
-            if tau < ramp:                      # raised-cosine move (switch on)
-                x0 = self._switch_from
-                self._setpoint = x0 + (self._goal - x0) * 0.5 * (
-                    1.0 - math.cos(math.pi * tau / ramp))
-                return
-            self._setpoint = self._goal
-            if self._settled(y):
-                if self._phase == 'goto':        # switch-on: re-peak locally
-                    self._start_local(self._goal)
-                elif self._phase == 'goto_sweep':
-                    self._phase = 'sweep'
-                else:
-                    self._phase, self._verify = 'verify', []
-                self._goto_phase = None
-            elif t - self._goto_t > p['settle_timeout_s'] + abs(
-                    self._goal - y) / p['peak_speed_m_per_s']:
-                if self._phase == 'goto_peak':   # accept, the tracker will finish it
-                    self._phase, self._verify = 'verify', []
-                    self._goto_phase = None
-                else:
-                    self._fault('actuator does not settle at %.2f um (at %.2f um)'
-                                % (self._goal * 1e6, y * 1e6))
-            return
-        if self._phase == 'sweep':
-            self._sweep(t, y, pw)
-        elif self._phase == 'verify':
-            if pw is not None:
-                self._verify.append(pw)
-            self._setpoint = self._goal
-            if len(self._verify) < int(p['verify_samples']):
-                return
-            meas = float(np.mean(self._verify))
-            miss_db = 10.0 * math.log10(math.exp(self._fit_lp0) / max(meas, 1e-300))
-            if miss_db > p['verify_tolerance_db'] and self._refits < int(p['max_refits']):
-                self._refits += 1
-                self._log('peak missed by %.3f dB; local re-sweep' % miss_db)
-                self._start_local(self._goal)
-                return
-            self.aligned_position_m = self._goal
-            self.aligned_power_w = meas
-            self.peak_t = t
-            self._start_tracking(t)
-
-    def _sweep(self, t, y, pw):
-        p = self.p
-        if pw is not None and pw > 0:
-            self._samples.append((t, y, pw))
-        self._setpoint = min(self._setpoint + self._sweep_speed * self.dt, self._sweep_end)
-        if not self._samples:
-            return
-        arr = np.asarray(self._samples)
-        pmax = arr[:, 2].max()
-        imax = int(arr[:, 2].argmax())
-        dropped = pw is not None and pw < pmax * 10 ** (-p['peak_drop_db'] / 10.0) and \
-            imax < len(arr) - 1 and len(arr) >= int(p['peak_min_fit_samples'])
-        at_end = self._setpoint >= self._sweep_end and \
-            abs(y - self._sweep_end) < p['settle_tolerance_m'] * 4
-        if not (dropped or at_end):
-            return
-        self._fit_and_go(arr, pmax, local=self._sweep_end != p['range_max_m'])
-
-    def _fit_and_go(self, arr, pmax, local):
-        p = self.p
-        # pair each power with the displacement power_lag_s earlier (detector averaging)
-        tt, yy, pp = arr[:, 0], arr[:, 1], arr[:, 2]
-        x = np.interp(tt - p['power_lag_s'], tt, yy) if len(tt) > 1 else yy
-        keep = pp >= pmax * 10 ** (-p['peak_fit_window_db'] / 10.0)
-        if self.threshold_w is not None:
-            keep &= pp > 3.0 * self.threshold_w
-        fit = None
-        if keep.sum() >= int(p['peak_min_fit_samples']) or (local and keep.sum() >= 2):
-            curv = self.curvature_per_m2 if (local and keep.sum() < 5) else None
-            fit = fit_log_parabola(x[keep], pp[keep], curvature=curv)
-        lo, hi = p['range_min_m'], p['range_max_m']
-        tol = p['range_tolerance_m']
-        x0 = None if fit is None else fit[0]
-        if fit is None or x0 > hi + tol or x0 < lo - tol:
-            best = yy[int(pp.argmax())]
-            where = '' if x0 is None else 'peak estimated at %.1f um, ' % (x0 * 1e6)
-            if (x0 is not None and x0 > hi) or (
-                    x0 is None and not local and best >= yy.max() - 1e-6):
-                self._fault('slot outside the reachable range: power still rising at the end '
-                            'of travel (%s%.1f..%.1f um reachable)'
-                            % (where, lo * 1e6, hi * 1e6))
-            elif (x0 is not None and x0 < lo) or (
-                    x0 is None and not local and best <= yy.min() + 1e-6):
-                self._fault('slot outside the reachable range: power falls from the start of '
-                            'travel (%s%.1f..%.1f um reachable)'
-                            % (where, lo * 1e6, hi * 1e6))
-            else:
-                self._fault('peak search failed: the %d samples over %.1f..%.1f um do not '
-                            'show a peak' % (len(pp), yy.min() * 1e6, yy.max() * 1e6))
-            return
-        x0, c, lp0 = fit
-        self.curvature_per_m2 = c
-        self._fit_lp0 = lp0
-        self._goal = min(max(x0, lo), hi)
-        self._phase = 'goto_peak'
 
     # TRACKING -------------------------------------------------------------------------
     def _start_tracking(self, t):

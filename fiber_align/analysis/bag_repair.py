@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 import struct
 
+from fiber_align.analysis.bag import typestore
+
 MAGIC = b'\x89MCAP0\r\n'
 OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x03, 0x04, 0x05, 0x06
 
@@ -136,7 +138,6 @@ def repair(bag, out=None):
     """
     from rosbags.rosbag2 import StoragePlugin, Writer
 
-    from fiber_align.analysis.bagio import typestore
     bag = Path(bag)
     files = [bag] if bag.is_file() else sorted(bag.glob('*.mcap'))
     if not files:

@@ -7,8 +7,9 @@ import sys
 
 import numpy as np
 
-from fiber_align.analysis import bagio
-from fiber_align.analysis import report as rp
+from fiber_align.analysis import bag as bagio, plots, report as rp
+from fiber_align.config import ConfigError, load_params
+from fiber_align.simulation.metrics import loop_metrics, saturation_metrics
 
 NEEDS = {
     'displacement': 'the time base and every loop, step, tracking, timing and hysteresis metric',
@@ -49,7 +50,6 @@ def run(args):
     res, data = analyze_bag(args.bag, params, v_limits, keep_arrays=want_arrays)
     figs = []
     if want_arrays:
-        from fiber_align.analysis import plots
         if args.plots:
             fig_dir = Path(args.plots)
         else:
@@ -74,16 +74,21 @@ def run(args):
 
 
 def _v_limits(args, params):
-    """Return (v_min, v_max) in V from the command line, else the plant config, else None."""
+    """
+    Return (v_min, v_max) in V from the command line, else the plant config.
+
+    :raises ConfigError: the plant config (``plant_config`` of the analyze settings) is
+        missing or lacks ``v_min`` / ``v_max`` (named in the message).
+    """
     lo, hi = args.v_min, args.v_max
     if lo is None or hi is None:
+        name = params['plant_config']
+        plant = load_params(name, 'simulated_actuator')
         try:
-            from fiber_align.config import load_params
-            plant = load_params(params.get('plant_config', 'plant.yaml'), 'simulated_actuator')
             lo = float(plant['v_min']) if lo is None else lo
             hi = float(plant['v_max']) if hi is None else hi
-        except Exception:  # noqa: BLE001 - limits are optional
-            return None if lo is None or hi is None else (lo, hi)
+        except KeyError as exc:
+            raise ConfigError('%s: node simulated_actuator lacks %s' % (name, exc)) from None
     if not hi > lo:
         raise ValueError('--v-max (%g V) must be above --v-min (%g V)' % (hi, lo))
     return (lo, hi)
@@ -105,7 +110,7 @@ def analyze_bag(path, params=None, v_limits=None, keep_arrays=False):
     The result holds ``bag``, ``lockstep``, ``alignment``, ``topics`` (found streams),
     ``notes`` (what is missing and what was analysed anyway) and ``metrics`` (SI units).
 
-    :raises fiber_align.analysis.bagio.BagError: unreadable, truncated or corrupt bag, or
+    :raises fiber_align.analysis.bag.BagError: unreadable, truncated or corrupt bag, or
         a bag with none of the graph's topics.
     """
     params = dict(rp.default_params() if params is None else params)
@@ -163,11 +168,11 @@ def _analyze_loop(bag, disp, lock, params, v_limits, res, data, keep):
     v = al.get('drive_voltage')
     loop = {}
     if r is not None:
-        loop = rp.loop_metrics(t, r, y, v, v_limits, skip_s=float(params.get('skip_s', 0.0)),
-                               step_min_m=float(params.get('step_min_m', 1e-6)),
-                               band=float(params.get('settling_band', 0.02)))
+        loop = loop_metrics(t, r, y, v, v_limits, skip_s=float(params.get('skip_s', 0.0)),
+                            step_min_m=float(params.get('step_min_m', 1e-6)),
+                            band=float(params.get('settling_band', 0.02)))
     elif v is not None:
-        loop = {'samples': int(n), 'saturation': rp.saturation_metrics(t, v, v_limits)}
+        loop = {'samples': int(n), 'saturation': saturation_metrics(t, v, v_limits)}
     res['metrics']['loop'] = loop
     res['metrics']['timing'] = rp.timing_metrics(al, drive_t_ns, lock)
     if v is not None and r is None:
@@ -191,7 +196,7 @@ def _analyze_without_base(bag, params, res, data, keep):
         t0 = s.t_ns[0] if t0 is None else min(t0, s.t_ns[0])
         tt = (s.t_ns - t0) / 1e9
         if key == 'drive_voltage':
-            res['metrics']['loop'] = {'saturation': rp.saturation_metrics(
+            res['metrics']['loop'] = {'saturation': saturation_metrics(
                 tt, s.fields['data'], None)}
         else:
             res['metrics']['optical'] = rp.optical_metrics(

@@ -13,8 +13,8 @@ sample per control period, time = header stamp relative to the first sample (s).
   value for sample i is the last message received before sample i+1 was received
   (zero-order hold; NaN before the first message).
 
-The metrics are computed by :func:`loop_metrics` from plain arrays, so an offline
-simulation and a bag of the same run give the same numbers.
+The metrics are computed by :func:`fiber_align.simulation.metrics.loop_metrics` from plain
+arrays, so an offline simulation and a bag of the same run give the same numbers.
 """
 
 import html
@@ -24,7 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fiber_align.analysis import metrics as _m
+from fiber_align.config import load_params
+from fiber_align.jsonout import json_clean, json_default
 
 FLOAT_STREAMS = ('setpoint', 'feedforward_voltage', 'feedback_voltage', 'drive_voltage',
                  'optical_power')
@@ -32,7 +33,6 @@ FLOAT_STREAMS = ('setpoint', 'feedforward_voltage', 'feedback_voltage', 'drive_v
 
 def default_params():
     """Return the analysis defaults from ``config/recorder.yaml`` (node ``analyze``)."""
-    from fiber_align.config import load_params
     return load_params('recorder.yaml', 'analyze')
 
 
@@ -69,7 +69,7 @@ def align_to_samples(streams, lockstep):
     """
     Return per-control-period arrays from decoded streams (see the module docstring).
 
-    :param streams: mapping of stream key -> :class:`fiber_align.analysis.bagio.Stream`;
+    :param streams: mapping of stream key -> :class:`fiber_align.analysis.bag.Stream`;
         needs ``displacement``.
     :param lockstep: True to align Float64 streams by message order.
     :returns: dict with ``t`` (s), ``y`` (m), ``stamp_ns``, ``recv_ns`` (displacement
@@ -88,100 +88,6 @@ def align_to_samples(streams, lockstep):
             continue
         idx = None if lockstep else align_index(d.t_ns, s.t_ns)
         out[key] = align_values(n, s.fields['data'], idx)
-    return out
-
-
-def find_steps(r, step_min_m):
-    """
-    Return the indices where the setpoint jumps by more than ``step_min_m`` (m).
-
-    Index 0 counts as a step when ``|r[0]|`` exceeds ``step_min_m`` (a step from rest).
-    """
-    r = np.asarray(r, float)
-    if r.size == 0:
-        return np.zeros(0, int)
-    jumps = np.nonzero(np.abs(np.diff(r)) > step_min_m)[0] + 1
-    if abs(r[0]) > step_min_m and np.isfinite(r[0]):
-        jumps = np.concatenate([[0], jumps])
-    return jumps
-
-
-def loop_metrics(t, r, y, v=None, v_limits=None, skip_s=0.0, step_min_m=1e-6, band=0.02,
-                 max_steps=1000):
-    """
-    Return the closed-loop metrics of one run from per-period arrays (all SI).
-
-    :param t: sample times (s); :param r: setpoint (m); :param y: displacement (m);
-    :param v: drive voltage (V) or None; :param v_limits: (v_min, v_max) in V for the
-        saturation figures; :param skip_s: leading time (s) left out of tracking;
-    :param step_min_m: a setpoint jump larger than this (m) in one period is a step;
-    :param band: settling band (fraction of the step).
-    :returns: dict with ``steps`` (list of per-step dicts from
-        :func:`fiber_align.analysis.metrics.step_metrics` plus ``t_step_s``, ``from_m``,
-        ``to_m``), ``tracking`` (:func:`~fiber_align.analysis.metrics.tracking_metrics`)
-        and ``saturation`` (when ``v`` is given).
-    """
-    t = np.asarray(t, float)
-    r = np.asarray(r, float)
-    y = np.asarray(y, float)
-    out = {'samples': int(t.size)}
-    ok = np.isfinite(r)
-    if ok.any() and t.size >= 2:
-        # the samples that have a setpoint: a lockstep bag ends with the sample measured
-        # after the last command, which nothing answered
-        k0 = int(np.argmax(ok))
-        k1 = r.size - int(np.argmax(ok[::-1]))
-        if t[k1 - 1] - t[k0] > skip_s:
-            out['tracking'] = _m.tracking_metrics(t[k0:k1], r[k0:k1], y[k0:k1], skip_s)
-        steps = []
-        idx = find_steps(r, step_min_m)
-        ends = np.concatenate([idx[1:], [r.size]]) if idx.size else idx
-        for a, b in zip(idx[:max_steps].tolist(), ends[:max_steps].tolist()):
-            if b - a < 2:
-                continue
-            seg = r[a:b]
-            if np.nanmax(np.abs(seg - seg[0])) > step_min_m:
-                continue   # the setpoint moves within the segment: not a held step
-            y0 = float(r[a - 1]) if a > 0 and np.isfinite(r[a - 1]) else 0.0
-            if seg[0] == y0:
-                continue
-            sm = _m.step_metrics(t[a:b], y[a:b], float(seg[0]), y0=y0, t0=float(t[a]),
-                                 band=band)
-            sm.update({'t_step_s': float(t[a]), 'from_m': y0, 'to_m': float(seg[0]),
-                       'duration_s': float(t[b - 1] - t[a])})
-            steps.append(sm)
-        out['steps'] = steps
-    if v is not None:
-        out['saturation'] = saturation_metrics(t, np.asarray(v, float), v_limits)
-    return out
-
-
-def saturation_metrics(t, v, v_limits=None, tol_v=1e-6):
-    """Return drive-voltage saturation figures: fraction and time at the limits (V, s)."""
-    ok = np.isfinite(v)
-    vv = v[ok]
-    if vv.size == 0:
-        return {'samples': 0}
-    out = {'v_min_seen_v': float(vv.min()), 'v_max_seen_v': float(vv.max()),
-           'samples': int(vv.size)}
-    if v_limits is None:
-        return out
-    lo, hi = float(v_limits[0]), float(v_limits[1])
-    sat = ok & ((v <= lo + tol_v) | (v >= hi - tol_v))
-    out.update({'v_min_v': lo, 'v_max_v': hi,
-                'at_limit_fraction': float(sat.sum()) / float(vv.size),
-                'at_upper_samples': int((ok & (v >= hi - tol_v)).sum()),
-                'at_lower_samples': int((ok & (v <= lo + tol_v)).sum())})
-    if sat.any() and t.size > 1:
-        s = sat.astype(np.int8)
-        starts = np.nonzero(np.diff(np.concatenate([[0], s])) == 1)[0]
-        stops = np.nonzero(np.diff(np.concatenate([s, [0]])) == -1)[0]
-        dt = float(np.median(np.diff(t)))
-        out['episodes'] = int(starts.size)
-        out['longest_s'] = float(((stops - starts + 1).max()) * dt)
-    else:
-        out['episodes'] = 0
-        out['longest_s'] = 0.0
     return out
 
 
@@ -394,7 +300,7 @@ def write_report(path, res, figures):
                          % (e(title), e(f), e(title)))
         parts.append('<details><summary>metrics (JSON, SI units)</summary><pre>%s</pre>'
                      '</details></body></html>' % e(json.dumps(res['metrics'], indent=1,
-                                                               default=_json_default)))
+                                                               default=json_default)))
         text = '\n'.join(parts)
     else:
         parts = ['# Run report', '',
@@ -412,22 +318,6 @@ def write_report(path, res, figures):
     return path
 
 
-def _json_default(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
-
-
 def to_json(res):
     """Return the analysis result as JSON text (SI units; inf/nan as strings)."""
-    def clean(x):
-        if isinstance(x, dict):
-            return {k: clean(v) for k, v in x.items()}
-        if isinstance(x, (list, tuple)):
-            return [clean(v) for v in x]
-        if isinstance(x, (float, np.floating)) and not math.isfinite(float(x)):
-            return str(float(x))
-        return x
-    return json.dumps(clean(res), indent=2, default=_json_default)
+    return json.dumps(json_clean(res, nonfinite_as_text=True), indent=2, default=json_default)

@@ -10,7 +10,7 @@ controller). References below 0 m are taken as 0 m (the actuator only moves one 
 
 import math
 
-from fiber_align.control.playbank import PlayBank
+from fiber_align.hysteresis.playbank import PlayBank
 
 
 class Feedforward:
@@ -18,7 +18,7 @@ class Feedforward:
     Reference (m) to feedforward voltage (V).
 
     The inverse model is stepped by :attr:`bank` (a
-    :class:`~fiber_align.control.playbank.PlayBank`, same output in amortised O(1));
+    :class:`~fiber_align.hysteresis.playbank.PlayBank`, same output in amortised O(1));
     :attr:`inverse` is the :class:`~fiber_align.hysteresis.pi.InversePIModel` it was
     built from and is not advanced.
 
@@ -37,7 +37,7 @@ class Feedforward:
             raise ValueError('Feedforward needs a PI model or a linear gain (V/m)')
         self.model = model
         self.inverse = model.inverse() if model is not None else None
-        # the inverse PI model, stepped in amortised O(1) (fiber_align.control.playbank)
+        # the inverse PI model, stepped in amortised O(1) (fiber_align.hysteresis.playbank)
         self.bank = PlayBank.from_model(self.inverse) if model is not None else None
         self.gain_v_per_m = None if gain_v_per_m is None else float(gain_v_per_m)
         self.shaper = shaper

@@ -23,11 +23,24 @@ derivative, a 1 kHz loop cannot), so ``config/controller.yaml`` lists them per r
 import math
 
 from fiber_align.config import ConfigError, load_params
-from fiber_align.control.fuzzy import FuzzyInference, FuzzySurface
+from fiber_align.control.fuzzy import FuzzyInference
+from fiber_align.control.fuzzy_surface import FuzzySurface
 from fiber_align.control.pid import Pid
 
 CONFIG_FILE = 'controller.yaml'
 CONFIG_NODE = 'fuzzy_pid_controller'
+
+
+# The limits and anti-windup keys of the controller parameters (config/controller.yaml).
+LIMIT_KEYS = ('u_min', 'u_max', 'anti_windup', 'tracking_time_s')
+
+
+def _param(params, key):
+    """Return ``params[key]``; a missing key is a ConfigError naming the file and the key."""
+    try:
+        return params[key]
+    except KeyError:
+        raise ConfigError('%s: node %s lacks %s' % (CONFIG_FILE, CONFIG_NODE, key)) from None
 
 
 def gains_for_rate(params, section, rate_hz):
@@ -57,11 +70,30 @@ def gains_for_rate(params, section, rate_hz):
 def make_pid(params, rate_hz):
     """Return the tuned plain :class:`Pid` for ``rate_hz`` from controller parameters."""
     g, _ = gains_for_rate(params, 'pid', rate_hz)
-    g.setdefault('u_min', params.get('u_min', -math.inf))
-    g.setdefault('u_max', params.get('u_max', math.inf))
-    g.setdefault('anti_windup', params.get('anti_windup', 'back-calculation'))
-    g.setdefault('tracking_time_s', params.get('tracking_time_s', 0.0))
+    for k in LIMIT_KEYS:
+        if k not in g:
+            g[k] = _param(params, k)
     return Pid.from_params(g, 1.0 / float(rate_hz))
+
+
+def surface_for(params, fis=None, surface=None):
+    """
+    Return the fuzzy surface the controller parameters ask for, or None (exact inference).
+
+    :param params: ``fuzzy_pid_controller`` parameters (``fuzzy.surface_intervals``: 0 for
+        none, else an even ``q``).
+    :param fis: their :class:`~fiber_align.control.fuzzy.FuzzyInference` (None: built).
+    :param surface: a surface built before, returned when it :meth:`matches
+        <fiber_align.control.fuzzy_surface.FuzzySurface.matches>` (building one takes ~0.1 s).
+    """
+    fz = params['fuzzy']
+    q = int(fz['surface_intervals'])
+    if not q:
+        return None
+    fis = FuzzyInference.from_params(fz) if fis is None else fis
+    if surface is not None and surface.matches(fis, q):
+        return surface
+    return FuzzySurface(fis, q)
 
 
 class FuzzyPid:
@@ -81,15 +113,14 @@ class FuzzyPid:
     :param reference_filter: optional object with ``step(r) -> m`` and ``reset()``
         (a :class:`fiber_align.control.shaping.ReferenceModel`) whose output replaces
         the reference in the error, as the composite controller does.
-    :param surface_intervals: 0 evaluates the exact closed-form inference every period;
-        an even ``q >= 2`` uses the :class:`~fiber_align.control.fuzzy.FuzzySurface`
-        with ``q`` sub-intervals per rule cell (error bound
-        :func:`~fiber_align.control.fuzzy.surface_error_bound`).
+    :param surface: None evaluates the exact closed-form inference every period; a
+        :class:`~fiber_align.control.fuzzy_surface.FuzzySurface` of ``fis`` interpolates its
+        tables (error bound :func:`~fiber_align.control.fuzzy_surface.surface_error_bound`).
     """
 
     def __init__(self, fis, pid, kp0, ki0, kd0, units, output_scale=(0.8, 0.8, 0.6),
                  e_scale_per_m=1e6, ec_scale_s_per_m=1e3, enabled=True,
-                 reference_filter=None, surface_intervals=0):
+                 reference_filter=None, surface=None):
         """Store the parts; gains start at the base values."""
         self.reference_filter = reference_filter
         self.fis = fis
@@ -100,8 +131,7 @@ class FuzzyPid:
         self.e_scale = float(e_scale_per_m)
         self.ec_scale = float(ec_scale_s_per_m)
         self.enabled = bool(enabled)
-        q = int(surface_intervals)
-        self.surface = FuzzySurface.cached(fis, q) if q else None
+        self.surface = surface
         # gain_o = g_o0 + g_o1 * M_o / A_o (area A and moment M of the aggregated set
         # about the domain centre, see FuzzyInference.area_moment)
         g = []
@@ -111,26 +141,32 @@ class FuzzyPid:
         self.reset()
 
     @classmethod
-    def from_params(cls, params, rate_hz, enabled=True, reference_filter=None):
-        """Build from the ``fuzzy_pid_controller`` parameters for a control rate (Hz)."""
+    def from_params(cls, params, rate_hz, enabled=True, reference_filter=None, surface=None):
+        """
+        Build from the ``fuzzy_pid_controller`` parameters for a control rate (Hz).
+
+        :param surface: a :class:`~fiber_align.control.fuzzy_surface.FuzzySurface` built before;
+            used when it tabulates these rules with ``fuzzy.surface_intervals``
+            (:func:`surface_for`), otherwise a new one is built.
+        """
         fz = params.get('fuzzy')
         if not isinstance(fz, dict):
             raise ConfigError('%s lacks the fuzzy section' % CONFIG_FILE)
         g, _ = gains_for_rate(params, 'fuzzy_pid', rate_hz)
-        pid = Pid(g['kp0'], g['ki0'], g['kd0'], 1.0 / float(rate_hz),
-                  derivative_filter_hz=float(g.get('derivative_filter_hz', 0.0)),
-                  u_min=float(params.get('u_min', -math.inf)),
-                  u_max=float(params.get('u_max', math.inf)),
-                  anti_windup=str(params.get('anti_windup', 'back-calculation')),
-                  tracking_time_s=float(params.get('tracking_time_s', 0.0)))
         try:
-            return cls(FuzzyInference.from_params(fz), pid, g['kp0'], g['ki0'], g['kd0'],
+            pid = Pid(g['kp0'], g['ki0'], g['kd0'], 1.0 / float(rate_hz),
+                      derivative_filter_hz=float(g['derivative_filter_hz']),
+                      u_min=float(_param(params, 'u_min')),
+                      u_max=float(_param(params, 'u_max')),
+                      anti_windup=str(_param(params, 'anti_windup')),
+                      tracking_time_s=float(_param(params, 'tracking_time_s')))
+            fis = FuzzyInference.from_params(fz)
+            return cls(fis, pid, g['kp0'], g['ki0'], g['kd0'],
                        (g['kp_unit'], g['ki_unit'], g['kd_unit']),
-                       output_scale=fz.get('output_scale', (0.8, 0.8, 0.6)),
-                       e_scale_per_m=fz.get('e_scale_per_m', 1e6),
-                       ec_scale_s_per_m=fz.get('ec_scale_s_per_m', 1e3), enabled=enabled,
+                       output_scale=fz['output_scale'], e_scale_per_m=fz['e_scale_per_m'],
+                       ec_scale_s_per_m=fz['ec_scale_s_per_m'], enabled=enabled,
                        reference_filter=reference_filter,
-                       surface_intervals=int(fz.get('surface_intervals', 0)))
+                       surface=surface_for(params, fis, surface))
         except KeyError as exc:
             raise ConfigError('fuzzy_pid gains lack %s' % exc) from None
 

@@ -63,14 +63,19 @@ class Pid:
 
     @classmethod
     def from_params(cls, p, period_s, u_min=None, u_max=None):
-        """Build from a mapping with kp, ki, kd, derivative_filter_hz, u_min, u_max, ..."""
+        """
+        Build from a mapping with every key of the constructor (SI units).
+
+        ``kp``, ``ki``, ``kd``, ``derivative_filter_hz``, ``u_min``, ``u_max`` (unless
+        given here), ``anti_windup``, ``tracking_time_s``; a missing one is a ConfigError.
+        """
         try:
             return cls(float(p['kp']), float(p['ki']), float(p['kd']), period_s,
-                       derivative_filter_hz=float(p.get('derivative_filter_hz', 0.0)),
-                       u_min=float(p.get('u_min', -math.inf) if u_min is None else u_min),
-                       u_max=float(p.get('u_max', math.inf) if u_max is None else u_max),
-                       anti_windup=str(p.get('anti_windup', 'back-calculation')),
-                       tracking_time_s=float(p.get('tracking_time_s', 0.0)))
+                       derivative_filter_hz=float(p['derivative_filter_hz']),
+                       u_min=float(p['u_min'] if u_min is None else u_min),
+                       u_max=float(p['u_max'] if u_max is None else u_max),
+                       anti_windup=str(p['anti_windup']),
+                       tracking_time_s=float(p['tracking_time_s']))
         except KeyError as exc:
             raise ConfigError('PID parameters lack %s' % exc) from None
 

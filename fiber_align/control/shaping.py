@@ -17,6 +17,8 @@ import math
 
 import numpy as np
 
+from fiber_align.design.mode import discretise
+
 KINDS = ('none', 'zv', 'zvd')
 
 
@@ -86,11 +88,6 @@ class Shaper:
         self.initial = float(initial)
         self.reset()
 
-    @property
-    def delay_s_per_period(self):
-        """Length of the shaper in periods (the added delay of a step, in samples)."""
-        return len(self.taps) - 1
-
     def reset(self, initial=None):
         """Refill the history with ``initial`` (m; default the constructor's value)."""
         v = self.initial if initial is None else float(initial)
@@ -137,7 +134,6 @@ class ReferenceModel:
     def __init__(self, shaper, omega_n, zeta, period_s, lead=None):
         """Discretise the mode and start at rest (``lead``: the compensator's Lead)."""
         self.lead = lead
-        from fiber_align.plant.actuator import discretise
         ad, bd = discretise(omega_n, zeta, period_s)
         self._a = [float(x) for x in ad.ravel()]
         self._b = [float(x) for x in bd]

@@ -12,6 +12,8 @@ import json
 from pathlib import Path
 
 from fiber_align.config import ConfigError
+from fiber_align.design import load_actuator, report
+from fiber_align.design.plots import write_all
 
 UM = 1e6
 
@@ -37,7 +39,6 @@ def register(subparsers):
 
 def run(args):
     """Run ``design`` with parsed ``args``; return the exit code."""
-    from fiber_align.design import load_actuator, report
     try:
         act = load_actuator(args.config)
     except ConfigError as exc:
@@ -49,7 +50,6 @@ def run(args):
         raise ValueError(str(exc)) from None
     rep = report(act, voltage)
     if args.plots:
-        from fiber_align.design.plots import write_all
         try:
             paths = write_all(act, voltage, args.plots)
         except OSError as exc:

@@ -237,17 +237,6 @@ def d12(hp, hb, Ep, Eb):  # noqa: N803 - the paper's symbols
     return 6 * Ep * hb**2 * hp + 8 * Ep * hp**3 + 12 * Ep * hb * hp**2 + Eb * hb**3
 
 
-def piezo_moment_per_width(voltage, hp, hb, Ep, d31):  # noqa: N803
-    """
-    Return the piezo actuation moment per unit width, N m/m (= N).
-
-    Each layer carries the blocked stress ``Ep |d31| V / hp`` over ``hp`` at the lever arm
-    ``(hb + hp) / 2``; the two layers act in opposite senses: ``m = Ep |d31| V (hb + hp)``.
-    It does not depend on the width, so the free curvature ``m / (D12 / 12)`` does not either.
-    """
-    return Ep * np.abs(d31) * voltage * (hb + hp)
-
-
 def tip_displacement(voltage, L, L0, hp, hb, Ep, Eb, d31, **_):  # noqa: N803
     """
     Return the free output displacement at x = L0 (paper equation 5), m.

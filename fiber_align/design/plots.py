@@ -26,6 +26,14 @@ def _pyplot():
     return plt
 
 
+def _save(plt, fig, path):
+    """Lay out ``fig``, write it to ``path`` (PNG/PDF/SVG by suffix), close it; return the path."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return Path(path)
+
+
 def plot_deflection(actuator, voltage, path):
     """Write the free deflection curve v(x) over [0, L0] at ``voltage`` (V) to ``path``."""
     plt = _pyplot()
@@ -41,10 +49,7 @@ def plot_deflection(actuator, voltage, path):
     ax.set_title('Free deflection at %.0f V (output %.1f um at L0)' % (voltage, v[-1] * UM))
     ax.grid(True, alpha=0.3)
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return Path(path)
+    return _save(plt, fig, path)
 
 
 def plot_blocked_force(actuator, voltage, path):
@@ -63,10 +68,7 @@ def plot_blocked_force(actuator, voltage, path):
     ax.set_title('Blocked force at %.0f V (beam FE)' % voltage)
     ax.grid(True, alpha=0.3)
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return Path(path)
+    return _save(plt, fig, path)
 
 
 def plot_sweep(actuator, name, path, n=41):
@@ -92,10 +94,7 @@ def plot_sweep(actuator, name, path, n=41):
     ax2.set_ylabel('blocked force (N)')
     ax2.grid(True, alpha=0.3)
     ax2.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return Path(path)
+    return _save(plt, fig, path)
 
 
 def write_all(actuator, voltage, directory, sweep_base=None):

@@ -29,6 +29,9 @@ from fiber_align.config import load_params
 from fiber_align.control.driver import DriverCore
 from fiber_align.control.feedforward import Feedforward
 from fiber_align.hardware import errors as er
+from fiber_align.hardware.emulators.mdt693b import MDT693BEmulator
+from fiber_align.hardware.emulators.physics import Bench
+from fiber_align.hardware.emulators.pm100 import PM100Emulator
 from fiber_align.hardware.mdt693b import MDT693BOutput
 from fiber_align.hardware.pm100 import PM100
 from fiber_align.hysteresis.pi import PIModel
@@ -53,9 +56,6 @@ def emulated(seed=0, emulator_params=None, **optics):
     :param emulator_params: overrides of the ``emulator`` section of hardware.yaml.
     :param optics: optics overrides (``slot_position_m``, ``slot_drift_m_per_s``, ...).
     """
-    from fiber_align.hardware.emulators.mdt693b import MDT693BEmulator
-    from fiber_align.hardware.emulators.physics import Bench
-    from fiber_align.hardware.emulators.pm100 import PM100Emulator
     e = load_hardware('emulator', **(emulator_params or {}))
     bench = Bench(v_limit=float(e['v_limit']), fiber_channel=e['fiber_channel'], seed=seed,
                   step_s=float(e['step_s']), **optics)

@@ -16,6 +16,8 @@ import signal
 import sys
 import threading
 
+from fiber_align.hardware.bench import emulated
+
 
 def register(subparsers):
     """Add the ``emulate`` sub-command."""
@@ -84,7 +86,6 @@ def options(args):
 
 
 def _run(args):
-    from fiber_align.hardware.bench import emulated
     seed, emu, optics = options(args)
     stop = threading.Event()
 

@@ -34,7 +34,7 @@ import time
 import numpy as np
 from scipy.optimize import nnls
 
-from fiber_align.config import config_path, load_params
+from fiber_align.config import load_params
 from fiber_align.hysteresis import data as hdata
 from fiber_align.hysteresis.pi import PIModel, play_operators
 from fiber_align.hysteresis.pso import convergence_generation, pso_minimize
@@ -206,29 +206,21 @@ class IdentifyResult:
         return json.dumps(self.to_dict())
 
 
-_SETTINGS_CACHE = {}
+def _settings(config, params, settings=None):
+    """
+    Return the identify settings with overrides applied.
 
-
-def _settings(config, params):
-    """Return the identify settings from the params file with overrides applied."""
-    path = config_path(config)
-    key = (str(path.resolve()), path.stat().st_mtime_ns)
-    if key not in _SETTINGS_CACHE:
-        _SETTINGS_CACHE.clear()
-        _SETTINGS_CACHE[key] = load_params(path, CONFIG_NODE)
-    p = copy.deepcopy(_SETTINGS_CACHE[key])
+    :param config: params file read when ``settings`` is None (node ``identify``).
+    :param params: overrides (nested ``pso``/``pso_thresholds`` merge key by key).
+    :param settings: the already loaded ``identify`` parameters (not modified).
+    """
+    p = copy.deepcopy(load_params(config, CONFIG_NODE) if settings is None else settings)
     for k, v in (params or {}).items():
         if isinstance(v, dict) and isinstance(p.get(k), dict):
             p[k] = dict(p[k], **v)
         else:
             p[k] = v
     return p
-
-
-def _rms(ops_w, y):
-    """Return the RMS of ``ops_w - y`` over the last axis."""
-    e = ops_w - y
-    return np.sqrt(np.mean(e * e, axis=-1))
 
 
 class LinearRMS:
@@ -266,7 +258,7 @@ def _pso_weights(u, y, r, eps, seed, cfg, rel_tol):
     slope = float(np.ptp(y) / np.ptp(u))
     bound = float(cfg['bound_factor']) * slope
     n = r.size
-    coords = cfg.get('coordinates', 'partial-sums')
+    coords = cfg['coordinates']
     if coords == 'partial-sums':
         basis = partial_sum_basis(ops)
         lo, hi = np.full(n, eps), np.full(n, max(bound, 2.0 * eps))
@@ -319,7 +311,7 @@ def _pso_thresholds(u, y, n, eps, seed, cfg, rel_tol):
         basis = partial_sum_basis(np.moveaxis(ops, 0, 1))   # (P, N, n)
         return bounded_lsq_batch(basis, y, eps)[1]
 
-    init = paper_thresholds(u, n)[1:][None, :] if cfg.get('seed_paper_thresholds') else None
+    init = paper_thresholds(u, n)[1:][None, :] if cfg['seed_paper_thresholds'] else None
     res = pso_minimize(fitness, lo, hi, population=cfg['population'],
                        generations=cfg['generations'], seed=seed,
                        inertia=(cfg['inertia_start'], cfg['inertia_end']),
@@ -331,7 +323,7 @@ def _pso_thresholds(u, y, n, eps, seed, cfg, rel_tol):
 
 
 def identify(t, u, y, method='lsq', n_operators=None, seed=0, thresholds=None,
-             config=CONFIG_FILE, params=None):
+             config=CONFIG_FILE, params=None, settings=None):
     """
     Identify an invertible PI model from data.
 
@@ -344,10 +336,12 @@ def identify(t, u, y, method='lsq', n_operators=None, seed=0, thresholds=None,
     :param thresholds: thresholds (V) for ``lsq``/``pso``; default the paper's rule.
     :param config: params file with the defaults (node ``identify``).
     :param params: overrides of the config values (nested ``pso``/``pso_thresholds``).
+    :param settings: the ``identify`` parameters already loaded by the caller (then
+        ``config`` is not read).
     :returns: :class:`IdentifyResult`.
     :raises ValueError: bad data or settings, with a message naming the problem.
     """
-    cfg = _settings(config, params)
+    cfg = _settings(config, params, settings)
     if method not in METHODS:
         raise ValueError('unknown method %r (allowed: %s)' % (method, ', '.join(METHODS)))
     if thresholds is not None:

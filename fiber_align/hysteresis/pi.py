@@ -18,6 +18,7 @@ model (Kuhnen / Krejci), computed by :meth:`PIModel.inverse`.
 import numpy as np
 
 from fiber_align.config import ConfigError, load_params, write_params
+from fiber_align.hysteresis.playbank import PlayBank
 
 
 class NotInvertibleError(ValueError):
@@ -122,7 +123,58 @@ def first_bad_partial_sum(weights):
     return int(bad[0]) if bad.size else None
 
 
-class PIModel:
+class _PlayModel:
+    """
+    Weighted play operators ``Y = sum_i w_i s_i``: what the model and its inverse share.
+
+    Stepping is :class:`~fiber_align.hysteresis.playbank.PlayBank` (exact, amortised O(1)
+    per sample); whole sequences go through :func:`play_operators` (vectorised). The
+    bank holds the operator state, so the two stay one state.
+    """
+
+    def _init_bank(self, state):
+        """Build the bank at rest (zeros), then put it at ``state`` (None: rest)."""
+        self._bank = PlayBank(self.thresholds, self.weights)
+        self._bank.reset(self._check_state(state))
+
+    def _check_state(self, state):
+        """Return ``state`` as a list of finite floats, one per operator (None: zeros)."""
+        if state is None:
+            return [0.0] * self.thresholds.size
+        st = np.asarray(state, dtype=float)
+        if st.size != self.thresholds.size or not np.all(np.isfinite(st)):
+            raise ValueError('state needs %d finite values, got %s'
+                             % (self.thresholds.size, st.shape))
+        return st.reshape(-1).tolist()
+
+    @property
+    def n(self):
+        """Return the number of play operators."""
+        return self.thresholds.size
+
+    @property
+    def state(self):
+        """Return the present operator outputs (input unit), a copy."""
+        return np.asarray(self._bank.state, dtype=float)
+
+    def step(self, u):
+        """Advance one sample with input ``u``; return the output (see the class)."""
+        return self._bank.step(u)
+
+    def simulate(self, u, reset=True):
+        """
+        Run an input sequence and return the output sequence.
+
+        :param reset: start from the initial state (default) rather than the present one.
+        """
+        if reset:
+            self.reset()
+        ops, final = play_operators(u, self.thresholds, self.state)
+        self._bank.reset(final.tolist())
+        return ops @ self.weights
+
+
+class PIModel(_PlayModel):
     """
     A Prandtl-Ishlinskii model ``u (V) -> y (m)``.
 
@@ -149,23 +201,17 @@ class PIModel:
                     'not invertible: partial sum of weights 1..%d is %.6g <= 0 (first bad '
                     'index %d); every partial sum w_1 + ... + w_i must be > 0'
                     % (bad + 1, float(np.sum(self.weights[:bad + 1])), bad + 1))
-        self._r = self.thresholds.tolist()
-        self._w = self.weights.tolist()
-        self.reset(state)
+        self._init_bank(state)
 
     def __repr__(self):
         """Return a short description (thresholds in V, weights in m/V)."""
-        return 'PIModel(thresholds=%r, weights=%r)' % (self._r, self._w)
-
-    @property
-    def n(self):
-        """Return the number of play operators."""
-        return self.thresholds.size
+        return 'PIModel(thresholds=%r, weights=%r)' % (self.thresholds.tolist(),
+                                                       self.weights.tolist())
 
     @property
     def state(self):
         """Return the present operator outputs (V), a copy."""
-        return np.asarray(self._s, dtype=float)
+        return _PlayModel.state.fget(self)
 
     @state.setter
     def state(self, value):
@@ -174,52 +220,11 @@ class PIModel:
 
     def reset(self, state=None):
         """Put the operators back at rest, or at ``state`` (V per operator)."""
-        if state is None:
-            self._s = [0.0] * self.thresholds.size
-            return
-        st = np.asarray(state, dtype=float)
-        if st.size != self.thresholds.size or not np.all(np.isfinite(st)):
-            raise ValueError('state needs %d finite values (V), got %s'
-                             % (self.thresholds.size, st.shape))
-        self._s = st.reshape(-1).tolist()
+        self._bank.reset(self._check_state(state))
 
     def output(self):
         """Return the displacement (m) the present operator state gives."""
-        return float(np.dot(self.weights, np.asarray(self._s)))
-
-    def step(self, u):
-        """
-        Advance one sample with input ``u`` (V); return the output (m).
-
-        Pure-Python over the operators: for n of order ten this is several times
-        faster than numpy on tiny arrays, and it is the per-control-period call.
-        """
-        s = self._s
-        y = 0.0
-        for i, r in enumerate(self._r):
-            v = s[i]
-            hi = u + r
-            if v > hi:
-                v = hi
-            else:
-                lo = u - r
-                if v < lo:
-                    v = lo
-            s[i] = v
-            y += self._w[i] * v
-        return y
-
-    def simulate(self, u, reset=True):
-        """
-        Run an input sequence (V) and return the output sequence (m).
-
-        :param reset: start from rest (default) rather than from the present state.
-        """
-        if reset:
-            self.reset()
-        ops, final = play_operators(u, self.thresholds, np.asarray(self._s))
-        self._s = final.tolist()
-        return ops @ self.weights
+        return float(np.dot(self.weights, self.state))
 
     def operator_matrix(self, u):
         """
@@ -246,7 +251,7 @@ class PIModel:
         if bad is not None:
             raise NotInvertibleError('not invertible: partial sum of weights 1..%d <= 0'
                                      % (bad + 1))
-        w, r, p = self.weights, self.thresholds, np.asarray(self._s)
+        w, r, p = self.weights, self.thresholds, self.state
         S = np.cumsum(w)
         wi = np.empty_like(w)
         wi[0] = 1.0 / w[0]
@@ -261,11 +266,16 @@ class PIModel:
         return {'thresholds_v': [float(x) for x in self.thresholds],
                 'weights_m_per_v': [float(x) for x in self.weights]}
 
-    def save(self, path, node='hysteresis_compensator', extra=None):
-        """Write the model as a ROS params file (the compensator loads this)."""
+    def save(self, path, node='hysteresis_compensator', extra=None, header=''):
+        """
+        Write the model as a ROS params file (the compensator loads this).
+
+        :param extra: more parameters written before the model (e.g. ``model_source``).
+        :param header: comment lines put first (see :func:`fiber_align.config.write_params`).
+        """
         params = dict(extra or {})
         params.update(self.to_params())
-        write_params(path, node, params)
+        write_params(path, node, params, header)
 
     @classmethod
     def from_params(cls, params):
@@ -282,12 +292,12 @@ class PIModel:
         return cls.from_params(load_params(path, node))
 
 
-class InversePIModel:
+class InversePIModel(_PlayModel):
     """
     The inverse of a :class:`PIModel`: displacement (m) -> voltage (V).
 
-    Structurally a PI model with thresholds in m and weights in V/m whose partial
-    sums need not be positive, so it is kept as its own small class.
+    Weighted play operators with thresholds in m and weights in V/m whose partial sums
+    need not be positive; stepped like the model (:class:`_PlayModel`).
     """
 
     def __init__(self, thresholds_m, weights_v_per_m, state=None):
@@ -296,44 +306,11 @@ class InversePIModel:
         self.weights = np.asarray(weights_v_per_m, dtype=float).reshape(-1)
         self.initial_state = (np.zeros_like(self.thresholds) if state is None
                               else np.asarray(state, dtype=float).reshape(-1))
-        self._r = self.thresholds.tolist()
-        self._w = self.weights.tolist()
-        self._s = self.initial_state.tolist()
+        self._init_bank(self.initial_state)
 
     def reset(self, state=None):
         """Return to the initial state (or ``state``, m per operator)."""
-        st = self.initial_state if state is None else np.asarray(state, dtype=float)
-        self._s = st.reshape(-1).tolist()
-
-    @property
-    def state(self):
-        """Return the present operator states (m)."""
-        return np.asarray(self._s)
-
-    def step(self, y):
-        """Advance one sample with desired displacement ``y`` (m); return voltage (V)."""
-        s = self._s
-        u = 0.0
-        for i, r in enumerate(self._r):
-            v = s[i]
-            hi = y + r
-            if v > hi:
-                v = hi
-            else:
-                lo = y - r
-                if v < lo:
-                    v = lo
-            s[i] = v
-            u += self._w[i] * v
-        return u
-
-    def simulate(self, y, reset=True):
-        """Run a displacement sequence (m) and return the voltage sequence (V)."""
-        if reset:
-            self.reset()
-        ops, final = play_operators(y, self.thresholds, np.asarray(self._s))
-        self._s = final.tolist()
-        return ops @ self.weights
+        self._bank.reset(self._check_state(self.initial_state if state is None else state))
 
 
 def paper_model():

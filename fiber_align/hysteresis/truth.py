@@ -19,22 +19,28 @@ Reference ("true") hysteresis laws for the simulated plant and for identificatio
 ``paper``
     The paper's Table 3 PI model, loaded from ``config/hysteresis_paper.yaml``.
 ``linear``
-    ``alpha u`` with ``alpha`` (m/V) from :func:`fiber_align.design.dynamics` if that is
-    available, otherwise ``linear.alpha_m_per_v`` from the config (89 um / 72 V).
+    ``alpha u`` with ``alpha`` (m/V) given by the caller (the plant passes the design
+    model's, :func:`fiber_align.design.mode.design_dynamics`).
 
-Defaults live in ``config/plant_hysteresis.yaml`` (node ``hysteresis_truth``).
+The laws' parameters live in ``config/plant_hysteresis.yaml`` (node ``hysteresis_truth``).
 """
 
 import math
 
 import numpy as np
 
-from fiber_align.config import load_params
+from fiber_align.config import ConfigError, load_params
 from fiber_align.hysteresis.pi import PIModel
 
 KINDS = ('dense-pi', 'bouc-wen', 'paper', 'linear')
 CONFIG_FILE = 'plant_hysteresis.yaml'
 CONFIG_NODE = 'hysteresis_truth'
+# The keys of each section of config/plant_hysteresis.yaml (the only place with values).
+SECTION_KEYS = {
+    'dense_pi': ('n_operators', 'max_threshold_v', 'linear_fraction', 'decay_v', 'peak_m',
+                 'peak_v'),
+    'bouc_wen': ('a', 'b_per_v', 'g_per_v', 'peak_m', 'peak_v'),
+}
 
 
 def _section(params, name):
@@ -45,8 +51,7 @@ def _section(params, name):
     return {k[len(prefix):]: v for k, v in params.items() if k.startswith(prefix)}
 
 
-def dense_pi(n_operators=50, max_threshold_v=100.0, linear_fraction=0.6,
-             decay_v=15.0, peak_m=70e-6, peak_v=72.0):
+def dense_pi(n_operators, max_threshold_v, linear_fraction, decay_v, peak_m, peak_v):
     """
     Build the dense PI "truth" model.
 
@@ -148,7 +153,7 @@ class BoucWen:
         return np.array([self.step(x) for x in u.tolist()])
 
 
-def bouc_wen(a=0.3, b_per_v=0.04, g_per_v=0.01, peak_m=70e-6, peak_v=72.0):
+def bouc_wen(a, b_per_v, g_per_v, peak_m, peak_v):
     """Build the Bouc-Wen "truth" with ``d`` scaled to ``peak_m`` at ``peak_v`` (m, V)."""
     bw = BoucWen(1.0, a, b_per_v, g_per_v)
     y1 = bw.step(float(peak_v))
@@ -178,32 +183,33 @@ class Linear:
         return self.alpha * np.asarray(u, dtype=float).reshape(-1)
 
 
-def _linear_alpha(default):
-    """Return alpha (m/V) from the design package if present, else ``default``."""
-    try:
-        from fiber_align.design import dynamics, load_actuator
-        return float(dynamics(load_actuator())['alpha_m_per_v'])
-    except Exception:  # noqa: BLE001 - the design package is optional here
-        return float(default)
-
-
-def make_hysteresis(kind='dense-pi', params=None, config=CONFIG_FILE):
+def make_hysteresis(kind, params=None, config=CONFIG_FILE, alpha_m_per_v=None):
     """
     Return a hysteresis law ``u (V) -> y (m)`` with ``step``, ``reset``, ``simulate``.
 
     :param kind: one of ``dense-pi``, ``bouc-wen``, ``paper``, ``linear``.
     :param params: overrides for the kind's section of the config (SI units).
-    :param config: params file with the defaults (node ``hysteresis_truth``).
+    :param config: params file with the laws' parameters (node ``hysteresis_truth``).
+    :param alpha_m_per_v: slope of the ``linear`` law (m/V), the design model's
+        (:func:`fiber_align.design.mode.design_dynamics`); needed for ``linear`` only.
+    :raises ConfigError: a section or key missing from ``config``.
     """
     if kind not in KINDS:
         raise ValueError('unknown hysteresis kind %r (allowed: %s)' % (kind, ', '.join(KINDS)))
     if kind == 'paper':
         return PIModel.load('hysteresis_paper.yaml')
-    all_params = load_params(config, CONFIG_NODE)
-    sec = _section(all_params, kind.replace('-', '_'))
+    if kind == 'linear':
+        if alpha_m_per_v is None:
+            raise ValueError('the linear law needs alpha_m_per_v (m/V) of the design model')
+        return Linear(alpha_m_per_v)
+    name = kind.replace('-', '_')
+    sec = _section(load_params(config, CONFIG_NODE), name)
     sec.update(params or {})
-    if kind == 'dense-pi':
-        return dense_pi(**sec)
-    if kind == 'bouc-wen':
-        return bouc_wen(**sec)
-    return Linear(_linear_alpha(sec.get('alpha_m_per_v', 89e-6 / 72.0)))
+    keys = SECTION_KEYS[name]
+    missing = [k for k in keys if k not in sec]
+    unknown = sorted(set(sec) - set(keys))
+    if missing or unknown:
+        raise ConfigError('%s: section %s.%s: missing %s, unknown %s (allowed: %s)'
+                          % (config, CONFIG_NODE, name, missing or 'none',
+                             unknown or 'none', ', '.join(keys)))
+    return (dense_pi if kind == 'dense-pi' else bouc_wen)(**sec)

@@ -67,7 +67,7 @@ class AlignmentSequencerNode(Node):
                          60.0, True)
         c.declare_priority(self, d)
         core = {}
-        for name in list(sq.DEFAULTS) + ['control_period_s']:
+        for name in sq.KEYS + sq.NODE_KEYS:
             if name in d:
                 core[name] = c.declare(self, d, name, 'sequencer parameter (SI, see '
                                        'sequencer.yaml)', read_only=True)

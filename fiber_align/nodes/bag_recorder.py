@@ -38,14 +38,17 @@ import sys
 import threading
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from fiber_align.analysis import bagio
+from fiber_align.analysis import bag as bagio
 from fiber_align.config import ConfigError
+from fiber_align.nodes._common import DIAG_QOS, set_realtime_priority
+from fiber_align.nodes._msgtypes import message_class
 
 NODE_NAME = 'bag_recorder'
 DEFAULT_TOPICS = ['reference', 'displacement', 'feedforward_voltage', 'feedback_voltage',
@@ -89,7 +92,7 @@ class BagRecorder(Node):
             raise ConfigError('output %s exists already; choose a new bag directory'
                               % self.output)
         self.writer = Writer(self.output, version=9,
-                             storage_plugin=bagio._storage_plugin(storage))
+                             storage_plugin=bagio.storage_plugin(storage))
         self.writer.open()
         self.closed = False
         self.subs = {}
@@ -101,8 +104,6 @@ class BagRecorder(Node):
         flush = float(gp('flush_period_s').value)
         if flush > 0:
             self.create_timer(flush, self.flush)
-        from diagnostic_msgs.msg import DiagnosticArray
-        from fiber_align.nodes._common import DIAG_QOS
         self._diag_type = DiagnosticArray
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', DIAG_QOS)
         self.create_timer(float(gp('diagnostics_period_s').value), self.publish_diagnostics)
@@ -134,7 +135,7 @@ class BagRecorder(Node):
             if not self.get_publishers_info_by_topic(topic):
                 continue
             try:
-                cls = bagio.message_class(msgtype)
+                cls = message_class(msgtype)
                 conn = self.writer.add_connection(topic, msgtype, typestore=self.typestore)
             except Exception as exc:  # noqa: BLE001 - unknown type: skip it, say so
                 self.get_logger().warning('cannot record %s (%s): %s' % (topic, msgtype, exc))
@@ -256,7 +257,6 @@ def main(args=None):
     code = 0
     try:
         node = BagRecorder()
-        from fiber_align.nodes._common import set_realtime_priority
         prio = int(node.get_parameter('realtime_priority').value)
         if prio:
             node.get_logger().info('scheduling: %s' % set_realtime_priority(prio))

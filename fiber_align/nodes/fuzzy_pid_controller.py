@@ -3,10 +3,11 @@
 ``fuzzy_pid_controller``: the feedback law of the control core as a ROS 2 node.
 
 Runs once per ``displacement`` sample: ``fb_k = controller.step(r_k, y_k)``, built by
-:func:`fiber_align.control.simulate.build` for the graph's ``controller`` (``composite``
-and ``fuzzy``: :class:`~fiber_align.control.fuzzy_pid.FuzzyPid`; ``composite-pid`` and
-``pid``: :class:`~fiber_align.control.fuzzy_pid.PlainPid`; ``feedforward`` and
-``open-loop``: 0 V), so the node computes exactly what the offline loop computes.
+:func:`fiber_align.control.factory.build_controller` for the graph's ``controller``
+(``composite`` and ``fuzzy``: :class:`~fiber_align.control.fuzzy_pid.FuzzyPid`;
+``composite-pid`` and ``pid``: :class:`~fiber_align.control.fuzzy_pid.PlainPid`;
+``feedforward`` and ``open-loop``: 0 V), so the node computes exactly what the offline
+loop computes.
 Topics (relative names, SI units):
 
 - sub ``reference`` (std_msgs/Float64, m: the setpoint the compensator accepted; it is
@@ -81,12 +82,14 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64, Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import Trigger
 
-from fiber_align.config import ConfigError, flatten
+from fiber_align.config import ConfigError, flatten, load_params
+from fiber_align.control.factory import build_controller, CONTROLLERS
+from fiber_align.design import design_dynamics, load_actuator
 from fiber_align.nodes import _common as c
 
 NODE_NAME = 'fuzzy_pid_controller'
 AREA_FILES = ('controller.yaml',)
-MODES = ('composite', 'composite-pid', 'fuzzy', 'pid', 'feedforward', 'open-loop')
+MODES = CONTROLLERS
 #: Realtime: the controller holds its output while the newest ``drive_voltage`` is older
 #: than this many periods (the loop is open: nothing may wind up).
 DRIVE_STALE_PERIODS = 3
@@ -123,7 +126,7 @@ def unflatten(flat):
     return out
 
 
-def make_controller(controller, params, rate_hz):
+def make_controller(controller, params, rate_hz, surface=None):
     """
     Build the feedback law exactly as the offline simulation does.
 
@@ -131,16 +134,12 @@ def make_controller(controller, params, rate_hz):
         composite-pid, fuzzy, pid, feedforward, open-loop); the last two have no feedback.
     :param params: controller parameters (nested, SI).
     :param rate_hz: control rate (Hz).
+    :param surface: the fuzzy surface of the controller it replaces (reused if it fits).
     :returns: an object with ``step(r, y) -> V`` or ``None``.
     """
-    from fiber_align.config import load_params
-    from fiber_align.control.simulate import build
-    from fiber_align.hysteresis.pi import PIModel
     comp = load_params('compensator.yaml', 'hysteresis_compensator')
-    model = PIModel(comp['thresholds_v'], comp['weights_m_per_v']) \
-        if 'thresholds_v' in comp else None
-    return build(controller, rate_hz, None, model=model, controller_params=params,
-                 comp_params=comp)[1]
+    return build_controller(controller, params, comp,
+                            design_dynamics(load_actuator('actuator.yaml')), rate_hz, surface)
 
 
 def check_values(name, value):
@@ -245,7 +244,8 @@ class FuzzyPidControllerNode(Node):
     # -- parameters -----------------------------------------------------------------
     def _make(self, mode, params):
         """Build the feedback law; realtime: its reference model's lead covers one more T."""
-        ctl = make_controller(mode, params, self.rate_hz)
+        ctl = make_controller(mode, params, self.rate_hz,
+                              getattr(getattr(self, 'ctl', None), 'surface', None))
         if ctl is not None and not self.lockstep:
             c.extend_lead(getattr(ctl, 'reference_filter', None), 1.0 / self.rate_hz)
         return ctl

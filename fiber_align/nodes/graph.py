@@ -48,8 +48,8 @@ DEFAULT_COMPOSED = True
 COMPOSED_EXECUTABLE = 'control_graph'
 #: Per-area params files, in the order they are merged (names in ``config/``).
 AREA_FILES = ('plant.yaml', 'optics.yaml', 'controller.yaml', 'compensator.yaml',
-              'driver.yaml', 'sequencer.yaml', 'recorder.yaml', 'scenario.yaml',
-              'lifecycle_manager.yaml')
+              'models/compensator_model.yaml', 'driver.yaml', 'sequencer.yaml',
+              'recorder.yaml', 'scenario.yaml', 'lifecycle_manager.yaml')
 #: Area files a checkout may not have yet (skipped when missing).
 OPTIONAL_FILES = ()
 #: Graph-wide params file, merged after the per-area files.

@@ -5,8 +5,8 @@
 ``ff = Feedforward.step(r)`` (V from m) of :mod:`fiber_align.control.feedforward`, the
 exact inverse of the Prandtl-Ishlinskii model, after the optional resonance-suppression shaper
 (``shaping``: none | zv | zvd, :mod:`fiber_align.control.shaping`), built by
-:func:`fiber_align.control.simulate.build` for the graph's ``controller`` so that it is
-exactly the offline loop's feedforward (``fuzzy``/``pid``: 0 V; ``open-loop``: linear).
+:func:`fiber_align.control.factory.build_feedforward` for the graph's ``controller`` so
+that it is exactly the offline loop's feedforward (``fuzzy``/``pid``: 0 V; ``open-loop``: linear).
 
 When it steps (the shaper and the inverse model advance once per step, so they must
 step once per control period):
@@ -56,13 +56,13 @@ from std_msgs.msg import Bool, Float64
 from std_srvs.srv import Trigger
 
 from fiber_align.config import ConfigError
-from fiber_align.control.simulate import build
+from fiber_align.control.factory import build_feedforward, CONTROLLERS
+from fiber_align.design import design_dynamics, load_actuator
 from fiber_align.hysteresis.pi import PIModel
 from fiber_align.nodes import _common as c
 
 NODE_NAME = 'hysteresis_compensator'
-AREA_FILES = ('compensator.yaml',)
-CONTROLLERS = ('composite', 'composite-pid', 'fuzzy', 'pid', 'feedforward', 'open-loop')
+AREA_FILES = ('compensator.yaml', 'models/compensator_model.yaml')
 SHAPING = ('none', 'zv', 'zvd')
 #: Topics this node publishes (relative names; see ``_common.LocalBus``).
 PUBLISHES = ('feedforward_voltage', 'reference')
@@ -157,8 +157,9 @@ class HysteresisCompensatorNode(Node):
         comp.update({k: self.get_parameter(k).value for k in
                      ('shaping', 'shaping_omega_n_rad_s', 'shaping_damping_ratio',
                       'open_loop_gain_v_per_m')})
-        ff = build(self.get_parameter('controller').value, self.rate_hz, None,
-                   model=self.load_model(), comp_params=comp)[0]
+        ff = build_feedforward(self.get_parameter('controller').value, comp,
+                               self.load_model(),
+                               design_dynamics(load_actuator('actuator.yaml')), self.rate_hz)
         if not self.lockstep:
             c.extend_lead(ff, 1.0 / self.rate_hz)    # the realtime loop's extra period
         return ff

@@ -8,7 +8,7 @@ control period as the sample they answer). Parameters (defaults in
 ``config/scenario.yaml``):
 
 - ``scenario``: ``step``, ``sine``, ``triangle``, ``staircase`` (the references of
-  :mod:`fiber_align.control.scenarios`) or ``hysteresis-experiment`` (open loop: the
+  :mod:`fiber_align.simulation.scenarios`) or ``hysteresis-experiment`` (open loop: the
   0-72 V, 0.1 Hz triangle as ``feedforward_voltage`` with 0 V ``feedback_voltage``).
 - ``duration_s``: length (s of sample time); 0: the scenario's own length.
 - ``reach_m``: the plant's largest reachable displacement (m), ``bringup`` sets it from
@@ -33,7 +33,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 
 from fiber_align.config import ConfigError
-from fiber_align.control import scenarios
+from fiber_align.simulation import scenarios
 from fiber_align.nodes import _common as c
 
 NODE_NAME = 'scenario_runner'
@@ -55,7 +55,7 @@ class Source:
     """
 
     def __init__(self, name, lo=0.0, hi=float('inf')):
-        """Build the scenario of :mod:`fiber_align.control.scenarios`."""
+        """Build the scenario of :mod:`fiber_align.simulation.scenarios`."""
         self.sc = scenarios.make(name)
         self.lo, self.hi = max(0.0, float(lo)), float(hi)
 

@@ -60,7 +60,8 @@ from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
 
 from fiber_align.nodes import _common as c
-from fiber_align.plant.actuator import SimulatedActuator
+from fiber_align.plant.actuator import KINDS, SimulatedActuator
+from fiber_align.plant.optics import OpticalLink
 
 NODE_NAME = 'simulated_actuator'
 AREA_FILES = ('plant.yaml', 'optics.yaml')
@@ -80,10 +81,6 @@ def make_optics(params, seed):
     :param params: the node's ``optics.*`` parameters (ROS dotted names, SI units).
     :param seed: detector noise seed.
     """
-    try:
-        from fiber_align.plant.optics import OpticalLink
-    except ImportError:
-        return None
     if not params:
         return None
     return OpticalLink.from_params(params, seed=seed)
@@ -104,7 +101,7 @@ class SimulatedActuatorNode(Node):
         ro = True
         self.rate_hz = c.declare(self, d, 'rate_hz', 'control rate (Hz)', 1.0, 20000.0, ro)
         c.declare(self, d, 'hysteresis', 'true hysteresis law of the plant', read_only=ro,
-                  choices=('default', 'dense-pi', 'bouc-wen', 'paper', 'linear'))
+                  choices=KINDS)
         c.declare(self, d, 'omega_n_rad_s', 'first bending mode (rad/s); <= 0: design model',
                   -1.0, 1e6, ro)
         c.declare(self, d, 'damping_ratio', 'modal damping ratio (1)', 0.0, 0.999, ro)

@@ -14,7 +14,7 @@ One call of :meth:`SimulatedActuator.step` is one control period ``T`` (s):
 5. the sensor adds seeded Gaussian noise (m RMS) and rounds to its resolution (m).
 
 A Prandtl-Ishlinskii law (``dense-pi``, ``paper``) is stepped by a
-:class:`fiber_align.control.playbank.PlayBank` built from it (same output in amortised
+:class:`fiber_align.hysteresis.playbank.PlayBank` built from it (same output in amortised
 O(1) instead of O(n) per period); other laws by their own ``step``.
 
 The displacement per volt ``alpha`` is the slope of the hysteresis law (``linear`` law:
@@ -25,102 +25,38 @@ deterministic for a seed and the ROS plant node reproduces it sample for sample.
 """
 
 import copy
-import functools
 import math
 
 import numpy as np
 
 from fiber_align.config import ConfigError, load_params
-from fiber_align.control.playbank import PlayBank
+from fiber_align.design import load_actuator
+from fiber_align.design.mode import design_dynamics, discretise
+from fiber_align.hysteresis.pi import PIModel
+from fiber_align.hysteresis.playbank import PlayBank
+from fiber_align.hysteresis.truth import make_hysteresis
 
 CONFIG_FILE = 'plant.yaml'
 CONFIG_NODE = 'simulated_actuator'
-FALLBACK_FIRST_MODE_HZ = 1400.0
-FALLBACK_ALPHA_M_PER_V = 89e-6 / 72.0
+DESIGN_FILE = 'actuator.yaml'
+# The plant's hysteresis laws: ``default`` is the dense-PI truth.
+KINDS = ('default', 'paper', 'linear', 'dense-pi', 'bouc-wen')
+PARAM_KEYS = ('rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min', 'v_max',
+              'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m', 'seed')
 _NOISE_BLOCK = 4096
 
 
-@functools.lru_cache(maxsize=1)
-def design_dynamics():
-    """
-    Return ``(omega_n_rad_s, alpha_m_per_v)`` of the design model (fallback 1.4 kHz).
-
-    Computed once per process from ``config/actuator.yaml`` (beam FE model).
-    """
-    try:
-        from fiber_align.design import dynamics, load_actuator
-        d = dynamics(load_actuator('actuator.yaml'))
-        return float(d['omega_n_rad_s']), float(d['alpha_m_per_v'])
-    except Exception:  # noqa: BLE001 - the design package may not be there yet
-        return 2.0 * math.pi * FALLBACK_FIRST_MODE_HZ, FALLBACK_ALPHA_M_PER_V
-
-
-def discretise(omega_n, zeta, period_s):
-    """
-    Return ``(Ad, Bd)`` of the exact ZOH discretisation of the 2nd-order mode.
-
-    State ``[x (m), x' (m/s)]``, input the quasi-static displacement ``h`` (m). The
-    matrix exponential is taken in closed form for ``zeta < 1`` (with
-    ``s = zeta wn``, ``wd = wn sqrt(1 - zeta^2)``, ``E = exp(-s T)``:
-    ``Ad = E [[c + s/wd sn, sn/wd], [-wn^2 sn/wd, c - s/wd sn]]``, ``c = cos(wd T)``,
-    ``sn = sin(wd T)``, and ``Bd = [1 - Ad_11, -Ad_21]``), otherwise numerically.
-
-    :param omega_n: natural frequency (rad/s).
-    :param zeta: damping ratio (dimensionless).
-    :param period_s: sample period (s).
-    """
-    ad, bd = _discretise(float(omega_n), float(zeta), float(period_s))
-    return np.array(ad).reshape(2, 2), np.array(bd)
-
-
-@functools.lru_cache(maxsize=64)
-def _discretise(omega_n, zeta, period_s):
-    """Return ``(Ad as 4 floats row-major, Bd as 2 floats)`` (see :func:`discretise`)."""
-    if 0.0 <= zeta < 1.0:
-        s = zeta * omega_n
-        wd = omega_n * math.sqrt(1.0 - zeta * zeta)
-        e = math.exp(-s * period_s)
-        c = math.cos(wd * period_s)
-        sn = math.sin(wd * period_s) / wd
-        a11 = e * (c + s * sn)
-        a12 = e * sn
-        a21 = -omega_n * omega_n * e * sn
-        a22 = e * (c - s * sn)
-        return (a11, a12, a21, a22), (1.0 - a11, -a21)
-    from scipy.linalg import expm
-    a = np.array([[0.0, 1.0, 0.0],
-                  [-omega_n ** 2, -2.0 * zeta * omega_n, omega_n ** 2],
-                  [0.0, 0.0, 0.0]])
-    m = expm(a * period_s)
-    return tuple(float(x) for x in m[:2, :2].ravel()), tuple(float(x) for x in m[:2, 2])
-
-
-_LAWS = {}
-
-
-def make_law(kind):
+def make_law(kind, alpha_m_per_v):
     """
     Return a new plant hysteresis law for ``kind`` (``default`` = ``dense-pi``), at rest.
 
-    Built by :func:`fiber_align.hysteresis.truth.make_hysteresis` once per process and
-    kind (and per modification time of its config files); later calls return copies.
+    :param kind: a name in :data:`KINDS`.
+    :param alpha_m_per_v: slope of the ``linear`` law (m/V), the design model's.
     """
-    from fiber_align.hysteresis.truth import make_hysteresis
-    kind = 'dense-pi' if kind in (None, 'default') else kind
-    stamp = []
-    for name in ('plant_hysteresis.yaml', 'hysteresis_paper.yaml', 'actuator.yaml'):
-        try:
-            from fiber_align.config import config_path
-            st = config_path(name).stat()
-            stamp.append((name, st.st_mtime_ns, st.st_size))
-        except (ConfigError, OSError):
-            stamp.append((name, None, None))
-    key = (kind, tuple(stamp))
-    if key not in _LAWS:
-        _LAWS[key] = make_hysteresis(kind)
-    law = copy.deepcopy(_LAWS[key])
-    law.reset()
-    return law
+    if kind not in KINDS:
+        raise ConfigError('unknown hysteresis %r (allowed: %s)' % (kind, ', '.join(KINDS)))
+    kind = 'dense-pi' if kind == 'default' else kind
+    return make_hysteresis(kind, alpha_m_per_v=alpha_m_per_v)
 
 
 class SimulatedActuator:
@@ -130,7 +66,7 @@ class SimulatedActuator:
     :param period_s: control period ``T`` (s).
     :param hysteresis: law with ``step(u_v) -> m`` and ``reset()``; a
         :class:`~fiber_align.hysteresis.pi.PIModel` is stepped through a
-        :class:`~fiber_align.control.playbank.PlayBank` copy (the law object itself is
+        :class:`~fiber_align.hysteresis.playbank.PlayBank` copy (the law object itself is
         then only reset, not advanced; :attr:`h` is its output).
     :param omega_n_rad_s: natural frequency of the bending mode (rad/s).
     :param damping_ratio: modal damping ratio (dimensionless).
@@ -144,7 +80,7 @@ class SimulatedActuator:
         to exercise fault handling.
     """
 
-    def __init__(self, period_s, hysteresis, omega_n_rad_s, damping_ratio=0.03,
+    def __init__(self, period_s, hysteresis, omega_n_rad_s, damping_ratio,
                  v_min=0.0, v_max=100.0, slew_rate_v_per_s=math.inf, noise_rms_m=0.0,
                  resolution_m=0.0, seed=0, nan_samples=()):
         """Build the plant at rest (see the class docstring for the units)."""
@@ -174,54 +110,60 @@ class SimulatedActuator:
         self._a = [float(x) for x in ad.ravel()]
         self._b = [float(x) for x in bd]
         self._c = tuple(self._a + self._b)
-        from fiber_align.hysteresis.pi import PIModel
-        self._bank = None
-        if isinstance(hysteresis, PIModel):
-            try:
-                self._bank = PlayBank.from_model(hysteresis)
-            except ValueError:
-                self._bank = None
+        # A PI law is stepped by a bank of its own, so the law object is only reset.
+        self._bank = PlayBank.from_model(hysteresis) if isinstance(hysteresis, PIModel) \
+            else None
         self.reset()
 
     @classmethod
-    def from_params(cls, params, period_s=None, **overrides):
+    def from_params(cls, params, period_s=None, dynamics=None, **overrides):
         """
         Build from a ``simulated_actuator`` parameter mapping (see ``config/plant.yaml``).
 
-        :param params: the mapping; ``hysteresis`` names the law, ``omega_n_rad_s`` <= 0
-            takes the design model's value, ``rate_hz`` sets the period unless
-            ``period_s`` is given.
+        :param params: the mapping (every key of ``config/plant.yaml``; ``nan_samples``,
+            a fault-injection list of tests, is optional); ``hysteresis`` names the
+            law, ``omega_n_rad_s`` <= 0 takes the design model's value, ``rate_hz`` sets
+            the period unless ``period_s`` (s) is given.
+        :param dynamics: ``(omega_n_rad_s, alpha_m_per_v)`` of the design model
+            (:func:`fiber_align.design.mode.design_dynamics`), loaded by the caller; None
+            loads ``config/actuator.yaml`` here.
         :param overrides: keyword arguments of the constructor that win over ``params``
             (``hysteresis`` may be a kind name or a law object).
+        :raises ConfigError: a missing or unknown key.
         """
         p = dict(params)
         p.update({k: v for k, v in overrides.items() if v is not None})
-        known = {'rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min', 'v_max',
-                 'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m', 'seed', 'nan_samples'}
-        unknown = sorted(set(p) - known)
+        unknown = sorted(set(p) - set(PARAM_KEYS) - {'nan_samples'})
         if unknown:
             raise ConfigError('unknown simulated_actuator parameter(s): %s (allowed: %s)'
-                              % (', '.join(unknown), ', '.join(sorted(known))))
+                              % (', '.join(unknown), ', '.join(PARAM_KEYS)))
+        needed = [k for k in PARAM_KEYS if k not in p
+                  and not (k == 'rate_hz' and period_s is not None)]
+        if needed:
+            raise ConfigError('%s: missing simulated_actuator parameter(s): %s'
+                              % (CONFIG_FILE, ', '.join(needed)))
         if period_s is None:
-            period_s = 1.0 / float(p.get('rate_hz', 1000.0))
-        law = p.get('hysteresis', 'default')
+            period_s = 1.0 / float(p['rate_hz'])
+        law = p['hysteresis']
+        wn = float(p['omega_n_rad_s'])
+        if dynamics is None and (wn <= 0 or law == 'linear'):
+            dynamics = design_dynamics(load_actuator(DESIGN_FILE))
         if isinstance(law, str):
-            law = make_law(law)
-        wn = float(p.get('omega_n_rad_s', 0.0))
+            law = make_law(law, None if dynamics is None else dynamics[1])
         if wn <= 0:
-            wn = design_dynamics()[0]
-        return cls(period_s, law, wn,
-                   damping_ratio=float(p.get('damping_ratio', 0.03)),
-                   v_min=float(p.get('v_min', 0.0)), v_max=float(p.get('v_max', 100.0)),
-                   slew_rate_v_per_s=float(p.get('slew_rate_v_per_s', math.inf)),
-                   noise_rms_m=float(p.get('noise_rms_m', 0.0)),
-                   resolution_m=float(p.get('resolution_m', 0.0)),
-                   seed=int(p.get('seed', 0)), nan_samples=p.get('nan_samples', ()))
+            wn = dynamics[0]
+        return cls(period_s, law, wn, float(p['damping_ratio']),
+                   v_min=float(p['v_min']), v_max=float(p['v_max']),
+                   slew_rate_v_per_s=float(p['slew_rate_v_per_s']),
+                   noise_rms_m=float(p['noise_rms_m']),
+                   resolution_m=float(p['resolution_m']),
+                   seed=int(p['seed']), nan_samples=p.get('nan_samples', ()))
 
     @classmethod
-    def from_config(cls, path=CONFIG_FILE, period_s=None, **overrides):
+    def from_config(cls, path=CONFIG_FILE, period_s=None, dynamics=None, **overrides):
         """Build from a params file (default ``config/plant.yaml``, node simulated_actuator)."""
-        return cls.from_params(load_params(path, CONFIG_NODE), period_s, **overrides)
+        return cls.from_params(load_params(path, CONFIG_NODE), period_s, dynamics,
+                               **overrides)
 
     # -- state ------------------------------------------------------------------------
     def reset(self, seed=None):

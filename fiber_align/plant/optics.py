@@ -113,12 +113,6 @@ class FiberCoupling:
         self.slot_vibration_frequency_hz = float(slot_vibration_frequency_hz)
         self.fiber_broken = bool(fiber_broken)
 
-    @property
-    def effective_radius_m(self):
-        """Return the offset (m) at which the coupling falls by 1/e: ``w sqrt(1 + Z^2)``."""
-        q = rayleigh_factor(self.gap_m, self.mode_radius_m, self.wavelength_m, self.index)
-        return self.mode_radius_m * math.sqrt(q)
-
     def slot_position(self, t_s):
         """Return the output core position (m) at time ``t_s`` (s); scalar or array."""
         t = np.asarray(t_s, dtype=float)
@@ -242,10 +236,6 @@ class OpticalLink:
         coupling = FiberCoupling(**{k: p[k] for k in known_c if k in p})
         detector = Detector(seed=seed, **{k: p[k] for k in known_d if k in p})
         return cls(coupling, detector)
-
-    def true_power_w(self, t_s, x_m):
-        """Return the noise-free coupled power (W) at time ``t_s`` (s), position ``x_m`` (m)."""
-        return self.coupling.power_w(t_s, x_m)
 
     def measure(self, t_s, x_m, dt_s=None):
         """Return the detector reading (W) at time ``t_s`` (s) with the core at ``x_m`` (m)."""

@@ -19,6 +19,8 @@ import time
 
 import numpy as np
 
+from fiber_align.nodes._common import CONTROL_QOS
+
 
 class BringupError(RuntimeError):
     """The graph could not be brought up or failed while running."""
@@ -50,8 +52,6 @@ class Runner:
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64, String
         from std_srvs.srv import SetBool, Trigger
-
-        from fiber_align.nodes._common import CONTROL_QOS
         ns = namespace.strip('/') or None
         self.node = Node('bringup', namespace=ns)
         self.cnode = Node('bringup_client', namespace=ns)

@@ -13,11 +13,19 @@ import time
 import numpy as np
 import yaml
 
+from fiber_align.analysis.report import hysteresis_metrics
+from fiber_align.config import config_path
+from fiber_align.nodes._common import DIAG_QOS
+from fiber_align.nodes.bag_recorder import DEFAULT_TOPICS
 from fiber_align.nodes.bringup import summary as sm
+from fiber_align.nodes.bringup.align import run_align
 from fiber_align.nodes.bringup.children import Child, cpu_time_s, rss_bytes
 from fiber_align.nodes.bringup.cli import param_overrides, TRACKING_SCENARIOS
 from fiber_align.nodes.bringup.observer import BadInput, BringupError, Runner, StartStall
 from fiber_align.nodes.bringup.params import compose, namespaced, node_params
+from fiber_align.nodes.graph import control_nodes
+from fiber_align.nodes.scenario_runner import setpoint_range, Source
+from fiber_align.plant.actuator import PARAM_KEYS, SimulatedActuator
 
 EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 #: realtime goals ``--strict`` holds a run to: share of missed cycles, watchdog trips
@@ -26,7 +34,6 @@ MISSED_SHARE_GOAL = 0.001
 
 def graph_nodes(scenario):
     """Return the node names the scenario runs (recorder excluded): the graph's own."""
-    from fiber_align.nodes.graph import control_nodes
     return control_nodes(scenario)
 
 
@@ -40,7 +47,6 @@ def expected_endpoints(scenario, lockstep, record, composed=False):
     :param composed: the control nodes share one process: their readers of each other's
         topics are in-process (``_common.LocalBus``), not DDS subscriptions.
     """
-    from fiber_align.nodes.bag_recorder import DEFAULT_TOPICS
     inner = 0 if composed else 1
     if scenario == 'hysteresis-experiment':
         out = {'displacement': (1, 1 + inner), 'feedforward_voltage': (1, inner),
@@ -72,7 +78,6 @@ def dds_environment(env=None):
     50 ms heartbeat, so a reliable sample dropped in a burst is resent at once instead
     of after 3 s (when its writer may have exited), and larger socket buffers.
     """
-    from fiber_align.config import config_path
     out = dict(os.environ if env is None else env)
     out.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     if 'FASTRTPS_DEFAULT_PROFILES_FILE' not in out:
@@ -135,11 +140,8 @@ class Bringup:
 
     def _source(self, ov):
         """Return the scenario's Source and set the runner's overrides (reach, duration)."""
-        from fiber_align.nodes.scenario_runner import setpoint_range, Source
-        from fiber_align.plant.actuator import SimulatedActuator
-        from fiber_align.nodes.simulated_actuator import PLANT_KEYS
         p = node_params(self.params, 'simulated_actuator')
-        reach = SimulatedActuator.from_params({k: p[k] for k in PLANT_KEYS if k in p}) \
+        reach = SimulatedActuator.from_params({k: p[k] for k in PARAM_KEYS if k in p}) \
             .reachable_m()
         name = self.scenario
         sp = node_params(self.params, 'scenario_runner')
@@ -301,8 +303,6 @@ class Bringup:
         """Keep the newest /diagnostics values of every node of the graph."""
         from diagnostic_msgs.msg import DiagnosticArray
 
-        from fiber_align.nodes._common import DIAG_QOS
-
         def on_diag(msg):
             for st in msg.status:
                 lvl = st.level[0] if isinstance(st.level, (bytes, bytearray)) \
@@ -345,7 +345,6 @@ class Bringup:
         r.set_running(True)
         try:
             if self.scenario == 'align':
-                from fiber_align.nodes.bringup.align import run_align
                 self.summary['align_events'] = run_align(self)
                 return
             wall_limit = 60.0 + 20.0 * self.duration
@@ -477,7 +476,6 @@ class Bringup:
             if t.size > 2 and self.scenario in TRACKING_SCENARIOS:
                 s['metrics'] = sm.scenario_metrics(self.scenario, t, ref, y, r.series('v'))
             elif t.size > 2 and self.scenario == 'hysteresis-experiment':
-                from fiber_align.analysis.report import hysteresis_metrics
                 s['metrics'] = hysteresis_metrics(r.series('v'), y)
             elif t.size > 2 and self.scenario == 'align':
                 s['align'] = sm.align_metrics(t, y, r.series('p'), r.states,

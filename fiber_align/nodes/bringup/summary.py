@@ -8,7 +8,14 @@ so a run on the graph and an offline run are scored alike.
 
 import numpy as np
 
+from fiber_align.analysis.report import default_params
+from fiber_align.jsonout import json_default  # noqa: F401 - the summary's JSON form
 from fiber_align.nodes.bringup.params import node_params
+from fiber_align.plant.optics import OpticalLink
+from fiber_align.simulation import scenarios
+from fiber_align.simulation.alignment_scenarios import rise_time
+from fiber_align.simulation.metrics import loop_metrics, run_scores, STEP_KEYS
+from fiber_align.simulation.simulate import tracking_skip_s
 
 #: align scenario timing (s of sample time): rest before ``align``, loss window after
 #: TRACKING, switch off and on times, level window at the end of each on time
@@ -24,12 +31,10 @@ def scenario_skip_s(name, t_end_s):
     """
     Return the leading time (s) left out of the tracking metrics of a scenario.
 
-    As ``fiber-align simulate`` (:func:`fiber_align.control.simulate.tracking_skip_s`):
+    As ``fiber-align simulate`` (:func:`fiber_align.simulation.simulate.tracking_skip_s`):
     step and staircase the first half of the run; sine and triangle one period, or
     nothing when the run (``t_end_s``, s) is not longer than that.
     """
-    from fiber_align.control import scenarios
-    from fiber_align.control.simulate import tracking_skip_s
     return tracking_skip_s(scenarios.make(name), np.array([0.0, float(t_end_s)]))
 
 
@@ -37,24 +42,20 @@ def scenario_metrics(name, t, r, y, v=None):
     """
     Return step and tracking metrics (SI) of a measured trace.
 
-    Computed by :func:`fiber_align.analysis.report.loop_metrics`, the function
+    Computed by :func:`fiber_align.simulation.metrics.loop_metrics`, the function
     ``fiber-align analyze`` and ``fiber-align simulate`` use, with the ``analyze``
     settings of ``config/recorder.yaml``: the worst settling time (2 % band), overshoot
     and rise time over the setpoint steps, and the tracking errors after
     :func:`scenario_skip_s`.
     """
-    from fiber_align.analysis.report import default_params, loop_metrics
     ap = default_params()
     lm = loop_metrics(t, r, y, v, skip_s=scenario_skip_s(name, float(t[-1] - t[0])),
                       step_min_m=float(ap.get('step_min_m', 1e-6)),
                       band=float(ap.get('settling_band', 0.02)))
-    out = {}
-    steps = lm.get('steps') or []
-    for k in ('settling_time_s', 'overshoot_pct', 'rise_time_s'):
-        vals = [st[k] for st in steps if st.get(k) is not None]
-        if vals and name in ('step', 'staircase'):
-            out[k] = max(vals)
-    out.update(lm.get('tracking', {}))
+    out = run_scores(lm)
+    if name not in ('step', 'staircase'):
+        out = {k: v for k, v in out.items() if k not in STEP_KEYS}
+    out.update(lm.get('tracking', {}))      # with mean_error_m
     return {k: float(v) for k, v in out.items() if isinstance(v, (int, float))}
 
 
@@ -68,8 +69,6 @@ def align_metrics(t, y, p, states, events, params, rate_hz):
     ``final_loss_db``: mean over the first 20 ms of TRACKING; per switch cycle the loss
     over the last 10 ms of the on time and the 10-90 % rise of the measured power.
     """
-    from fiber_align.alignment.scenarios import rise_time
-    from fiber_align.plant.optics import OpticalLink
     link = OpticalLink.from_params(node_params(params, 'simulated_actuator'))
     loss = np.asarray(link.loss_db(t, y), float)
     period = 1.0 / rate_hz
@@ -108,15 +107,6 @@ def align_metrics(t, y, p, states, events, params, rate_hz):
     if tracking.any():
         out['tracking_max_loss_db'] = float(np.max(loss[tracking]))
     return out
-
-
-def json_default(o):
-    """Return a JSON-compatible value for numpy scalars and arrays (else ``str``)."""
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
 
 
 def format_summary(s):

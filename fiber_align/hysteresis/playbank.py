@@ -68,8 +68,12 @@ class PlayBank:
         if len(s) != self.n:
             raise ValueError('state needs %d values, got %d' % (self.n, len(s)))
         r = self._r
+        # A state computed in floating point (a model's inverse, play_operators) meets the
+        # memory-curve inequalities only to rounding: allow that much, relative to its size.
+        tol = 1e-12 * max(max(abs(x) for x in s), r[-1])
         for i in range(1, self.n):
-            if s[i] + r[i] < s[i - 1] + r[i - 1] or s[i] - r[i] > s[i - 1] - r[i - 1]:
+            if s[i] + r[i] < s[i - 1] + r[i - 1] - tol or \
+                    s[i] - r[i] > s[i - 1] - r[i - 1] + tol:
                 raise ValueError('state is not a play-operator memory curve at operator %d'
                                  % i)
         self._s = s

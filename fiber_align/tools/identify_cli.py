@@ -12,6 +12,8 @@ import sys
 
 import numpy as np
 
+from fiber_align.analysis.bag import read_hysteresis_experiment
+from fiber_align.config import load_params
 from fiber_align.hysteresis import data as hdata
 from fiber_align.hysteresis.identify import identify, METHODS
 
@@ -55,12 +57,6 @@ def read_data(path):
     """Return ``(t, u, y)`` (s, V, m) from a CSV file or a rosbag2 directory."""
     p = Path(path)
     if p.is_dir():
-        try:
-            from fiber_align.analysis.bagio import read_hysteresis_experiment
-        except ImportError:
-            raise ValueError('%s is a directory but rosbag2 reading '
-                             '(fiber_align.analysis.bagio) is not available; give a CSV '
-                             'with columns t,voltage_v,displacement_m' % p) from None
         return read_hysteresis_experiment(str(p))
     return hdata.load_csv(p)
 
@@ -96,14 +92,14 @@ def plot_fit(path, u, y, result):
 
 def run(args):
     """Run ``identify``; return the exit code."""
-    from fiber_align.config import load_params
     t, u, y = read_data(args.data)
-    method = args.method or load_params(args.config, 'identify')['method']
+    settings = load_params(args.config, 'identify')
+    method = args.method or settings['method']
     if method not in METHODS:
         raise ValueError('method %r in %s is not one of %s'
                          % (method, args.config, ', '.join(METHODS)))
     res = identify(t, u, y, method=method, n_operators=args.operators, seed=args.seed,
-                   config=args.config)
+                   config=args.config, settings=settings)
     out = Path(args.out)
     if out.parent and not out.parent.is_dir():
         raise ValueError('output directory %s does not exist' % out.parent)

@@ -32,7 +32,8 @@ import sys
 import numpy as np
 
 from fiber_align.alignment import hillclimb2d as hc
-from fiber_align.alignment import scenarios as sc1
+from fiber_align.alignment.plots2d import plot_run2d
+from fiber_align.simulation import alignment_bench as sc1
 from fiber_align.alignment import sequencer2d as s2d
 from fiber_align.config import load_params
 from fiber_align.plant import optics2d as o2
@@ -383,7 +384,6 @@ def run_cli(args):
     plot = getattr(args, 'plot', None)
     res = run(name, seed=seed, loop=loop, record=bool(plot), **kw)
     if plot:
-        from fiber_align.alignment.plots2d import plot_run2d
         plot_run2d(res, plot)
     clean = _clean(res)
     if getattr(args, 'json', False):

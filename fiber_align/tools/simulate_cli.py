@@ -1,11 +1,16 @@
 # SPDX-License-Identifier: Apache-2.0
 """``fiber-align simulate`` and ``fiber-align fuzzy-surface``."""
 
-import importlib
 import json
 import math
 
-from fiber_align.cli import UsageError
+from fiber_align.config import load_params
+from fiber_align.control.factory import CONTROLLERS
+from fiber_align.jsonout import json_clean
+from fiber_align.control.fuzzy import FuzzyInference
+from fiber_align.plant.actuator import KINDS as PLANTS
+from fiber_align.simulation import alignment2d_scenarios, alignment_scenarios, scenarios, simulate
+from fiber_align.tools.common import UsageError
 
 
 def register(sub):
@@ -14,9 +19,9 @@ def register(sub):
     p.add_argument('--scenario', default='step',
                    help='step | sine | triangle | staircase | hysteresis-experiment; '
                         'align | switch | track run the alignment sequencer '
-                        '(fiber_align.alignment.scenarios); align2d | track2d | switch2d '
-                        'the two-axis sequencer and its hill-climb baseline '
-                        '(fiber_align.alignment.scenarios2d)')
+                        '(fiber_align.simulation.alignment_scenarios); align2d | track2d | '
+                        'switch2d the two-axis sequencer and its hill-climb baseline '
+                        '(fiber_align.simulation.alignment2d_scenarios)')
     p.add_argument('--controller', default='composite',
                    help='open-loop | feedforward | pid | fuzzy | composite | composite-pid')
     p.add_argument('--rate', type=float, default=None, help='control rate, Hz')
@@ -73,19 +78,6 @@ def _check_alignment_args(args):
         raise UsageError('--rate must be > 0 Hz, got %g' % args.rate)
 
 
-def _json_clean(x):
-    """Return ``x`` with non-finite floats as None and numpy scalars as Python numbers."""
-    if isinstance(x, dict):
-        return {k: _json_clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_clean(v) for v in x]
-    if hasattr(x, 'item') and not isinstance(x, (str, bytes)):
-        x = x.item()
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    return x
-
-
 def _fmt(v, scale=1.0, digits=3):
     """Format a metric for the table (None -> '-')."""
     if v is None:
@@ -97,19 +89,12 @@ def _fmt(v, scale=1.0, digits=3):
 
 def cmd_simulate(args):
     """Run ``simulate``; return an exit code."""
-    from fiber_align.control import scenarios, simulate
-    if args.scenario in ALIGN2D_SCENARIOS:      # issue 14: two-axis alignment
-        from fiber_align.alignment import scenarios2d
+    if args.scenario in ALIGN2D_SCENARIOS:      # two-axis alignment
         _check_alignment_args(args)
-        return scenarios2d.run_cli(args)
+        return alignment2d_scenarios.run_cli(args)
     if args.scenario in ALIGN_SCENARIOS:
-        try:
-            mod = importlib.import_module('fiber_align.alignment.scenarios')
-        except ModuleNotFoundError:
-            raise UsageError('scenario %s needs fiber_align.alignment.scenarios, which is '
-                             'not installed' % args.scenario) from None
         _check_alignment_args(args)
-        return mod.run_cli(args)
+        return alignment_scenarios.run_cli(args)
     extra = [o for o, v in (('--loop', args.loop), ('--cycles', args.cycles),
                             ('--slot', args.slot), ('--drift', args.drift)) if v is not None]
     if extra:
@@ -119,22 +104,22 @@ def cmd_simulate(args):
         raise UsageError('--rate must be > 0 Hz, got %g' % args.rate)
     if args.duration is not None and not args.duration > 0:
         raise UsageError('--duration must be > 0 s, got %g' % args.duration)
-    if args.plant not in simulate.PLANTS:
+    if args.plant not in PLANTS:
         raise UsageError('unknown --plant %r (allowed: %s)'
-                         % (args.plant, ', '.join(simulate.PLANTS)))
+                         % (args.plant, ', '.join(PLANTS)))
     if args.model is not None and args.model not in ('identify', 'identified'):
         simulate.check_model_file(args.model)
     noise = args.noise == 'on'
     if args.compare:
         rows = []
         for sc in ('step', 'sine', 'triangle'):
-            for c in simulate.CONTROLLERS:
+            for c in CONTROLLERS:
                 res = simulate.run(sc, c, rate_hz=args.rate, duration_s=args.duration,
                                    seed=args.seed, noise=noise, plant=args.plant,
                                    model=args.model)
                 rows.append(res.metrics)
         if args.json:
-            print(json.dumps(_json_clean(rows), indent=1))
+            print(json.dumps(json_clean(rows), indent=1))
             return 0
         print('plant %s, rate %g Hz, noise %s (measured displacement, as analyze scores a '
               'bag; true_* keys in --json)' % (args.plant, rows[0]['rate_hz'], args.noise))
@@ -152,9 +137,9 @@ def cmd_simulate(args):
         raise UsageError('unknown --scenario %r (allowed: %s, %s)'
                          % (args.scenario, ', '.join(scenarios.NAMES),
                             ', '.join(ALIGN_SCENARIOS)))
-    if args.controller not in simulate.CONTROLLERS:
+    if args.controller not in CONTROLLERS:
         raise UsageError('unknown --controller %r (allowed: %s)'
-                         % (args.controller, ', '.join(simulate.CONTROLLERS)))
+                         % (args.controller, ', '.join(CONTROLLERS)))
     res = simulate.run(args.scenario, args.controller, rate_hz=args.rate,
                        duration_s=args.duration, seed=args.seed, noise=noise,
                        plant=args.plant, model=args.model)
@@ -164,7 +149,7 @@ def cmd_simulate(args):
         plot_result(res, args.plot)
     m = res.metrics
     if args.json:
-        print(json.dumps(_json_clean(m), indent=1))
+        print(json.dumps(json_clean(m), indent=1))
     else:
         for k, v in m.items():
             if k == 'steps':
@@ -207,8 +192,6 @@ def plot_result(res, path):
 
 def cmd_fuzzy_surface(args):
     """Run ``fuzzy-surface``; return an exit code."""
-    from fiber_align.config import load_params
-    from fiber_align.control.fuzzy import FuzzyInference
     if args.points < 2 or args.points > 1001:
         raise UsageError('--points must be in 2..1001, got %d' % args.points)
     fis = FuzzyInference.from_params(

@@ -22,224 +22,24 @@ period. Scenarios (``run(name, seed, **kw)`` returns a dict of SI metrics):
     loss (dither included) while TRACKING.
 
 Loops (``loop=``): ``composite`` (default: the control core's plant, feedforward and
-fuzzy PID, :func:`make_composite_loop`) or ``ideal`` (a first-order stand-in,
-:class:`FirstOrderLoop`, fast, for tests).
+fuzzy PID) or ``ideal`` (a first-order stand-in, fast, for tests); see
+:mod:`fiber_align.simulation.alignment_bench`.
 """
 
 import json
-import math
 import sys
 
 import numpy as np
 
 from fiber_align.alignment import sequencer as sq
+from fiber_align.alignment.plots import plot_run
 from fiber_align.config import load_params
-from fiber_align.plant import optics as op
+from fiber_align.jsonout import json_clean
+from fiber_align.simulation.alignment_bench import build, true_loss
 
 SCENARIOS = ('align', 'switch', 'track')
 METRIC_KEYS = ('time_to_first_light_s', 'time_to_peak_s', 'final_loss_db', 'peak_samples',
                'switch_rise_time_s', 'tracking_max_loss_db')
-
-
-class FirstOrderLoop:
-    """
-    Stand-in closed loop: ``x <- x + (1 - exp(-T/tau)) (r - x)``, noisy sensor (SI).
-
-    :param period_s: control period (s).
-    :param tau_s: closed-loop time constant (s).
-    :param noise_rms_m: sensor noise (m RMS).
-    :param seed: noise seed.
-    """
-
-    name = 'ideal'
-
-    def __init__(self, period_s=1e-3, tau_s=2e-3, noise_rms_m=10e-9, seed=0):
-        """Store the constants and rest at 0 m."""
-        self.period_s = float(period_s)
-        self.a = 1.0 - math.exp(-self.period_s / float(tau_s))
-        self.noise_rms_m = float(noise_rms_m)
-        self.seed = seed
-        self.reset()
-
-    def reset(self):
-        """Rest at 0 m and restart the noise."""
-        self.rng = np.random.default_rng(self.seed)
-        self.position_m = 0.0
-        self.measure()
-
-    def measure(self):
-        """Return the sensor reading (m) of the present position."""
-        self.y_meas = self.position_m + self.noise_rms_m * self.rng.standard_normal()
-        return self.y_meas
-
-    def step(self, r_m):
-        """Track the setpoint ``r_m`` (m) for one period; return the new reading (m)."""
-        self.position_m += self.a * (r_m - self.position_m)
-        return self.measure()
-
-
-class CompositeLoop:
-    """
-    Plant + composite controller (inverse-PI feedforward + fuzzy PID) + driver (SI).
-
-    Built from the control core with its config files (:func:`fiber_align.control.
-    simulate.make_plant` and :func:`~fiber_align.control.simulate.build`,
-    :class:`~fiber_align.control.driver.DriverCore`); ``step(r)`` runs steps 3-6 of a
-    control period for the setpoint ``r`` (m), exactly as
-    :func:`fiber_align.control.simulate.run` does, and returns the next reading (m).
-
-    :param period_s: control period (s).
-    :param seed: plant sensor-noise seed.
-    :param controller: a controller name of :mod:`fiber_align.control.simulate`.
-    :param plant: plant kind (``default`` = dense-pi truth).
-    :param model: feedforward PI model (None: identified from the plant, as simulate does).
-    :param noise: sensor noise on.
-    """
-
-    name = 'composite'
-
-    def __init__(self, period_s=1e-3, seed=0, controller='composite', plant='default',
-                 model=None, noise=True):
-        """Build the parts from config/ for the control rate ``1 / period_s``."""
-        from fiber_align.control import simulate as sim
-        from fiber_align.control.driver import DriverCore
-        self.period_s = float(period_s)
-        rate = 1.0 / self.period_s
-        self.plant = sim.make_plant(plant, rate, seed, noise)
-        self.driver = DriverCore.from_params(load_params('driver.yaml', 'actuator_driver'))
-        self.comp, self.fb = sim.build(controller, rate, self.plant, model, plant, seed,
-                                       noise)
-        self.reach_m = self.plant.reachable_m()
-        self.name = controller
-        self.reset()
-
-    def reset(self):
-        """Return every part to rest; take the first reading."""
-        for part in (self.comp, self.fb):
-            if part is not None:
-                part.reset()
-        self.driver.reset()
-        self.y_meas = self.plant.reset()
-        self.k = 0
-
-    @property
-    def position_m(self):
-        """Return the true tip displacement (m)."""
-        return self.plant.position_m
-
-    def step(self, r_m):
-        """Run one control period for setpoint ``r_m`` (m); return the new reading (m)."""
-        t = self.k * self.period_s
-        r = min(max(r_m, 0.0), self.reach_m)
-        ff = self.comp.step(r)
-        fb = self.fb.step(r, self.y_meas) if self.fb is not None else 0.0
-        v = self.driver.command(ff, fb, t)
-        self.y_meas = self.plant.step(v)
-        self.k += 1
-        return self.y_meas
-
-
-def make_loop(kind='composite', period_s=1e-3, seed=0):
-    """Return a closed loop: ``ideal`` (stand-in) or a controller of the control core."""
-    if kind == 'ideal':
-        return FirstOrderLoop(period_s=period_s, seed=seed)
-    return CompositeLoop(period_s=period_s, seed=seed, controller=kind)
-
-
-class Record:
-    """Per-period trace of a run (SI: s, m, W, dB); ``arrays()`` returns numpy arrays."""
-
-    FIELDS = ('t', 'x', 'y', 'r', 'p', 'p_true', 'p_max', 'slot', 'state')
-
-    def __init__(self):
-        """Start empty."""
-        self.rows = {k: [] for k in self.FIELDS}
-
-    def add(self, **kw):
-        """Append one period."""
-        for k in self.FIELDS:
-            self.rows[k].append(kw[k])
-
-    def arrays(self):
-        """Return the trace as a dict of numpy arrays; ``state`` is an object array."""
-        out = {k: np.asarray(v, dtype=float) for k, v in self.rows.items() if k != 'state'}
-        out['state'] = np.asarray(self.rows['state'], dtype=object)
-        out['loss_db'] = op.loss_db(np.maximum(out['p_true'], 1e-30),
-                                    np.maximum(out['p_max'], 1e-30))
-        return out
-
-
-class Bench:
-    """A sequencer, an optical link and a loop stepped together, one control period a call."""
-
-    def __init__(self, loop, link, seq, period_s=1e-3, record=True):
-        """Combine the parts; time starts at 0 s."""
-        self.loop, self.link, self.seq = loop, link, seq
-        self.period_s = float(period_s)
-        self.k = 0
-        self.rec = Record() if record else None
-        self.last = None
-
-    @property
-    def t(self):
-        """Return the time of the next period (s)."""
-        return self.k * self.period_s
-
-    def step(self):
-        """Run one control period; return ``(t, true position, power reading)``."""
-        t = self.t
-        x = self.loop.position_m
-        y = self.loop.y_meas
-        p = self.link.measure(t, x, self.period_s)
-        r = self.seq.update(t, y, p)
-        if self.rec is not None:
-            c = self.link.coupling
-            self.rec.add(t=t, x=x, y=y, r=r, p=p, p_true=c.power_w(t, x),
-                         p_max=c.max_power_w(), slot=c.slot_position(t),
-                         state=self.seq.state)
-        self.last = (t, x, p)
-        self.loop.step(r)
-        self.k += 1
-        return self.last
-
-    def run_until(self, t_end, stop=None):
-        """Step until ``t_end`` (s) or until ``stop(bench)`` is true; return the time (s)."""
-        while self.t < t_end - 1e-12:
-            self.step()
-            if stop is not None and stop(self):
-                break
-        return self.t
-
-
-def _true_loss(bench):
-    """Return the true loss (dB) of the last period."""
-    t, x, _ = bench.last
-    return float(bench.link.loss_db(t, x))
-
-
-def build(seed=0, loop='composite', slot_m=None, period_s=1e-3, record=True,
-          seq_params=None, optics_params=None, **optics_overrides):
-    """
-    Return a :class:`Bench` with the slot at ``slot_m`` (m; random in the range if None).
-
-    :param optics_overrides: keys of ``config/optics.yaml`` (e.g. ``fiber_broken=True``,
-        ``slot_drift_m_per_s``).
-    """
-    sp = dict(load_params(sq.CONFIG_FILE, sq.CONFIG_NODE) if seq_params is None
-              else seq_params)
-    seq = sq.Sequencer(sp)
-    rng = np.random.default_rng(seed)
-    if slot_m is None:
-        slot_m = float(rng.uniform(seq.p['range_min_m'], seq.p['range_max_m']))
-    oparams = optics_params if optics_params is not None else load_params(
-        op.CONFIG_FILE, op.CONFIG_NODE)
-    ov = dict(optics_overrides)
-    ov['slot_position_m'] = slot_m
-    ov.setdefault('sample_period_s', period_s)
-    link = op.OpticalLink.from_params(oparams, seed=seed + 1000, **ov)
-    lp = loop if not isinstance(loop, str) else make_loop(loop, period_s, seed)
-    lp.reset()
-    return Bench(lp, link, seq, period_s, record)
 
 
 def align_bench(bench, idle_s=0.02, max_s=1.0, loss_window_s=0.02):
@@ -268,7 +68,7 @@ def align_bench(bench, idle_s=0.02, max_s=1.0, loss_window_s=0.02):
         t_end = bench.t + loss_window_s
         while bench.t < t_end - 1e-12 and seq.state == sq.TRACKING:
             bench.step()
-            losses.append(_true_loss(bench))
+            losses.append(true_loss(bench))
         out['final_loss_db'] = float(np.mean(losses)) if losses else None
     out['aligned'] = bool(seq.state == sq.TRACKING and out['final_loss_db'] is not None
                           and out['final_loss_db'] <= 0.05
@@ -324,7 +124,7 @@ def switch_cycles(bench, cycles=5, on_s=0.06, off_s=0.03, level_s=0.01):
             bench.step()
             tt.append(bench.last[0])
             pp.append(bench.last[2])
-            ll.append(_true_loss(bench))
+            ll.append(true_loss(bench))
         n_level = max(1, int(round(level_s / bench.period_s)))
         hi = float(np.mean(pp[-n_level:]))
         lo = float(np.mean(p_off[-n_level:])) if p_off else 0.0
@@ -353,7 +153,7 @@ def track_bench(bench, duration_s):
     losses = []
     while bench.t < t_end - 1e-12 and seq.state == sq.TRACKING:
         bench.step()
-        losses.append(_true_loss(bench))
+        losses.append(true_loss(bench))
     arr = np.asarray(losses)
     return dict(tracking_max_loss_db=float(arr.max()) if arr.size else None,
                 tracking_mean_loss_db=float(arr.mean()) if arr.size else None,
@@ -367,7 +167,8 @@ def run(name, seed=0, loop='composite', record=False, **kw):
 
     Keyword arguments: ``slot_m`` (m), ``cycles``, ``duration_s`` (s),
     ``drift_m_per_s`` (m/s), ``period_s`` (s), ``seq_params`` / ``optics_params``
-    (mappings replacing the config files), other keys of ``config/optics.yaml``.
+    (mappings replacing the config files), ``setup`` (the loaded
+    :class:`~fiber_align.simulation.simulate.Setup`), other keys of ``config/optics.yaml``.
     With ``record=True`` the result holds ``trace`` (dict of arrays) for plotting.
     """
     if name not in SCENARIOS:
@@ -428,19 +229,6 @@ def align_trials(n=20, seed=0, loop='ideal', **kw):
     return trials, summary
 
 
-def _clean(obj):
-    """Return ``obj`` with numpy scalars and arrays made JSON-serialisable."""
-    if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items() if k != 'trace'}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
 def run_cli(args):
     """
     Run ``fiber-align simulate --scenario align|switch|track``; return an exit code.
@@ -466,9 +254,8 @@ def run_cli(args):
     plot = getattr(args, 'plot', None)
     res = run(name, seed=seed, loop=loop, record=bool(plot), **kw)
     if plot:
-        from fiber_align.alignment.plots import plot_run
         plot_run(res, plot)
-    clean = _clean(res)
+    clean = json_clean(res, drop=('trace',))
     if getattr(args, 'json', False):
         print(json.dumps(clean, indent=2, sort_keys=True))
     else:

@@ -1,0 +1,131 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+Build the control objects of a controller name from parameter mappings: the one factory.
+
+The ROS nodes, the offline loop (:mod:`fiber_align.simulation.simulate`) and the tests
+all call these functions, so the graph and ``fiber-align simulate`` run the same objects.
+Nothing here reads a file: the caller passes the parameters (``config/controller.yaml``
+node ``fuzzy_pid_controller``, ``config/compensator.yaml`` node
+``hysteresis_compensator``), an already loaded PI model and the design model's mode
+``(omega_n_rad_s, alpha_m_per_v)`` (:func:`fiber_align.design.mode.design_dynamics`).
+
+Controllers (:data:`CONTROLLERS`): ``open-loop`` (r times a linear gain, V/m),
+``feedforward`` (inverse PI of a shaped reference), ``pid`` (tuned plain PID), ``fuzzy``
+(fuzzy PID), ``composite`` (inverse PI + fuzzy PID, paper Figure 21), ``composite-pid``
+(inverse PI + plain PID).
+"""
+
+from fiber_align.control.feedforward import Feedforward
+from fiber_align.control.fuzzy_pid import FuzzyPid, make_pid, PlainPid
+from fiber_align.control.shaping import design, Lead, ReferenceModel, Shaper, shaper_delay_s
+
+CONTROLLERS = ('open-loop', 'feedforward', 'pid', 'fuzzy', 'composite', 'composite-pid')
+# The controllers whose compensator inverts a PI model (the others need no model).
+MODEL_CONTROLLERS = ('feedforward', 'composite', 'composite-pid')
+
+
+def check_controller(controller):
+    """Raise ValueError unless ``controller`` is a name in :data:`CONTROLLERS`."""
+    if controller not in CONTROLLERS:
+        raise ValueError('unknown controller %r (allowed: %s)'
+                         % (controller, ', '.join(CONTROLLERS)))
+
+
+def shaping_mode(comp, design_dynamics):
+    """
+    Return ``(omega_n_rad_s, damping_ratio)`` that the shaping is designed for.
+
+    ``shaping_omega_n_rad_s`` of ``comp`` (rad/s), or when it is <= 0 the design model's
+    first mode ``design_dynamics[0]``; ``shaping_damping_ratio`` (dimensionless).
+    """
+    wn = float(comp['shaping_omega_n_rad_s'])
+    if wn <= 0:
+        wn = float(design_dynamics[0])
+    return wn, float(comp['shaping_damping_ratio'])
+
+
+def build_shaper(comp, design_dynamics, rate_hz):
+    """
+    Return the reference :class:`~fiber_align.control.shaping.Shaper` of ``comp``, or None.
+
+    :param comp: compensator parameters (``shaping``, ``shaping_omega_n_rad_s``,
+        ``shaping_damping_ratio``).
+    :param design_dynamics: ``(omega_n_rad_s, alpha_m_per_v)`` of the design model.
+    :param rate_hz: control rate (Hz).
+    """
+    kind = str(comp['shaping'])
+    if kind == 'none':
+        return None
+    wn, zeta = shaping_mode(comp, design_dynamics)
+    return Shaper(design(kind, wn, zeta, 1.0 / float(rate_hz)))
+
+
+def build_lead(comp, rate_hz, shaper):
+    """
+    Return the :class:`~fiber_align.control.shaping.Lead` of ``comp``, or None.
+
+    Its horizon is the shaper's mean delay plus one period (s); ``delay_compensation``
+    off gives None.
+    """
+    if not bool(comp['delay_compensation']):
+        return None
+    period = 1.0 / float(rate_hz)
+    return Lead(period, shaper_delay_s(shaper, period) + period,
+                float(comp['delay_compensation_max_accel_m_per_s2']))
+
+
+def build_reference_model(comp, design_dynamics, rate_hz):
+    """Return the composite feedback's :class:`~fiber_align.control.shaping.ReferenceModel`."""
+    wn, zeta = shaping_mode(comp, design_dynamics)
+    shaper = build_shaper(comp, design_dynamics, rate_hz)
+    return ReferenceModel(shaper, wn, zeta, 1.0 / float(rate_hz),
+                          lead=build_lead(comp, rate_hz, shaper))
+
+
+def build_feedforward(controller, comp, model, design_dynamics, rate_hz):
+    """
+    Return the compensator (``step(r m) -> V``) of a controller.
+
+    :param controller: a name in :data:`CONTROLLERS`.
+    :param comp: compensator parameters (``config/compensator.yaml``).
+    :param model: the loaded :class:`~fiber_align.hysteresis.pi.PIModel` to invert; used
+        by the controllers in :data:`MODEL_CONTROLLERS` only (may be None for the others).
+    :param design_dynamics: ``(omega_n_rad_s, alpha_m_per_v)`` of the design model.
+    :param rate_hz: control rate (Hz).
+    """
+    check_controller(controller)
+    if controller == 'open-loop':
+        return Feedforward(gain_v_per_m=float(comp['open_loop_gain_v_per_m']))
+    if controller not in MODEL_CONTROLLERS:
+        return Feedforward(gain_v_per_m=0.0)
+    if model is None:
+        raise ValueError('controller %s needs a PI model' % controller)
+    shaper = build_shaper(comp, design_dynamics, rate_hz)
+    return Feedforward(model, shaper=shaper, lead=build_lead(comp, rate_hz, shaper))
+
+
+def build_controller(controller, params, comp, design_dynamics, rate_hz, surface=None):
+    """
+    Return the feedback law (``step(r m, y m) -> V``) of a controller, or None.
+
+    :param controller: a name in :data:`CONTROLLERS`; ``open-loop`` and ``feedforward``
+        have no feedback (None).
+    :param params: controller parameters (``config/controller.yaml``, nested).
+    :param comp: compensator parameters (the composite feedback follows the model of the
+        shaped reference, :func:`build_reference_model`).
+    :param design_dynamics: ``(omega_n_rad_s, alpha_m_per_v)`` of the design model.
+    :param rate_hz: control rate (Hz).
+    :param surface: a :class:`~fiber_align.control.fuzzy_surface.FuzzySurface` built before
+        (:func:`~fiber_align.control.fuzzy_pid.surface_for`), reused when it fits
+        ``params``.
+    """
+    check_controller(controller)
+    if controller in ('open-loop', 'feedforward'):
+        return None
+    refm = None
+    if controller.startswith('composite') and \
+            str(params['composite_feedback_reference']) == 'model':
+        refm = build_reference_model(comp, design_dynamics, rate_hz)
+    if controller in ('pid', 'composite-pid'):
+        return PlainPid(make_pid(params, rate_hz), refm)
+    return FuzzyPid.from_params(params, rate_hz, reference_filter=refm, surface=surface)

@@ -1,0 +1,2 @@
+# SPDX-License-Identifier: Apache-2.0
+"""The command-line tools' sub-commands (the top layer, beside the ROS nodes)."""
