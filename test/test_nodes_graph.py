@@ -58,11 +58,11 @@ def test_params_files_in_order_area_files_then_graph_file_then_the_users(tmp_pat
         '/**': {'ros__parameters': {'diagnostics_period_s': 1.0}}}))
     g = graph.build(params_file=str(user))
     names = [Path(f).name for f in g.params_files]
-    expected = [f for f in graph.AREA_FILES if f in names]
+    expected = [Path(f).name for f in graph.AREA_FILES if Path(f).name in names]
     assert names == expected + ['fiber_align.yaml', 'mine.yaml']
-    assert expected[:7] == ['plant.yaml', 'optics.yaml', 'controller.yaml',
-                            'compensator.yaml', 'driver.yaml', 'sequencer.yaml',
-                            'recorder.yaml']
+    assert expected[:8] == ['plant.yaml', 'optics.yaml', 'controller.yaml',
+                            'compensator.yaml', 'compensator_model.yaml', 'driver.yaml',
+                            'sequencer.yaml', 'recorder.yaml']
     drv = g.node_params('actuator_driver')
     assert drv['v_max'] == 90.0 and drv['v_min'] == -20.0    # user file wins, key by key
     assert drv['diagnostics_period_s'] == 1.0

@@ -8,7 +8,7 @@ One period ``k`` at wall time ``t_k`` (s), at ``rate_hz`` (``config/hardware.yam
 2. ``r_k`` = ``Sequencer.update(t_k, y_k, P_k)`` (m), with ``y_k`` the *commanded*
    displacement: the forward PI model of the voltage actually sent (after the clamp);
 3. ``u_k`` = inverse PI feedforward of ``r_k`` (V), the compensator's model
-   (``config/compensator.yaml``);
+   (``config/models/compensator_model.yaml``);
 4. ``v_k`` = ``DriverCore.command(u_k, 0, t_k)``: clamp to ``[v_min, v_max]``, slew (V);
 5. ``v_k`` goes to the MDT693B over the serial port (:class:`MDT693BOutput` refuses
    anything outside the limits again) and ``y_{k+1}`` = forward model of ``v_k``.

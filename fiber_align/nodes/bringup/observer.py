@@ -145,11 +145,14 @@ class Runner:
         with self.lock:
             return dict(self.states[-1][1]) if self.states else {}
 
-    def call(self, client, request, timeout):
-        """Call a service with a bounded wait (s); return the response."""
-        if not client.wait_for_service(timeout_sec=timeout):
-            raise BringupError('service %s not available within %g s'
-                               % (client.srv_name, timeout))
+    def call(self, client, request, timeout, alive=lambda: None):
+        """Call a service with a bounded wait (s); ``alive()`` may raise meanwhile."""
+        end = time.monotonic() + timeout
+        while not client.wait_for_service(timeout_sec=0.1):
+            alive()
+            if time.monotonic() > end:
+                raise BringupError('service %s not available within %g s'
+                                   % (client.srv_name, timeout))
         fut = client.call_async(request)
         self.cexec.spin_until_future_complete(fut, timeout_sec=timeout)
         if not fut.done():
@@ -177,7 +180,7 @@ class Runner:
         return sum(1 for n, ns in self.node.get_node_names_and_namespaces()
                    if n == name and ns == (self.ns or '/'))
 
-    def activate_driver(self, timeout):
+    def activate_driver(self, timeout, alive=lambda: None):
         """Configure and activate the driver through lifecycle_msgs/srv/ChangeState."""
         from lifecycle_msgs.msg import State, Transition
         from lifecycle_msgs.srv import ChangeState, GetState
@@ -185,7 +188,7 @@ class Runner:
                            (Transition.TRANSITION_ACTIVATE, 'activate')):
             req = ChangeState.Request()
             req.transition.id = tid
-            if not self.call(self.change, req, timeout).success:
+            if not self.call(self.change, req, timeout, alive).success:
                 raise BringupError('actuator_driver refused to %s' % label)
         st = self.call(self.get_state, GetState.Request(), timeout)
         if st.current_state.id != State.PRIMARY_STATE_ACTIVE:

@@ -103,11 +103,16 @@ class Bringup:
         :raises ConfigError: a bad params file or override (exit 2).
         """
         self.args = args
-        self.composed = args.composed is not False
         graph0 = compose(args.params_file)
         gp = node_params(graph0, 'bringup')
         self.scenario = args.scenario or gp.get('scenario', 'none')
         self.sync = args.sync or node_params(graph0, 'simulated_actuator')['sync_mode']
+        # default layout: composed in realtime (measured: the loop keeps its period), one
+        # process per node in lockstep, where a composed graph runs samples far faster
+        # than this process's Python executor observes them, and the sample-time steps of
+        # a scenario (align: the switch cycles) would be timed on a lagging count
+        self.composed = args.composed if args.composed is not None else \
+            self.sync == 'realtime'
         ov = param_overrides(args, self.sync)
         self.rate = float(args.rate or node_params(graph0, 'simulated_actuator')['rate_hz'])
         ov['/**']['rate_hz'] = self.rate
@@ -286,7 +291,7 @@ class Bringup:
                 self._spawn('fiber_align.nodes.' + n, n)
         all_names = list(self.names) + (['bag_recorder'] if self.args.record else [])
         self.runner.wait_nodes(all_names, timeout, self._alive)
-        self.runner.activate_driver(timeout)
+        self.runner.activate_driver(timeout, self._alive)
         want = expected_endpoints(self.scenario, lockstep, bool(self.args.record),
                                   self.composed)
         self.runner.wait_matched(want, timeout, self._alive)
