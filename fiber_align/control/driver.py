@@ -173,3 +173,25 @@ class DriverCore:
         """End a latched safe state and forget the trip history (output unchanged)."""
         self.latched = False
         self.trip_times = []
+
+
+def check_field_limits(p):
+    """
+    Return ``None`` or why the drive limits in ``p`` break a field limit (V).
+
+    :param p: mapping with ``v_min``, ``v_max``, ``safe_voltage_v``, ``field_limit_v``,
+        ``coercive_field_v`` and ``depoling_fraction`` (V, V, V, V, V, 1).
+    """
+    fwd = float(p['field_limit_v'])
+    rev = -float(p['depoling_fraction']) * float(p['coercive_field_v'])
+    for k in ('v_max', 'v_min', 'safe_voltage_v'):
+        v = float(p[k])
+        if not math.isfinite(v):
+            return '%s=%r is not finite' % (k, v)
+        if v > fwd:
+            return ('%s %g V exceeds the field limit %g V (field_limit_v)' % (k, v, fwd))
+        if v < rev:
+            return ('%s %g V is below the depoling limit %g V (-depoling_fraction %g * '
+                    'coercive_field_v %g V)'
+                    % (k, v, rev, float(p['depoling_fraction']), float(p['coercive_field_v'])))
+    return None

@@ -2,60 +2,20 @@
 """
 ``actuator_driver``: a managed (lifecycle) node around :class:`DriverCore`.
 
-Topics (relative names, SI units):
-
-- sub ``feedforward_voltage`` (std_msgs/Float64, V) and ``feedback_voltage`` (V).
-- pub ``drive_voltage`` (std_msgs/Float64, V): ``clamp(ff + fb, v_min, v_max)``,
-  slew-limited; published only while the node is active (output is 0 V before).
-- srv ``~/enable`` (std_srvs/SetBool): false ramps the output to the safe voltage (0 V,
-  the switch's light-off state) and keeps it there; true resumes.
-- lifecycle services (``change_state``, ``get_state``, ...) from rclpy.lifecycle; a
-  ``change_state`` request the present state does not offer (any id or label) is
-  refused (``success`` false, a WARN in the log and on ``/diagnostics``, the count in
-  ``refused_transitions``) instead of killing the process (:meth:`_guard_change_state`).
-
-Pairing: in ``lockstep`` the i-th feedforward is summed with the i-th feedback and the
-command time is ``i / rate_hz`` (the plant's sample time), so the output does not depend
-on message timing. In ``realtime`` each feedback message (one per displacement sample)
-produces one drive with the latest feedforward (both subscriptions keep the newest
-message only).
-
-Watchdog (``realtime``; a steady wall-clock timer every ``watchdog_timeout_s`` / 10,
-between one control period and 10 ms): when no ``feedback_voltage`` has arrived for
-``watchdog_timeout_s`` the node ramps the output to ``safe_voltage_v`` at the slew limit,
-publishing the ramp, logs an error and reports ERROR on ``/diagnostics``; once the ramp
-ends it stops publishing (the plant holds the safe voltage). A feedback that arrives
-while the feedforward is stale (no ``feedforward_voltage`` within ``watchdog_timeout_s``,
-e.g. the compensator died) is not used, so a silent compensator trips the watchdog too.
-Recovery rule: once ``feedback_voltage`` arrives again with a fresh feedforward, the
-driver keeps holding for :data:`RECOVERY_S` of uninterrupted fresh input (no gap over
-five periods), so that every node has seen ``drive_held`` true (below) and parked,
-also one that was stalled through the whole trip; the next feedback then ends the trip:
-the output moves from where the ramp left it to ff + fb at the slew limit, ``drive_held``
-turns false and the status returns to OK (``watchdog_count`` keeps the number of
-trips).
-
-``drive_held`` (std_msgs/Bool, reliable, transient local, depth 1; published on change
-only) tells the other nodes whether the output is held instead of following ff + fb:
-true while inactive, disabled (``~/enable`` false) or tripped. While it is true the
-controller (realtime) outputs 0 V with its integral cleared and its reference model at
-rest at the measured position, and the compensator rests at the measured position: no
-integral winds up against an output that cannot move, and after the recovery the first
-commands are bumpless (ff of the present position, fb 0); the two nodes then move the
-actuator back to the setpoint through the shaper. A controller that restarts without a
-setpoint publishes 0 V feedback (see ``fuzzy_pid_controller``), so the drive then
-resumes at the feedforward of the held setpoint.
-
-Field limits: ``v_max``, ``v_min`` and ``safe_voltage_v`` are checked at start-up, at
-configure and on every live update against both field limits of the PZT layers:
-``field_limit_v`` (forward: ``max_field_v_per_m * piezo_thickness_m`` of
-``config/actuator.yaml``, 150 V) and ``-depoling_fraction * coercive_field_v`` (a
-reverse field beyond a fraction of the coercive field depoles PZT; -39.6 V by default).
-A value beyond either is refused with the reason.
-
-Latch: after ``latch_trips`` watchdog trips within ``latch_window_s`` the driver stays at
-the safe voltage (ERROR on ``/diagnostics`` with the trip count, ``drive_held`` true)
-until ``~/enable`` true or a lifecycle deactivate/activate re-arms it.
+Sums ``feedforward_voltage`` and ``feedback_voltage`` (std_msgs/Float64, V), clamps and
+slew-limits them and publishes ``drive_voltage`` (V) while active; ``~/enable``
+(std_srvs/SetBool) false ramps to the safe voltage and holds it. Lockstep pairs the i-th
+feedforward with the i-th feedback; realtime takes the newest of each. The realtime
+watchdog (1 ms ticks) ramps to ``safe_voltage_v`` at ``safe_ramp_rate_v_per_s`` when the
+input stops for ``watchdog_timeout_s``, holds until the input has been fresh for
+:data:`RECOVERY_S`, and latches after ``latch_trips`` trips within ``latch_window_s``
+(until ``~/enable`` true or a lifecycle deactivate/activate). ``drive_held`` (latched
+Bool) tells the compensator and the controller to park at the measured position, so a
+resume is bumpless. ``v_min``, ``v_max`` and ``safe_voltage_v`` are checked against both
+field limits of the PZT layers (``fiber_align.control.driver.check_field_limits``); a
+``change_state`` the present state does not offer is refused, not fatal
+(``_runtime.guard_change_state``). The full behaviour, with the reasons:
+docs/ros_interface.md, section "actuator_driver".
 """
 
 import math
@@ -69,7 +29,7 @@ from std_msgs.msg import Bool, Float64
 from std_srvs.srv import SetBool
 
 from fiber_align.config import ConfigError
-from fiber_align.control.driver import DriverCore
+from fiber_align.control.driver import check_field_limits, DriverCore
 from fiber_align.nodes import _common as c
 
 NODE_NAME = 'actuator_driver'
@@ -94,28 +54,6 @@ UNITS = {'v_min': 'lowest drive (V)', 'v_max': 'highest drive (V)',
          'latch_window_s': 'window of the latch count (s)',
          'safe_ramp_rate_v_per_s': 'rate of every ramp to the safe voltage (V/s); <= 0: '
                                    'the slew limit'}
-
-
-def check_field_limits(p):
-    """
-    Return ``None`` or why the drive limits in ``p`` break a field limit (V).
-
-    :param p: mapping with ``v_min``, ``v_max``, ``safe_voltage_v``, ``field_limit_v``,
-        ``coercive_field_v`` and ``depoling_fraction`` (V, V, V, V, V, 1).
-    """
-    fwd = float(p['field_limit_v'])
-    rev = -float(p['depoling_fraction']) * float(p['coercive_field_v'])
-    for k in ('v_max', 'v_min', 'safe_voltage_v'):
-        v = float(p[k])
-        if not math.isfinite(v):
-            return '%s=%r is not finite' % (k, v)
-        if v > fwd:
-            return ('%s %g V exceeds the field limit %g V (field_limit_v)' % (k, v, fwd))
-        if v < rev:
-            return ('%s %g V is below the depoling limit %g V (-depoling_fraction %g * '
-                    'coercive_field_v %g V)'
-                    % (k, v, rev, float(p['depoling_fraction']), float(p['coercive_field_v'])))
-    return None
 
 
 class ActuatorDriverNode(LifecycleNode):
@@ -173,7 +111,8 @@ class ActuatorDriverNode(LifecycleNode):
         self._set_held(True, 'unconfigured')
         self.health = c.Health(self, self.get_parameter('diagnostics_period_s').value)
         self.health.status(c.WARN, 'unconfigured: output 0 V')
-        self._guard_change_state()
+        self.refused_transitions = 0
+        c.guard_change_state(self)
 
     # -- parameters -----------------------------------------------------------------
     def _core_params(self, overrides=None):
@@ -224,47 +163,6 @@ class ActuatorDriverNode(LifecycleNode):
 
     # -- lifecycle service guard ----------------------------------------------------
     refused_transitions = 0
-
-    def _guard_change_state(self):
-        """
-        Make ``~/change_state`` refuse a transition the present state does not offer.
-
-        rclpy's handler (``LifecycleNodeMixin.__on_change_state`` -> ``__change_state``)
-        hands the requested id straight to ``trigger_transition_by_id``, which raises
-        ``RCLError`` ("Transition is not registered") for an id that does not start from
-        the current state, e.g. ``configure`` (1) while active; the exception leaves the
-        service callback, the executor re-raises it and the process dies. This wraps the
-        service's callback (the executors call ``Service.callback``): an unavailable id
-        or label is answered with ``success`` false, a WARN in the log and on
-        ``/diagnostics``; an available one goes to rclpy's handler unchanged.
-        """
-        srv = getattr(self, '_service_change_state', None)
-        if srv is None:
-            return
-        inner = srv.callback
-
-        def change_state(request, response):
-            t = request.transition
-            try:
-                state = self._state_machine.current_state[1]
-                offered = [(i, lbl) for i, lbl, *_ in self._state_machine.available_transitions]
-                ok = any((lbl == t.label) if t.label else (i == t.id) for i, lbl in offered)
-                if ok:
-                    return inner(request, response)
-                why = ('refused lifecycle transition %s: not available in state %s '
-                       '(available: %s)' % (repr(t.label) if t.label else 'id %d' % t.id,
-                                            state, ', '.join('%s (%d)' % (lbl, i)
-                                                             for i, lbl in offered)))
-            except Exception as exc:  # noqa: BLE001 - no request may kill the driver
-                why = 'lifecycle transition %d %r failed: %s' % (t.id, t.label, exc)
-            self.refused_transitions += 1
-            self.get_logger().warning(why)
-            self.health.set_values(refused_transitions=self.refused_transitions)
-            self.health.warn(why)
-            response.success = False
-            return response
-
-        srv.callback = change_state
 
     # -- lifecycle ------------------------------------------------------------------
     def on_configure(self, state):

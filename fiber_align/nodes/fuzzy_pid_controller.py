@@ -2,73 +2,22 @@
 """
 ``fuzzy_pid_controller``: the feedback law of the control core as a ROS 2 node.
 
-Runs once per ``displacement`` sample: ``fb_k = controller.step(r_k, y_k)``, built by
-:func:`fiber_align.control.factory.build_controller` for the graph's ``controller``
-(``composite`` and ``fuzzy``: :class:`~fiber_align.control.fuzzy_pid.FuzzyPid`;
-``composite-pid`` and ``pid``: :class:`~fiber_align.control.fuzzy_pid.PlainPid`;
-``feedforward`` and ``open-loop``: 0 V), so the node computes exactly what the offline
-loop computes.
-Topics (relative names, SI units):
-
-- sub ``reference`` (std_msgs/Float64, m: the setpoint the compensator accepted; it is
-  the only consumer of ``setpoint``), ``displacement`` (sensor_msgs/JointState, m).
-- pub ``feedback_voltage`` (std_msgs/Float64, V).
-- pub ``controller_state`` (std_msgs/Float64MultiArray): labelled layout, one dimension
-  per value: ``error_m``, ``error_rate_m_per_s``, ``kp_v_per_m``, ``ki_v_per_m_s``,
-  ``kd_v_s_per_m``, ``output_v``.
-- sub ``drive_held`` (std_msgs/Bool, latched; realtime), see below.
-- srv ``~/reset`` (std_srvs/Trigger): clear the integral and filters (realtime: the
-  reference model and the setpoint trajectory restart at rest at the latest
-  measurement).
-
-Pairing: ``lockstep`` pairs the i-th displacement with the i-th setpoint. ``realtime``
-steps once per displacement sample (newest sample only: QoS depth 1):
-
-- **one period of delay**: the plant latches the drive at its next tick (see
-  ``simulated_actuator``), so the realtime loop has one period more delay than lockstep.
-  The composite controller's reference model is fed the setpoint **one sample old**, so
-  that its prediction lines up with the measurement again (fed the latest setpoint, a
-  50 um step overshoots to ~70 um even with perfect timing), and its lead (as the
-  compensator's) predicts one period further. The feedback gains need no change for the
-  delay: the linearised loop with one extra period of delay is stable over the whole
-  gain box the fuzzy layer can reach for plant slopes 0.5-2 alpha (largest pole 0.91,
-  ``test/test_nodes_timing.py``), so one gain set serves both modes.
-- **one time line with the compensator**: the setpoint goes through the realtime
-  setpoint trajectory (:class:`fiber_align.nodes._common.SetpointTrajectory`, a rate
-  limit, ``realtime_setpoint_rate_m_per_s``, 2 mm/s unless the params files set it),
-  advanced by the number of sample periods between the stamps of consecutive samples;
-  for periods whose sample this node skipped the reference model advances alone. On a
-  non-realtime OS a node skips samples and the plant misses cycles; with a step through
-  the 2-3 sample resonance shaper each of those is an unshaped jump into the 3 %-damped
-  mode, and the integral winds up on the mismatch (offline, 20 % skipped and 30 %
-  missed: 50 um steps peak at 68 um on average, 129 um at worst; along the 2 mm/s
-  trajectory 53 um and 63 um). The trajectory leaves the paper's sine and triangle
-  (<= 0.19 mm/s) untouched.
-
-While the newest ``drive_voltage`` (sub, newest only) is more than
-:data:`DRIVE_STALE_PERIODS` periods old, the loop is open (the driver is stalled, or not
-publishing yet): a realtime controller then holds its output and integrates nothing,
-and only its reference model advances.
-
-While the driver reports ``drive_held`` true (output inactive, disabled or tripped by its
-watchdog), a realtime controller outputs 0 V with its integral cleared and its reference
-model and trajectory at rest at the measured position, so nothing winds up against an
-output that cannot move and the loop resumes without a bump. After a gap of more than
-``_common.MAX_CATCH_UP`` sample periods in its input (the node itself was stalled and
-may have missed ``drive_held``) it restarts in the same way.
-
-Setpoints (m) are events (volatile QoS). A realtime controller that has not received a
-valid setpoint since it started outputs 0 V feedback (feedback off: the drive is the
-feedforward alone); with its first setpoint it starts from rest with its reference
-model at the latest measurement, so a restarted controller takes over without a jump.
-A NaN, infinite or out-of-range setpoint is rejected with a logged reason and a WARN on
-``/diagnostics``; the last valid setpoint is kept (in lockstep it takes the rejected
-one's place, so pairing holds).
-
-Every parameter of ``config/controller.yaml`` is a ROS parameter (nested keys become
-dotted names). Gains, scale factors and limits can be changed live; an update that is out
-of range or does not build a valid controller is rejected with the reason, and an
-accepted one keeps the controller's state (integral, filter) so the output does not jump.
+Runs once per ``displacement`` sample (sensor_msgs/JointState, m): ``fb_k =
+controller.step(r_k, y_k)`` with the law the factory builds for the graph's
+``controller`` (composite and fuzzy: fuzzy PID; composite-pid and pid: PID; feedforward
+and open-loop: 0 V), exactly what the offline loop computes. ``r`` is ``reference``
+(std_msgs/Float64, m): the setpoint the compensator accepted (it is the only consumer of
+``setpoint``), latched in realtime so a restarted controller has it at once. Publishes
+``feedback_voltage`` (V) and ``controller_state`` (Float64MultiArray, labelled dims
+``error_m``, ``error_rate_m_per_s``, ``kp_v_per_m``, ``ki_v_per_m_s``,
+``kd_v_s_per_m``, ``output_v``; every ``controller_state_every`` samples). ``~/reset``
+(std_srvs/Trigger) clears the integral and filters. Lockstep pairs the i-th displacement
+with the i-th reference; realtime steps on the newest sample along the realtime setpoint
+trajectory, with one period more delay than lockstep, and parks (0 V, no integral,
+reference model at the measured position) while ``drive_held`` is true or the drive is
+stale, so every resume is bumpless. Every parameter of ``config/controller.yaml`` is a
+ROS parameter; gains, scale factors and limits change live (checked, state kept). The
+full behaviour, with the reasons: docs/ros_interface.md, section "fuzzy_pid_controller".
 """
 
 import math

@@ -14,12 +14,12 @@ import numpy as np
 import yaml
 
 from fiber_align.analysis.report import hysteresis_metrics
-from fiber_align.config import config_path
 from fiber_align.nodes._common import DIAG_QOS
-from fiber_align.nodes.bag_recorder import DEFAULT_TOPICS
 from fiber_align.nodes.bringup import summary as sm
 from fiber_align.nodes.bringup.align import run_align
-from fiber_align.nodes.bringup.children import Child, cpu_time_s, rss_bytes
+from fiber_align.nodes.bringup.checks import (dds_environment, expected_endpoints, usage,
+                                              wait_recorder)
+from fiber_align.nodes.bringup.children import Child, cpu_time_s
 from fiber_align.nodes.bringup.cli import param_overrides, TRACKING_SCENARIOS
 from fiber_align.nodes.bringup.observer import BadInput, BringupError, Runner, StartStall
 from fiber_align.nodes.bringup.params import compose, namespaced, node_params
@@ -35,54 +35,6 @@ MISSED_SHARE_GOAL = 0.001
 def graph_nodes(scenario):
     """Return the node names the scenario runs (recorder excluded): the graph's own."""
     return control_nodes(scenario)
-
-
-def expected_endpoints(scenario, lockstep, record, composed=False):
-    """
-    Return ``{topic: (publishers, subscribers)}`` (at least) the running graph must have.
-
-    :param scenario: a scenario name of ``bringup``.
-    :param lockstep: the plant publishes ``/clock``.
-    :param record: a recorder subscribes to every recorded topic too.
-    :param composed: the control nodes share one process: their readers of each other's
-        topics are in-process (``_common.LocalBus``), not DDS subscriptions.
-    """
-    inner = 0 if composed else 1
-    if scenario == 'hysteresis-experiment':
-        out = {'displacement': (1, 1 + inner), 'feedforward_voltage': (1, inner),
-               'feedback_voltage': (1, inner), 'drive_voltage': (1, 1 + inner),
-               'optical_power': (1, 0)}
-    else:
-        source = 0 if scenario == 'none' else 1
-        out = {'displacement': (1, 1 + inner * (1 + source)),
-               'setpoint': (source, 1 if scenario == 'none' else inner),
-               'reference': (1, inner), 'feedforward_voltage': (1, inner),
-               'feedback_voltage': (1, inner), 'controller_state': (1, 0),
-               'drive_voltage': (1, 1 + inner), 'optical_power': (1, 0)}
-    if scenario == 'align':
-        out.update({'reference': (1, 1 + inner), 'optical_power': (1, 1 + inner),
-                    'alignment_state': (1, 1)})
-    if lockstep:
-        out['/clock'] = (1, 0)
-    recorded = {t.lstrip('/') for t in DEFAULT_TOPICS}
-    rec = 1 if record else 0
-    return {k: (p, s + (rec if p and k.lstrip('/') in recorded else 0))
-            for k, (p, s) in out.items()}
-
-
-def dds_environment(env=None):
-    """
-    Return the environment for the graph's processes (a copy of ``env`` or os.environ).
-
-    Unless the user chose a Fast DDS profile, ``config/fastdds_profile.xml`` is used: a
-    50 ms heartbeat, so a reliable sample dropped in a burst is resent at once instead
-    of after 3 s (when its writer may have exited), and larger socket buffers.
-    """
-    out = dict(os.environ if env is None else env)
-    out.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    if 'FASTRTPS_DEFAULT_PROFILES_FILE' not in out:
-        out['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(config_path('fastdds_profile.xml'))
-    return out
 
 
 def _interrupt(signum, frame):
@@ -418,50 +370,15 @@ class Bringup:
                 self.summary['recorded'] = json.loads(counts.read_text(encoding='utf-8'))
 
     def _wait_recorder(self, ch, limit_s):
-        """
-        Wait until the recorder holds every message the nodes sent on its topics (s).
-
-        Every node reports ``sent.<topic>`` and the recorder ``recorded.<topic>`` on
-        ``/diagnostics``; only reports made after the plant was held count. Reliable
-        delivery may need a retransmission after a burst, so the wait is on the counts
-        themselves, bounded by ``limit_s`` (s); the shortfall, if any, is in the summary.
-        """
-        t0 = time.monotonic()
-        short = None
-        while time.monotonic() - t0 < limit_s and ch.alive():
-            time.sleep(0.05)
-            rec = self.diag.get('bag_recorder', {})
-            if rec.get('_t', 0.0) <= t0:
-                continue
-            got = {k.rsplit('/', 1)[-1]: int(v) for k, v in rec.items()
-                   if k.startswith('recorded.')}
-            short, fresh = {}, True
-            for node in self.names:
-                if node == 'scenario_runner':
-                    continue        # its setpoints are recorded as the `reference`
-                d = self.diag.get(node, {})
-                if d.get('_t', 0.0) <= t0:
-                    fresh = False
-                    break
-                for k, v in d.items():
-                    topic = k[len('sent.'):] if k.startswith('sent.') else None
-                    if topic in got and got[topic] < int(float(v)):
-                        short[topic] = (got[topic], int(float(v)))
-            if fresh and not short:
-                short = None
-                break
+        """Wait until the recorder holds what the nodes sent; return the wait (s)."""
+        waited, short = wait_recorder(self.diag, self.names, ch, limit_s)
         if short:
             self.summary['recorder_short'] = {k: list(v) for k, v in short.items()}
-        return time.monotonic() - t0
+        return waited
 
     def _usage(self):
         """Note CPU (s per s of run) and resident memory (MB) of every process."""
-        out = {}
-        for ch in self.children:
-            t_a, c_a = self.cpu0.get(ch.name, (None, 0.0))
-            c_b, wall = cpu_time_s(ch.proc.pid), time.monotonic() - (t_a or time.monotonic())
-            out[ch.name] = {'cpu_per_s': (c_b - c_a) / wall if wall > 0 else None,
-                            'rss_mb': rss_bytes(ch.proc.pid) / 1e6}
+        out = usage(self.children, self.cpu0)
         if out:
             self.summary['processes'] = out
 

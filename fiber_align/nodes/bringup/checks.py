@@ -1,0 +1,104 @@
+# SPDX-License-Identifier: Apache-2.0
+"""``bringup``'s checks of a graph: endpoints, environment, recorder catch-up, usage."""
+
+import os
+import time
+
+from fiber_align.config import config_path
+from fiber_align.nodes.bag_recorder import DEFAULT_TOPICS
+from fiber_align.nodes.bringup.children import cpu_time_s, rss_bytes
+
+
+def expected_endpoints(scenario, lockstep, record, composed=False):
+    """
+    Return ``{topic: (publishers, subscribers)}`` (at least) the running graph must have.
+
+    :param scenario: a scenario name of ``bringup``.
+    :param lockstep: the plant publishes ``/clock``.
+    :param record: a recorder subscribes to every recorded topic too.
+    :param composed: the control nodes share one process: their readers of each other's
+        topics are in-process (``_common.LocalBus``), not DDS subscriptions.
+    """
+    inner = 0 if composed else 1
+    if scenario == 'hysteresis-experiment':
+        out = {'displacement': (1, 1 + inner), 'feedforward_voltage': (1, inner),
+               'feedback_voltage': (1, inner), 'drive_voltage': (1, 1 + inner),
+               'optical_power': (1, 0)}
+    else:
+        source = 0 if scenario == 'none' else 1
+        out = {'displacement': (1, 1 + inner * (1 + source)),
+               'setpoint': (source, 1 if scenario == 'none' else inner),
+               'reference': (1, inner), 'feedforward_voltage': (1, inner),
+               'feedback_voltage': (1, inner), 'controller_state': (1, 0),
+               'drive_voltage': (1, 1 + inner), 'optical_power': (1, 0)}
+    if scenario == 'align':
+        out.update({'reference': (1, 1 + inner), 'optical_power': (1, 1 + inner),
+                    'alignment_state': (1, 1)})
+    if lockstep:
+        out['/clock'] = (1, 0)
+    recorded = {t.lstrip('/') for t in DEFAULT_TOPICS}
+    rec = 1 if record else 0
+    return {k: (p, s + (rec if p and k.lstrip('/') in recorded else 0))
+            for k, (p, s) in out.items()}
+
+
+def dds_environment(env=None):
+    """
+    Return the environment for the graph's processes (a copy of ``env`` or os.environ).
+
+    Unless the user chose a Fast DDS profile, ``config/fastdds_profile.xml`` is used: a
+    50 ms heartbeat, so a reliable sample dropped in a burst is resent at once instead
+    of after 3 s (when its writer may have exited), and larger socket buffers.
+    """
+    out = dict(os.environ if env is None else env)
+    out.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    if 'FASTRTPS_DEFAULT_PROFILES_FILE' not in out:
+        out['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(config_path('fastdds_profile.xml'))
+    return out
+
+
+def wait_recorder(diag, names, ch, limit_s):
+    """
+    Wait until the recorder holds every message the nodes sent; return (s waited, short).
+
+    Every node reports ``sent.<topic>`` and the recorder ``recorded.<topic>`` on
+    ``/diagnostics``; only reports made after the plant was held count. Reliable
+    delivery may need a retransmission after a burst, so the wait is on the counts
+    themselves, bounded by ``limit_s`` (s). ``short``: topic -> (recorded, sent) left.
+    """
+    t0 = time.monotonic()
+    short = None
+    while time.monotonic() - t0 < limit_s and ch.alive():
+        time.sleep(0.05)
+        rec = diag.get('bag_recorder', {})
+        if rec.get('_t', 0.0) <= t0:
+            continue
+        got = {k.rsplit('/', 1)[-1]: int(v) for k, v in rec.items()
+               if k.startswith('recorded.')}
+        short, fresh = {}, True
+        for node in names:
+            if node == 'scenario_runner':
+                continue        # its setpoints are recorded as the `reference`
+            d = diag.get(node, {})
+            if d.get('_t', 0.0) <= t0:
+                fresh = False
+                break
+            for k, v in d.items():
+                topic = k[len('sent.'):] if k.startswith('sent.') else None
+                if topic in got and got[topic] < int(float(v)):
+                    short[topic] = (got[topic], int(float(v)))
+        if fresh and not short:
+            short = None
+            break
+    return time.monotonic() - t0, short or {}
+
+
+def usage(children, cpu0):
+    """Return CPU (s per s of run) and resident memory (MB) of every child process."""
+    out = {}
+    for ch in children:
+        t_a, c_a = cpu0.get(ch.name, (None, 0.0))
+        c_b, wall = cpu_time_s(ch.proc.pid), time.monotonic() - (t_a or time.monotonic())
+        out[ch.name] = {'cpu_per_s': (c_b - c_a) / wall if wall > 0 else None,
+                        'rss_mb': rss_bytes(ch.proc.pid) / 1e6}
+    return out
