@@ -37,19 +37,12 @@ import numpy as np
 
 from fiber_align.alignment import search2d as s2
 from fiber_align.alignment.peak2d import AXES, dbm as _dbm, PeakFitMixin
+from fiber_align.alignment.states import (ACTIVE, FAULT, IDLE, PEAKING,  # noqa: F401
+                                          RELEASING, SEARCHING, STATES, TRACKING)
 from fiber_align.config import load_params
 
 CONFIG_FILE = 'sequencer2d.yaml'
 CONFIG_NODE = 'alignment_sequencer_2d'
-
-IDLE = 'IDLE'
-SEARCHING = 'SEARCHING'
-PEAKING = 'PEAKING'
-TRACKING = 'TRACKING'
-RELEASING = 'RELEASING'
-FAULT = 'FAULT'
-STATES = (IDLE, SEARCHING, PEAKING, TRACKING, RELEASING, FAULT)
-ACTIVE = (SEARCHING, PEAKING, TRACKING)
 
 
 def load_sequencer2d_params(path=CONFIG_FILE, node=CONFIG_NODE, **overrides):

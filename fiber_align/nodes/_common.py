@@ -23,6 +23,7 @@ from fiber_align.config import config_path, ConfigError, flatten, read_yaml
 # The transport (QoS, in-process delivery) and the process runtime live in modules of
 # their own; the nodes use them as c.<name>.
 from fiber_align.nodes._runtime import finish, guard_change_state, init  # noqa: F401
+from fiber_align.nodes.graph import normalize  # noqa: F401 - one law for params types
 from fiber_align.nodes._runtime import make_executor  # noqa: F401
 from fiber_align.nodes._runtime import NODE_ERRORS, node_priority, refuse  # noqa: F401
 from fiber_align.nodes._runtime import report_sent, SENT_PREFIX  # noqa: F401
@@ -54,23 +55,6 @@ def _section(data, name):
         if isinstance(sec, dict) and isinstance(sec.get('ros__parameters'), dict):
             return dict(sec['ros__parameters'])
     return {}
-
-
-def normalize(value):
-    """
-    Return ``value`` with ROS-compatible types: numeric lists become float lists.
-
-    ROS parameters need homogeneous arrays; ``[0, 80.9]`` in a YAML file is made
-    ``[0.0, 80.9]`` (recursively through mappings).
-    """
-    if isinstance(value, dict):
-        return {k: normalize(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        if value and all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                         for v in value):
-            return [float(v) for v in value]
-        return list(value)
-    return value
 
 
 def node_defaults(node_name, area_files=()):

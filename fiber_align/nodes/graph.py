@@ -200,10 +200,10 @@ def control_nodes(scenario):
     return nodes + (SCENARIO_RUNNER,)
 
 
-def _normalize(value):
+def normalize(value):
     """Return ``value`` with numeric lists as float lists (recursively)."""
     if isinstance(value, dict):
-        return {k: _normalize(v) for k, v in value.items()}
+        return {k: normalize(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         if value and all(isinstance(v, (int, float)) and not isinstance(v, bool)
                          for v in value):
@@ -212,17 +212,18 @@ def _normalize(value):
     return value
 
 
-def _merge(a, b):
+def merge(a, b):
+    """Return ``a`` updated recursively by ``b`` (mappings merge, other values replace)."""
     out = dict(a)
     for k, v in b.items():
         if isinstance(v, dict) and isinstance(out.get(k), dict):
-            out[k] = _merge(out[k], v)
+            out[k] = merge(out[k], v)
         else:
             out[k] = v
     return out
 
 
-def _nest(name, value):
+def nest(name, value):
     """Return ``{'a': {'b': value}}`` for the ROS dotted name ``a.b``."""
     out = value
     for part in reversed(name.split('.')):
@@ -255,12 +256,12 @@ def merge_params(files, overrides=None, namespace=''):
     data = {}
     for f in files:
         for key, sec in read_yaml(f).items():
-            data = _merge(data, {_section_key(str(key), namespace): sec})
+            data = merge(data, {_section_key(str(key), namespace): sec})
     for node, params in (overrides or {}).items():
         for name, value in params.items():
-            data = _merge(data, {_section_key(node, namespace):
-                                 {'ros__parameters': _nest(name, value)}})
-    data = _normalize(data)
+            data = merge(data, {_section_key(node, namespace):
+                                {'ros__parameters': nest(name, value)}})
+    data = normalize(data)
     if not namespace:
         return data
     return {(k if k.startswith('/') else '/%s/%s' % (namespace, k)): v

@@ -12,29 +12,9 @@ typo is refused with the closest known name instead of being dropped without a w
 import difflib
 
 from fiber_align.config import ConfigError, config_path, read_yaml
-from fiber_align.nodes._common import normalize
-from fiber_align.nodes.graph import AREA_FILES, GRAPH_FILE
+from fiber_align.nodes.graph import AREA_FILES, GRAPH_FILE, merge, nest, normalize
 #: Sections of the shipped files that are not nodes of the graph (read by tools).
 TOOL_SECTIONS = ('analyze', 'bringup')
-
-
-def merge(a, b):
-    """Return ``a`` updated recursively by ``b`` (mappings merge, other values replace)."""
-    out = dict(a)
-    for k, v in b.items():
-        if isinstance(v, dict) and isinstance(out.get(k), dict):
-            out[k] = merge(out[k], v)
-        else:
-            out[k] = v
-    return out
-
-
-def nest(name, value):
-    """Return ``{'a': {'b': value}}`` for the ROS dotted name ``a.b``."""
-    out = value
-    for p in reversed(name.split('.')):
-        out = {p: out}
-    return out
 
 
 def _flat(d, prefix=''):
