@@ -51,10 +51,9 @@ def make_executor(realtime=False):
 
 def set_realtime_priority(priority):
     """
-    Run the calling thread (the executor's) under ``SCHED_FIFO`` at ``priority``.
+    Run this process's threads (the executor's and the DDS threads) under ``SCHED_FIFO``.
 
-    Threads the executor starts afterwards inherit it; the DDS threads, created
-    earlier with the nodes, keep the normal policy. This is what ros2_control's
+    Threads started afterwards inherit it. This is what ros2_control's
     controller manager does: a 1 kHz loop on a general-purpose OS keeps its period
     against other load only at a realtime priority. Without the right to (not root,
     no ``rtprio`` limit, e.g. ``@realtime - rtprio 98`` in
@@ -72,6 +71,13 @@ def set_realtime_priority(priority):
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
     except (AttributeError, OSError) as exc:
         return 'SCHED_OTHER (SCHED_FIFO %d refused: %s)' % (priority, exc)
+    # the process's other threads too: the DDS threads that receive the messages of a
+    # multi-process graph would otherwise queue behind every busy normal process
+    for tid in os.listdir('/proc/self/task'):
+        try:
+            os.sched_setscheduler(int(tid), os.SCHED_FIFO, os.sched_param(priority))
+        except (OSError, ValueError):
+            pass
     return 'SCHED_FIFO %d' % priority
 
 

@@ -275,7 +275,8 @@ class Bringup:
         self.diag_node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, DIAG_QOS)
         self.diag_exec = SingleThreadedExecutor()
         self.diag_exec.add_node(self.diag_node)
-        threading.Thread(target=self._spin_diag, daemon=True).start()
+        self.diag_thread = threading.Thread(target=self._spin_diag, daemon=True)
+        self.diag_thread.start()
 
     def _spin_diag(self):
         try:
@@ -356,6 +357,11 @@ class Bringup:
         if r is not None:
             self.executor.shutdown(timeout_sec=0.5)
             self.diag_exec.shutdown(timeout_sec=0.5)
+            # the spin threads must have left rclpy before the process ends (a thread
+            # still inside it at exit aborts the process: "terminate called ...")
+            for th in (getattr(self, 'spin_thread', None), getattr(self, 'diag_thread', None)):
+                if th is not None:
+                    th.join(timeout=2.0)
             self.diag_node.destroy_node()
             r.destroy()
         for ch in self.children:
