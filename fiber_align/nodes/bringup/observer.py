@@ -154,7 +154,9 @@ class Runner:
                 raise BringupError('service %s not available within %g s'
                                    % (client.srv_name, timeout))
         fut = client.call_async(request)
-        self.cexec.spin_until_future_complete(fut, timeout_sec=timeout)
+        while not fut.done() and time.monotonic() < end:
+            self.cexec.spin_until_future_complete(fut, timeout_sec=0.1)
+            alive()             # a server process that died answers nothing
         if not fut.done():
             client.remove_pending_request(fut)
             raise BringupError('service %s did not answer within %g s'
