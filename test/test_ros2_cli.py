@@ -108,7 +108,7 @@ def _found(out):
     return 'Node not found' not in out
 
 
-def ros2_retry(env, *args, until=_found, tries=5):
+def ros2_retry(env, *args, until=_found, tries=10):
     """Run ``ros2 ARGS`` until ``until(output)`` (discovery may need a second look)."""
     for _ in range(tries):
         rc, out = ros2(env, *args)
