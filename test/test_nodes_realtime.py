@@ -14,6 +14,7 @@ back to the setpoint without a re-send (the latched ``reference``), never beyond
 setpoint range by more than 2 um.
 """
 
+import contextlib
 import math
 import os
 from pathlib import Path
@@ -162,10 +163,21 @@ class Client:
 @pytest.fixture(scope='module')
 def graph(tmp_path_factory):
     """Start the four node processes and the client; activate the driver."""
+    with running_graph(tmp_path_factory.mktemp('realtime_logs')) as g:
+        yield g
+
+
+@contextlib.contextmanager
+def running_graph(log_dir, ros_args=None):
+    """
+    Start the four node processes and the client, activate the driver; yield them.
+
+    :param ros_args: node name -> extra ``--ros-args`` arguments of that process.
+    :yields: ``(client, {name: process}, log_dir)``; everything is stopped after.
+    """
     import rclpy
     from lifecycle_msgs.srv import ChangeState
-    log_dir = tmp_path_factory.mktemp('realtime_logs')
-    procs = {n: spawn(n, log_dir) for n in NODES}
+    procs = {n: spawn(n, log_dir, (ros_args or {}).get(n, ())) for n in NODES}
     rclpy.init()
     cl = None
     try:

@@ -13,48 +13,27 @@ import time
 
 import pytest
 
-from test_nodes_realtime import Client, ERROR, spawn, stop, TARGET_M
+from test_nodes_realtime import ERROR, running_graph, spawn, TARGET_M
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
-NODES = ('simulated_actuator', 'hysteresis_compensator', 'fuzzy_pid_controller',
-         'actuator_driver')
 RANGE_M = (0.0, 90e-6)      # setpoint_min_m, setpoint_max_m of config/fiber_align.yaml
 SLACK_M = 2e-6              # the issue's bound on any excursion beyond that range
 
 
 @pytest.fixture(scope='module')
 def graph(tmp_path_factory):
-    """Start the node processes (driver latching after 1 trip) and the client."""
-    import rclpy
-    from lifecycle_msgs.srv import ChangeState
+    """Start the four node processes (driver latching after 1 trip); settle at 50 um."""
     log_dir = tmp_path_factory.mktemp('recovery_logs')
-    procs = {n: spawn(n, log_dir, ['-p', 'latch_trips:=1'] if n == 'actuator_driver'
-                      else []) for n in NODES}
-    rclpy.init()
-    cl = None
-    try:
-        cl = Client()
-        cli = cl.node.create_client(ChangeState, 'actuator_driver/change_state')
-        for tid in (1, 3):      # configure, activate
-            req = ChangeState.Request()
-            req.transition.id = tid
-            assert cl.call(cli, req, timeout=30).success
-        assert cl.spin_for(30, lambda: cl.matched() and len(cl.drives) > 100), \
-            'graph not running: see %s' % log_dir
+    with running_graph(log_dir, {'actuator_driver': ['-p', 'latch_trips:=1']}) as g:
+        cl = g[0]
         t0 = time.monotonic()
         for _ in range(10):
             cl.publish(TARGET_M)
             if cl.spin_for(1.0, lambda: cl.settled(t0)):
                 break
         assert cl.settled(t0), cl.ys_since(t0)[-5:]
-        yield cl, procs, log_dir
-    finally:
-        if cl is not None:
-            cl.close()
-        rclpy.try_shutdown()
-        for p in procs.values():
-            stop(p)
+        yield g
 
 
 def _within_range(ys):

@@ -88,7 +88,7 @@ class Rig2D:
         self.loops[1].step(ry_m)
 
 
-class Bench2D:
+class Bench2D(sc1.Stepping):
     """A sequencer, a 2-D optical link and a rig stepped together, one period a call."""
 
     FIELDS = ('t', 'x', 'y', 'mx', 'my', 'rx', 'ry', 'p', 'p_true', 'p_max', 'tx', 'ty')
@@ -125,14 +125,6 @@ class Bench2D:
         self.rig.step(rx, ry)
         self.k += 1
         return self.last
-
-    def run_until(self, t_end, stop=None):
-        """Step until ``t_end`` (s) or ``stop(bench)``; return the time (s)."""
-        while self.t < t_end - 1e-12:
-            self.step()
-            if stop is not None and stop(self):
-                break
-        return self.t
 
     def true_loss(self):
         """Return the true loss (dB) of the last period."""

@@ -145,7 +145,19 @@ class Record:
         return out
 
 
-class Bench:
+class Stepping:
+    """A bench stepped one control period at a time (``step()``, ``t`` in s)."""
+
+    def run_until(self, t_end, stop=None):
+        """Step until ``t_end`` (s) or until ``stop(bench)`` is true; return the time (s)."""
+        while self.t < t_end - 1e-12:
+            self.step()
+            if stop is not None and stop(self):
+                break
+        return self.t
+
+
+class Bench(Stepping):
     """A sequencer, an optical link and a loop stepped together, one control period a call."""
 
     def __init__(self, loop, link, seq, period_s=1e-3, record=True):
@@ -177,14 +189,6 @@ class Bench:
         self.loop.step(r)
         self.k += 1
         return self.last
-
-    def run_until(self, t_end, stop=None):
-        """Step until ``t_end`` (s) or until ``stop(bench)`` is true; return the time (s)."""
-        while self.t < t_end - 1e-12:
-            self.step()
-            if stop is not None and stop(self):
-                break
-        return self.t
 
 
 def true_loss(bench):
