@@ -14,11 +14,15 @@ Bool) tells the compensator and the controller to park at the measured position,
 resume is bumpless. ``v_min``, ``v_max`` and ``safe_voltage_v`` are checked against both
 field limits of the PZT layers (``fiber_align.control.driver.check_field_limits``); a
 ``change_state`` the present state does not offer is refused, not fatal
-(``_runtime.guard_change_state``). The full behaviour, with the reasons:
-docs/ros_interface.md, section "actuator_driver".
+(``_runtime.guard_change_state``). ``backend`` ``mdt693b`` also drives a Thorlabs MDT693B
+channel (:mod:`fiber_align.nodes._driver_output`): configure opens and identifies it and
+refuses a ``v_max`` above its limit switch, deactivate and shutdown ramp it to the safe
+voltage, ``drive_voltage_readback`` (Float64, V) carries its read-back, and a lost device
+takes the node to ERROR (then unconfigured: a configure reconnects). ``sensorless``: no
+``feedback_voltage``, the feedforward alone is driven. The full behaviour, with the
+reasons: docs/ros_interface.md, section "actuator_driver".
 """
 
-import math
 import sys
 import time
 
@@ -31,32 +35,17 @@ from std_srvs.srv import SetBool
 from fiber_align.config import ConfigError
 from fiber_align.control.driver import check_field_limits, DriverCore
 from fiber_align.nodes import _common as c
+from fiber_align.nodes import _driver_output as do
 
 NODE_NAME = 'actuator_driver'
 #: Topics this node publishes (relative names; see ``_common.LocalBus``).
-PUBLISHES = ('drive_voltage', 'drive_held')
+PUBLISHES = ('drive_voltage', 'drive_held', 'drive_voltage_readback')
 AREA_FILES = ('driver.yaml',)
 #: Uninterrupted fresh input (s, wall) the driver waits for before it ends a trip.
 RECOVERY_S = 0.02
-CORE_KEYS = ('v_min', 'v_max', 'slew_rate_v_per_s', 'watchdog_timeout_s', 'safe_voltage_v',
-             'latch_trips', 'latch_window_s', 'safe_ramp_rate_v_per_s')
-LIMIT_KEYS = ('field_limit_v', 'coercive_field_v', 'depoling_fraction')
-RANGES = {'v_min': (-1000.0, 1000.0), 'v_max': (-1000.0, 1000.0),
-          'slew_rate_v_per_s': (-1.0, 1e12), 'watchdog_timeout_s': (0.0, 60.0),
-          'safe_voltage_v': (-1000.0, 1000.0), 'latch_trips': (0, 1000),
-          'latch_window_s': (0.0, 3600.0), 'safe_ramp_rate_v_per_s': (-1.0, 1e12)}
-UNITS = {'v_min': 'lowest drive (V)', 'v_max': 'highest drive (V)',
-         'slew_rate_v_per_s': 'slew limit (V/s); <= 0: none',
-         'watchdog_timeout_s': 'silence before the safe ramp (s); 0: off',
-         'safe_voltage_v': 'safe (light-off) drive (V)',
-         'latch_trips': 'watchdog trips within latch_window_s that latch the safe '
-                        'voltage (0: never)',
-         'latch_window_s': 'window of the latch count (s)',
-         'safe_ramp_rate_v_per_s': 'rate of every ramp to the safe voltage (V/s); <= 0: '
-                                   'the slew limit'}
 
 
-class ActuatorDriverNode(LifecycleNode):
+class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
     """Lifecycle transport around :class:`DriverCore`."""
 
     def __init__(self, bus=None, **kwargs):
@@ -69,29 +58,19 @@ class ActuatorDriverNode(LifecycleNode):
         super().__init__(NODE_NAME, **kwargs)
         self.bus = bus
         d = c.node_defaults(NODE_NAME, AREA_FILES)
-        d = {k: v for k, v in d.items() if k in CORE_KEYS + LIMIT_KEYS + (
-            'rate_hz', 'sync_mode', 'diagnostics_period_s', 'realtime_priority')}
-        c.declare(self, d, 'rate_hz', 'control rate (Hz)', 1.0, 20000.0, True)
-        c.declare(self, d, 'sync_mode', 'message pairing', read_only=True,
-                  choices=c.SYNC_MODES)
-        c.declare(self, d, 'diagnostics_period_s', '/diagnostics period (s)', 0.01, 60.0,
-                  True)
-        c.declare(self, d, 'field_limit_v', 'forward field limit of the PZT layers (V)',
-                  0.0, 1000.0, True)
-        c.declare(self, d, 'coercive_field_v', 'coercive field times layer thickness (V)',
-                  0.0, 10000.0, True)
-        c.declare(self, d, 'depoling_fraction', 'reverse drive allowed, as a fraction of '
-                  'coercive_field_v (1)', 0.0, 1.0, True)
-        c.declare_priority(self, d)
-        for k in CORE_KEYS:
-            lo, hi = RANGES[k]
-            c.declare(self, d, k, UNITS[k], lo, hi)
+        do.declare_all(self, d)
+        self.backend = self.get_parameter('backend').value
+        self.sensorless = bool(self.get_parameter('sensorless').value)
         why = check_field_limits(self._core_params())
         if why:
             raise ConfigError('actuator_driver: %s' % why)
         self.add_on_set_parameters_callback(self._on_set)
         self.core = None
         self.pub = None
+        self.out = None                 # DeviceOutput of the mdt693b backend
+        self.pub_rb = None
+        self.lost = None                # one-line reason once the device is lost
+        self._rb_t = None
         self.enabled = True
         self.active = False
         self.n_drive = 0
@@ -114,89 +93,42 @@ class ActuatorDriverNode(LifecycleNode):
         self.refused_transitions = 0
         c.guard_change_state(self)
 
-    # -- parameters -----------------------------------------------------------------
-    def _core_params(self, overrides=None):
-        p = {k: self.get_parameter(k).value for k in CORE_KEYS + LIMIT_KEYS}
-        p.update(overrides or {})
-        return p
-
-    def _check_core(self, p):
-        """Return ``None`` or the reason why ``p`` is not a valid driver set-up."""
-        why = check_field_limits(p)
-        if why:
-            return why
-        try:
-            DriverCore.from_params(p)
-        except (ConfigError, ValueError) as exc:
-            return str(exc)
-        return None
-
-    def _on_set(self, params):
-        """Accept live updates of the limits when in range and consistent."""
-        res = c.check_parameters(params, RANGES)
-        if not res.successful:
-            return res
-        new = {p.name: float(p.value) for p in params if p.name in CORE_KEYS}
-        if 'latch_trips' in new:
-            new['latch_trips'] = int(new['latch_trips'])
-        if new:
-            why = self._check_core(self._core_params(new))
-            if why:
-                res.successful = False
-                res.reason = why
-                return res
-            if self.core is not None:
-                core = self.core
-                core.v_min = new.get('v_min', core.v_min)
-                core.v_max = new.get('v_max', core.v_max)
-                core.timeout = new.get('watchdog_timeout_s', core.timeout)
-                core.safe = new.get('safe_voltage_v', core.safe)
-                core.latch_trips = new.get('latch_trips', core.latch_trips)
-                core.latch_window_s = new.get('latch_window_s', core.latch_window_s)
-                if 'safe_ramp_rate_v_per_s' in new:
-                    r = new['safe_ramp_rate_v_per_s']
-                    core.safe_rate = r if r > 0 and math.isfinite(r) else math.inf
-                if 'slew_rate_v_per_s' in new:
-                    s = new['slew_rate_v_per_s']
-                    core.slew = s if s > 0 and math.isfinite(s) else math.inf
-        return res
-
-    # -- lifecycle service guard ----------------------------------------------------
-    refused_transitions = 0
-
     # -- lifecycle ------------------------------------------------------------------
+    def _refuse(self, why):
+        self.get_logger().error('cannot configure: %s' % why)
+        self.health.status(c.ERROR, why)
+        self.core = None
+        return TransitionCallbackReturn.FAILURE
+
     def on_configure(self, state):
-        """Build the core and the transport; output stays 0 V (nothing published)."""
+        """Build the core, open the device (mdt693b) and the transport; nothing published."""
         p = self._core_params()
         why = self._check_core(p)
         if why:
-            self.get_logger().error('cannot configure: %s' % why)
-            self.health.status(c.ERROR, why)
-            return TransitionCallbackReturn.FAILURE
+            return self._refuse(why)
         self.core = DriverCore.from_params(p)
         self.period_s = 1.0 / float(self.get_parameter('rate_hz').value)
         self.lockstep = self.get_parameter('sync_mode').value == 'lockstep'
+        why = self._open_device(Float64)
+        if why:
+            return self._refuse(why)
         self.pub = c.Pub(self, Float64, 'drive_voltage', c.CONTROL_QOS, self.bus)
         qos = c.sample_qos(self.lockstep)
         self._subs = [
-            c.subscription(self, Float64, 'feedforward_voltage', self._on_ff, qos, self.bus),
-            c.subscription(self, Float64, 'feedback_voltage', self._on_fb, qos, self.bus)]
+            c.subscription(self, Float64, 'feedforward_voltage', self._on_ff, qos, self.bus)]
+        if not self.sensorless:
+            self._subs.append(c.subscription(self, Float64, 'feedback_voltage', self._on_fb,
+                                             qos, self.bus))
         self._srv = self.create_service(SetBool, '~/enable', self._on_enable)
         if not self.lockstep:
             self._timer = self.create_timer(self.watchdog_period_s(), self._on_tick,
                                             clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self.health.status(c.OK, 'configured (inactive): output 0 V')
+        self.health.status(c.OK, 'configured (inactive): output %g V' % self.core.v)
         self._update_values()
         return TransitionCallbackReturn.SUCCESS
 
     def watchdog_period_s(self):
-        """
-        Return the realtime watchdog timer period (s): one control period.
-
-        Every ramp to the safe voltage advances at this period, in steps of
-        ``safe_ramp_rate_v_per_s`` times it (2 mV per us: 2 V), small enough not to ring
-        the bending mode.
-        """
+        """Return the watchdog period (s): one control period (each ramp step is one)."""
         return self.period_s
 
     def on_activate(self, state):
@@ -220,22 +152,39 @@ class ActuatorDriverNode(LifecycleNode):
             self.core.start_safe_ramp(self._now())
         self.active = False
         self._set_held(True, 'deactivated')
+        if self._ramp_device():
+            return TransitionCallbackReturn.ERROR       # on_error closes the device
         safe = self.core.safe if self.core else 0.0
+        if self.out is not None:
+            self._publish(safe)                         # the device is at it already
+            self.out.start()                            # read-back only (nothing pending)
         self.health.status(c.OK, 'inactive: output %g V' % safe)
         return super().on_deactivate(state)
 
     def on_cleanup(self, state):
-        """Destroy the transport and the core."""
+        """Destroy the transport and the core; close the device (the output stays)."""
+        if self.lost is not None:
+            return TransitionCallbackReturn.ERROR
         self._teardown()
         self.health.status(c.WARN, 'unconfigured: output 0 V')
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state):
-        """Tear down on shutdown."""
+        """Ramp the device to the safe voltage, then tear down."""
+        self._ramp_device()
         self._teardown()
         return TransitionCallbackReturn.SUCCESS
 
+    def on_error(self, state):
+        """A lost device: close it and end unconfigured (a later configure reconnects)."""
+        why = self.lost or 'a transition failed'
+        self._teardown()
+        self.health.status(c.ERROR, 'device lost: %s; unconfigured: a configure reconnects'
+                           % why)
+        return TransitionCallbackReturn.SUCCESS
+
     def _teardown(self):
+        self._close_device()
         for s in self._subs:
             c.unsubscribe(self, s)
         self._subs = []
@@ -280,12 +229,18 @@ class ActuatorDriverNode(LifecycleNode):
         else:
             self.ff_latest = msg.data
             self.t_ff = self._now()
+            if self.sensorless:
+                self._realtime(0.0)
 
     def _on_fb(self, msg):
         if self.lockstep:
             self.fb_q.append(msg.data)
             self._pair()
-            return
+        else:
+            self._realtime(msg.data)
+
+    def _realtime(self, fb):
+        """Realtime: drive the newest feedforward plus ``fb`` (V) unless held."""
         now = self._now()
         core = self.core
         if core is not None and core.timeout > 0 and (
@@ -295,7 +250,7 @@ class ActuatorDriverNode(LifecycleNode):
             return      # latched: only ~/enable or a lifecycle cycle ends it
         if core is not None and core.tripped and self.enabled and not self._recovered(now):
             return      # hold until the input has been fresh for RECOVERY_S (docstring)
-        self._command(self.ff_latest, msg.data, now)
+        self._command(self.ff_latest, fb, now)
 
     def _recovered(self, now):
         """Return True once fresh input has flowed for ``RECOVERY_S`` after a trip."""
@@ -348,6 +303,9 @@ class ActuatorDriverNode(LifecycleNode):
     def _on_tick(self):
         """Realtime watchdog (wall clock)."""
         core = self.core
+        if core is not None and self.out is not None:
+            self._poll_device(Float64)
+            core = self.core            # None once a lost device ended in ERROR
         if core is None:
             return
         t = self._now()
@@ -382,8 +340,8 @@ class ActuatorDriverNode(LifecycleNode):
             self._update_values()
 
     _ticks = 0
-
     _last_pub = None
+    n_rb = 0
 
     def _publish(self, v):
         msg = self._msg
@@ -391,6 +349,8 @@ class ActuatorDriverNode(LifecycleNode):
         self.pub.publish(msg)
         self._last_pub = float(v)
         self.n_drive += 1
+        if self.out is not None:
+            self.out.submit(msg.data)
 
     def _update_values(self):
         core = self.core
@@ -402,10 +362,12 @@ class ActuatorDriverNode(LifecycleNode):
             'watchdog_count': core.watchdog_count, 'nan_count': core.nan_count,
             'watchdog_latched': core.latched,
             'sent.drive_voltage': self.n_drive})
+        if self.out is not None:
+            self.health.set_values(**self.out.values())
 
     def sent_counts(self):
         """Return published message counts per topic."""
-        return {'drive_voltage': self.n_drive}
+        return {'drive_voltage': self.n_drive, 'drive_voltage_readback': self.n_rb}
 
 
 def main(args=None):

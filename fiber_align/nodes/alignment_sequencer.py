@@ -17,6 +17,13 @@ sample). Topics and services (relative names, SI units):
 - sub ``/diagnostics``: a status of the ``actuator_driver`` at ERROR or STALE is passed
   to the core as ``driver_active=False`` (FAULT "driver inactive" in an active state).
 
+``sensorless`` (graph-wide, the hardware graph: no ``displacement``): one ``update`` per
+``optical_power`` reading, against the commanded displacement: the newest ``reference``
+(std_msgs/Float64, m, the setpoint the compensator accepted and positions by its inverse
+PI feedforward alone), at the wall time since the first reading, each gap counted as at
+most :data:`MAX_GAP_PERIODS` control periods (a stalled period then moves the search by
+its usual step, not by a jump).
+
 Pairing: ``lockstep`` pairs the i-th displacement with the i-th optical power (the plant
 publishes both for every sample); if the plant publishes no power, a displacement waits
 at most ``power_queue_limit`` samples and is then processed without power (which the core
@@ -27,6 +34,7 @@ since the previous displacement (the latest one), or none.
 import json
 import math
 import sys
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import ExternalShutdownException
@@ -42,6 +50,8 @@ from fiber_align.nodes import _common as c
 NODE_NAME = 'alignment_sequencer'
 AREA_FILES = ('sequencer.yaml',)
 POWER_QUEUE_LIMIT = 5
+#: Sensorless: the most control periods one reading advances the sequencer's clock by.
+MAX_GAP_PERIODS = 1.5
 #: Topics this node publishes (relative names; see ``_common.LocalBus``).
 PUBLISHES = ('setpoint',)
 STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
@@ -75,8 +85,20 @@ class AlignmentSequencerNode(Node):
         self.pub_sp = c.Pub(self, Float64, 'setpoint', c.CONTROL_QOS, bus)
         self.pub_state = self.create_publisher(String, 'alignment_state', STATE_QOS)
         qos = c.sample_qos(self.lockstep)
-        c.subscription(self, JointState, 'displacement', self._on_disp, qos, bus)
-        c.subscription(self, Float64, 'optical_power', self._on_power, qos, bus)
+        self.sensorless = bool(c.declare(self, d, 'sensorless', 'no displacement sensor: '
+                                         'step on each optical_power reading against the '
+                                         'reference (m)', read_only=True))
+        self.max_gap_s = MAX_GAP_PERIODS * float(core['control_period_s'])
+        self.y_ref = None               # sensorless: the newest reference (m)
+        self._t = self._wall = None     # sensorless: control clock (s) and its wall time
+        if self.sensorless:
+            c.subscription(self, Float64, 'reference', self._on_reference,
+                           c.REFERENCE_LATCHED_QOS, bus)
+            c.subscription(self, Float64, 'optical_power', self._on_reading,
+                           c.REALTIME_QOS, bus)
+        else:
+            c.subscription(self, JointState, 'displacement', self._on_disp, qos, bus)
+            c.subscription(self, Float64, 'optical_power', self._on_power, qos, bus)
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, c.DIAG_QOS)
         self.create_service(Trigger, 'align', self._on_align)
         self.create_service(Trigger, 'release', self._on_release)
@@ -110,6 +132,19 @@ class AlignmentSequencerNode(Node):
             p = self.p_q.pop() if self.p_q else None
             self.p_q = []
             self._step(t, y, p)
+
+    def _on_reference(self, msg):
+        self.y_ref = float(msg.data)
+
+    def _on_reading(self, msg):
+        """Sensorless: one step per reading (W) at the commanded displacement (m)."""
+        w = time.monotonic()
+        self._t = 0.0 if self._t is None else self._t + min(max(w - self._wall, 0.0),
+                                                             self.max_gap_s)
+        self._wall = w
+        y = self.y_ref if self.y_ref is not None else self.seq.status().get(
+            'setpoint_m', 0.0)
+        self._step(self._t, y, float(msg.data))
 
     def _pair(self):
         while self.y_q and self.p_q:

@@ -17,6 +17,9 @@ Layouts:
   ``control_graph --nodes a,b,c --ros-args --params-file FILE``; each hosted node keeps
   its own name and reads its own section of the params file.
 
+The hardware (sensorless) variant is this description with the plant swapped for the
+bench: :func:`fiber_align.nodes.graph_hardware.build_hardware`.
+
 In both layouts ``lifecycle_manager`` (brings the lifecycle nodes to active) and
 ``bag_recorder`` (only with ``record``) are processes of their own.
 

@@ -14,6 +14,8 @@ step once per control period):
 - ``lockstep``: one ``feedforward_voltage`` (std_msgs/Float64, V) per ``setpoint``
   (std_msgs/Float64, m), so index pairing holds (the setpoint source publishes one
   setpoint per sample);
+- ``sensorless`` (graph-wide, the hardware graph): one per setpoint as in lockstep, no
+  ``displacement`` subscription;
 - ``realtime``: one ``feedforward_voltage`` per ``displacement`` sample (sensor_msgs/
   JointState, newest only; its stamp counts the sample periods), towards the latest
   valid setpoint along the realtime setpoint trajectory
@@ -83,6 +85,11 @@ class HysteresisCompensatorNode(Node):
         self.rate_hz = c.declare(self, d, 'rate_hz', 'control rate (Hz)', 1.0, 20000.0, True)
         self.lockstep = c.declare(self, d, 'sync_mode', 'sample clock', read_only=True,
                                   choices=c.SYNC_MODES) == 'lockstep'
+        # sensorless (the hardware graph): no displacement to clock it; one feedforward
+        # per setpoint, as in lockstep (the sequencer steps once per power reading)
+        sensorless = c.declare(self, d, 'sensorless', 'no displacement sensor: step once '
+                               'per setpoint', read_only=True)
+        self.per_setpoint = self.lockstep or bool(sensorless)
         diag = c.declare(self, d, 'diagnostics_period_s', '/diagnostics period (s)', 0.01,
                          60.0, True)
         self.sp_lo = c.declare(self, d, 'setpoint_min_m', 'lowest accepted setpoint (m)',
@@ -122,7 +129,7 @@ class HysteresisCompensatorNode(Node):
         c.subscription(self, Float64, 'setpoint', self._on_setpoint,
                        c.LOCKSTEP_QOS if self.lockstep else c.SETPOINT_QOS, bus)
         self.held = False               # realtime: the driver holds its output
-        if not self.lockstep:
+        if not self.per_setpoint:
             c.subscription(self, JointState, 'displacement', self._on_sample,
                            c.REALTIME_QOS, bus)
             c.subscription(self, Bool, 'drive_held', self._on_held, c.LATCHED_QOS, bus)
@@ -160,7 +167,7 @@ class HysteresisCompensatorNode(Node):
         ff = build_feedforward(self.get_parameter('controller').value, comp,
                                self.load_model(),
                                design_dynamics(load_actuator('actuator.yaml')), self.rate_hz)
-        if not self.lockstep:
+        if not self.per_setpoint:
             c.extend_lead(ff, 1.0 / self.rate_hz)    # the realtime loop's extra period
         return ff
 
@@ -199,13 +206,13 @@ class HysteresisCompensatorNode(Node):
             self.get_logger().warn(text)
             self.health.warn(text)
             self._update_values()
-            if not self.lockstep:
+            if not self.per_setpoint:
                 return
         ref = self._ref_msg
         ref.data = self.r
         self.pub_ref.publish(ref)
         self.n_ref += 1
-        if self.lockstep:
+        if self.per_setpoint:
             self._publish(self.ff.step(self.r))
 
     def _on_sample(self, msg):
@@ -237,7 +244,7 @@ class HysteresisCompensatorNode(Node):
 
     def _on_reset(self, request, response):
         """Restart the feedforward at rest at the present position (m)."""
-        y = max(0.0, self.r) if self.lockstep else self._present()
+        y = max(0.0, self.r) if self.per_setpoint else self._present()
         self.ff.start_at(y)
         self.traj.reset(y)
         response.success = True
