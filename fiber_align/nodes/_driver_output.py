@@ -350,3 +350,10 @@ class DeviceBackend:
         if self.pub_rb is not None:
             self.pub_rb.destroy(self)
             self.pub_rb = None
+
+    def destroy_node(self):
+        """Process exit (SIGINT, no lifecycle shutdown): ramp to the safe voltage, close."""
+        if self.out is not None:
+            self._ramp_device()
+            self._close_device()
+        return super().destroy_node()

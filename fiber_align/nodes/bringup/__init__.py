@@ -30,6 +30,9 @@ is still finalised. The node processes end with ``bringup`` even when it is kill
 (``PR_SET_PDEATHSIG``). Exit codes: 0 a clean run, 1 a failure (a node died, a timeout,
 a stall, another graph on the domain, an alignment FAULT, ``--strict`` goals missed), 2
 bad input (options, params files, parameter values), 130 interrupted.
+
+``--hardware`` runs the sensorless bench graph instead (``--emulate``: on the emulators;
+:mod:`fiber_align.nodes.bringup.hardware`).
 """
 
 import os
@@ -37,6 +40,7 @@ import signal
 import sys
 
 from fiber_align.config import ConfigError
+from fiber_align.nodes.bringup import hardware
 from fiber_align.nodes.bringup.cli import parse_args
 from fiber_align.nodes.bringup.observer import BringupError, Runner, StartStall
 from fiber_align.nodes.bringup.run import (Bringup, dds_environment, expected_endpoints,
@@ -58,6 +62,11 @@ def main(args=None):
     signal.signal(signal.SIGTERM, _interrupt)
     os.environ.update(dds_environment())
     a = parse_args(args)
+    if a.hardware:
+        code = hardware.run(a)
+        if args is None:
+            sys.exit(code)
+        return code
     try:
         b = Bringup(a)
     except (ConfigError, ValueError) as exc:

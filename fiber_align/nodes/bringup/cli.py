@@ -91,7 +91,23 @@ def parse_args(argv):
                     help='exit 1 when the run misses its realtime goals (missed cycles, '
                          'watchdog trips, lost messages)')
     ap.add_argument('--quiet', action='store_true', help="do not relay the nodes' output")
+    hw = ap.add_argument_group('hardware bench (docs/hardware.md)')
+    hw.add_argument('--hardware', action='store_true', help='the sensorless graph on an '
+                    'MDT693B + PM100 (no simulated plant): align, --cycles, hold')
+    hw.add_argument('--emulate', action='store_true', help='with --hardware: start '
+                    '`fiber-align emulate` and use its serial_link and visa_resource')
+    hw.add_argument('--port', help='MDT693B serial device (default: config/hardware.yaml)')
+    hw.add_argument('--visa-resource', help='PM100 VISA resource (default: hardware.yaml)')
+    hw.add_argument('--slot', type=float, metavar='M', help='--emulate: slot position (m)')
+    hw.add_argument('--hold', type=float, default=None, metavar='S',
+                    help='--hardware: hold TRACKING this long (s) after the cycles; '
+                         'default: until Ctrl-C')
     a = ap.parse_args(argv)
+    if not a.hardware and (a.emulate or a.port or a.visa_resource or a.slot is not None
+                           or a.hold is not None):
+        ap.error('--emulate, --port, --visa-resource, --slot and --hold need --hardware')
+    if a.emulate and (a.port or a.visa_resource):
+        ap.error('--emulate chooses the port and the VISA resource itself')
     if a.cycles is not None and a.cycles < 0:
         ap.error('--cycles must be >= 0, got %d' % a.cycles)
     for path, opt in ((a.trace, '--trace'), (a.summary, '--summary')):
