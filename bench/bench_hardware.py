@@ -12,6 +12,9 @@ The sensorless hardware bench on the emulators (docs/hardware.md).
 - Unplug latency: amplifier pty closed / meter socket dropped to the typed error.
 
 ``python -m bench bench_hardware`` (``main(['--quick'])``: 5 seeds, 10 s of tracking).
+``python -m bench.bench_hardware --graph [--seeds N]``: the same 20 alignments through the
+ROS graph instead (``bringup --hardware``'s processes: sequencer, compensator and driver
+in one process, power_meter, lifecycle_manager), each on fresh emulators (about 6 s each).
 """
 
 import argparse
@@ -23,6 +26,7 @@ import numpy as np
 
 from fiber_align.hardware import errors as er
 from fiber_align.hardware.bench import align_trial, emulated, SensorlessBench
+from fiber_align.nodes.bringup.hardware import graph_trial
 
 
 def _rate(fn, n):
@@ -50,13 +54,36 @@ def rates(n=2000):
     return out
 
 
-def align_trials(n_seeds):
-    """Run ``n_seeds`` alignments; return the list of results."""
+def align_trials(n_seeds, trial=None):
+    """Run ``n_seeds`` alignments (``trial``: the pure loop by default); return results."""
     res = []
     for seed in range(n_seeds):
         slot = float(np.random.default_rng(1000 + seed).uniform(3e-6, 62e-6))
-        res.append(align_trial(seed, slot, timeout_s=3.0))
+        res.append(trial(seed, slot) if trial else align_trial(seed, slot, timeout_s=3.0))
     return res
+
+
+def graph_main(n_seeds):
+    """Align ``n_seeds`` times through the ROS graph; print a table; return 0."""
+    t0 = time.time()
+    trials = align_trials(n_seeds, graph_trial)
+    print('| seed | slot (um) | state | loss (dB) | max loss (dB) | align wall (s) '
+          '| peak samples | commands |')
+    print('|---|---|---|---|---|---|---|---|')
+    for t in trials:
+        print('| %d | %.2f | %s | %s | %s | %.3f | %d | %d |' % (
+            t['seed'], t['slot_m'] * 1e6, t['status'].get('state'),
+            '-' if t['final_loss_db'] is None else '%.4f' % t['final_loss_db'],
+            '-' if t['max_loss_db'] is None else '%.4f' % t['max_loss_db'],
+            t['align_wall_s'], t['status'].get('peak_samples', 0), t['commands']))
+    good = [t for t in trials if t['aligned'] and t['final_loss_db'] < 0.1
+            and t['align_wall_s'] <= 3.0]
+    walls = [t['align_wall_s'] for t in trials]
+    print('\ngraph: aligned within 0.1 dB in <= 3 s: %d/%d; worst loss %.4f dB; align '
+          'wall median %.3f s, worst %.3f s (%.0f s wall in all)'
+          % (len(good), len(trials), max(t['final_loss_db'] or 99.0 for t in trials),
+             float(np.median(walls)), max(walls), time.time() - t0))
+    return 0
 
 
 def track(duration_s, drift=0.2e-6, seed=5):
@@ -132,7 +159,12 @@ def main(argv=None):
     """Run the checks and print tables; return 0."""
     ap = argparse.ArgumentParser(prog='bench_hardware')
     ap.add_argument('--quick', action='store_true', help='5 seeds, 10 s of tracking')
+    ap.add_argument('--graph', action='store_true', help='the alignments through the ROS '
+                    'graph (bringup --hardware) instead')
+    ap.add_argument('--seeds', type=int, default=20, help='--graph: number of seeds')
     args = ap.parse_args([] if argv is None else argv)
+    if args.graph:
+        return graph_main(args.seeds)
     n_seeds, track_s = (5, 10.0) if args.quick else (20, 60.0)
     t0 = time.time()
     r = rates()

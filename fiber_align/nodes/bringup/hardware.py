@@ -26,6 +26,7 @@ import tempfile
 import threading
 import time
 
+from fiber_align.hardware.bench import emulated
 from fiber_align.nodes.bringup.checks import dds_environment
 from fiber_align.nodes.bringup.children import _die_with_parent, Child
 from fiber_align.nodes.graph_hardware import build_hardware
@@ -215,6 +216,38 @@ class HardwareRun:
             self.executor = None
         self.tmp.cleanup()
         return {ch.name: ch.proc.returncode for ch in self.children}
+
+
+def graph_trial(seed, slot_m, composed=None, settle_s=0.2, timeout_s=ALIGN_TIMEOUT_S):
+    """
+    Align once through the hardware graph on fresh in-process emulators; return SI metrics.
+
+    ``final_loss_db``: the mean true loss (the emulator's truth) over the first
+    ``settle_s`` (s) of TRACKING, as :func:`fiber_align.hardware.bench.align_trial`;
+    ``align_wall_s``: wall time (s) from the ``align`` call to TRACKING; ``v_range``: the
+    lowest and highest voltage the emulated amplifier received (V).
+    """
+    with emulated(seed=seed, slot_position_m=slot_m) as (bench, mdt, pm):
+        g = build_hardware(port=mdt.port, visa_resource=pm.resource, composed=composed)
+        hw = HardwareRun(g)
+        try:
+            hw.start()
+            ok, wall = hw.align(timeout_s)
+            losses = []
+            end = time.monotonic() + settle_s
+            while ok and time.monotonic() < end:
+                losses.append(bench.true_loss_db())
+                time.sleep(0.01)
+            sent = [row[3] for row in mdt.command_log]
+            out = dict(seed=seed, slot_m=slot_m, aligned=ok, align_wall_s=wall,
+                       status=dict(hw.status), commands=len(sent),
+                       final_loss_db=sum(losses) / len(losses) if losses else None,
+                       max_loss_db=max(losses) if losses else None,
+                       v_range=(min(sent), max(sent)) if sent else None)
+        finally:
+            codes = hw.stop()
+        out['exit_codes'] = codes
+        return out
 
 
 def run(args):
