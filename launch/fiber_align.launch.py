@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-Launch the fiber_align graph on the simulated actuator.
+Launch the fiber_align graph on the simulated actuator, or on the hardware bench.
 
 ``ros2 launch fiber_align fiber_align.launch.py [name:=value ...]``; ``ros2 launch -s``
 lists the arguments. The processes, node names, params files and remappings come from
@@ -13,6 +13,13 @@ Ctrl-C (SIGINT) stops every process, and the recorder finalises its bag. With a 
 the launch shuts down when the process hosting ``scenario_runner`` exits (the scenario is
 over); any other process that exits leaves the rest running (the driver's watchdog holds
 the actuator safe, and the graph recovers when the node is back).
+
+``hardware:=true [port:=/dev/serial/by-id/...] [visa_resource:=USB0::...::INSTR]``: the
+sensorless bench instead (:func:`fiber_align.nodes.graph_hardware.build_hardware`: an
+MDT693B behind ``actuator_driver``, ``power_meter``, the sequencer on optical power; no
+simulated plant); ``sync_mode``, ``controller`` and ``scenario`` do not apply to it. To try
+it without hardware, start ``fiber-align emulate`` and pass its ``serial_link`` and
+``visa_resource`` (docs/hardware.md).
 """
 
 import os
@@ -27,6 +34,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from fiber_align.nodes import graph
+from fiber_align.nodes.graph_hardware import build_hardware
 
 #: name, default, description, choices (``None``: any value)
 ARGUMENTS = (
@@ -44,13 +52,36 @@ ARGUMENTS = (
     ('record', '', 'bag directory to record into (must not exist; "" = no recording)', None),
     ('scenario', '', 'setpoint scenario of scenario_runner ("" = as the params files say: '
      'none, the graph waits for setpoints)', [''] + list(graph.SCENARIOS)),
+    ('hardware', 'false', 'true: the sensorless bench (MDT693B + PM100) instead of the '
+     'simulated actuator', ['true', 'false']),
+    ('port', '', 'hardware: MDT693B serial device ("" = config/hardware.yaml)', None),
+    ('visa_resource', '', 'hardware: PM100 VISA resource ("" = config/hardware.yaml)', None),
 )
+#: Arguments of the simulated graph only, and of the hardware graph only.
+SIMULATED_ONLY = ('sync_mode', 'controller', 'scenario')
+HARDWARE_ONLY = ('port', 'visa_resource')
+
+
+def build_graph(args):
+    """Return the graph of the launch arguments (a dict of strings)."""
+    hardware = graph.parse_bool('hardware', args.pop('hardware'))
+    given = [k for k in (SIMULATED_ONLY if hardware else HARDWARE_ONLY) if args[k]]
+    if given:
+        raise graph.GraphError('%s do(es) not apply with hardware:=%s'
+                               % (', '.join(given), str(hardware).lower()))
+    if hardware:
+        for k in SIMULATED_ONLY:
+            args.pop(k)
+        return build_hardware(**args)
+    for k in HARDWARE_ONLY:
+        args.pop(k)
+    return graph.build(**args)
 
 
 def launch_setup(context):
     """Build the graph from the launch arguments; return its Node actions."""
     args = {name: LaunchConfiguration(name).perform(context) for name, *_ in ARGUMENTS}
-    g = graph.build(**args)
+    g = build_graph(args)
     tmp = tempfile.mkdtemp(prefix='fiber_align_launch_')
     params = g.write_params(os.path.join(tmp, 'params.yaml'))
     actions = [RegisterEventHandler(OnShutdown(

@@ -27,7 +27,7 @@ def _level(s):
 
 @pytest.fixture
 def rig(tmp_path):
-    """The driver node (params of the hardware graph) on an emulator, plus a probe node."""
+    """Yield the driver node (hardware graph params) on an emulator, and a probe node."""
     emu = MDT693BEmulator(Bench(v_limit=100.0))
     params = build_hardware(port=emu.port).write_params(str(tmp_path / 'p.yaml'))
     ctx = rclpy.Context()

@@ -176,7 +176,7 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_error(self, state):
-        """A lost device: close it and end unconfigured (a later configure reconnects)."""
+        """Close a lost device and end unconfigured (a later configure reconnects)."""
         why = self.lost or 'a transition failed'
         self._teardown()
         self.health.status(c.ERROR, 'device lost: %s; unconfigured: a configure reconnects'

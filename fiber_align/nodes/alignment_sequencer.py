@@ -139,8 +139,8 @@ class AlignmentSequencerNode(Node):
     def _on_reading(self, msg):
         """Sensorless: one step per reading (W) at the commanded displacement (m)."""
         w = time.monotonic()
-        self._t = 0.0 if self._t is None else self._t + min(max(w - self._wall, 0.0),
-                                                             self.max_gap_s)
+        gap = 0.0 if self._t is None else min(max(w - self._wall, 0.0), self.max_gap_s)
+        self._t = gap if self._t is None else self._t + gap
         self._wall = w
         y = self.y_ref if self.y_ref is not None else self.seq.status().get(
             'setpoint_m', 0.0)

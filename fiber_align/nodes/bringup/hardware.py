@@ -27,6 +27,8 @@ import threading
 import time
 
 from fiber_align.hardware.bench import emulated
+from fiber_align.nodes._common import DIAG_QOS, REALTIME_QOS
+from fiber_align.nodes.alignment_sequencer import STATE_QOS
 from fiber_align.nodes.bringup.checks import dds_environment
 from fiber_align.nodes.bringup.children import _die_with_parent, Child
 from fiber_align.nodes.graph_hardware import build_hardware
@@ -123,8 +125,6 @@ class HardwareRun:
         from diagnostic_msgs.msg import DiagnosticArray
         from std_msgs.msg import Float64, String
         from std_srvs.srv import SetBool, Trigger
-        from fiber_align.nodes._common import DIAG_QOS, REALTIME_QOS
-        from fiber_align.nodes.alignment_sequencer import STATE_QOS
         n = self.node
         n.create_subscription(String, 'alignment_state', self._on_state, STATE_QOS)
         n.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, DIAG_QOS)
