@@ -4,6 +4,7 @@
 import os
 import signal
 import subprocess
+import time
 
 
 def stop(proc, grace_s=10.0):
@@ -32,3 +33,18 @@ def run_bounded(cmd, timeout, grace_s=10.0):
     finally:
         stop(proc, grace_s)
     return proc.returncode, out
+
+
+def spin_until(executor, cond, bound_s, slice_s=0.01):
+    """Spin ``executor`` until ``cond()`` holds or ``bound_s`` (s) pass; return ``cond()``."""
+    end = time.monotonic() + bound_s
+    while time.monotonic() < end:
+        executor.spin_once(timeout_sec=slice_s)
+        if cond():
+            return True
+    return False
+
+
+def level(status):
+    """Return the level (int) of a diagnostic_msgs/DiagnosticStatus."""
+    return status.level[0] if isinstance(status.level, bytes) else int(status.level)

@@ -16,13 +16,11 @@ from std_msgs.msg import Float64
 from fiber_align.hardware.emulators.mdt693b import MDT693BEmulator
 from fiber_align.hardware.emulators.physics import Bench
 from fiber_align.nodes.graph_hardware import build_hardware
+import procs
+from procs import level
 
 SUCCESS = TransitionCallbackReturn.SUCCESS
 V_MAX = 90.0            # V, below the emulator's 100 V limit switch
-
-
-def _level(s):
-    return s.level[0] if isinstance(s.level, bytes) else int(s.level)
 
 
 @pytest.fixture
@@ -52,12 +50,7 @@ def rig(tmp_path):
     ex.add_node(probe)
 
     def spin_until(cond, bound_s):
-        end = time.monotonic() + bound_s
-        while time.monotonic() < end:
-            ex.spin_once(timeout_sec=0.01)
-            if cond():
-                return True
-        return False
+        return procs.spin_until(ex, cond, bound_s)
 
     try:
         yield emu, node, ff, seen, spin_until
@@ -75,7 +68,7 @@ def test_driver_limits_ramp_unplug_and_reconnect(rig):
     # v_max above the 100 V limit switch: configure refused with the reason
     node.set_parameters([Parameter('v_max', value=120.0)])
     assert node.trigger_configure() == TransitionCallbackReturn.FAILURE
-    assert spin_until(lambda: seen['diag'] and _level(seen['diag'][-1][1]) == 2, 2.0)
+    assert spin_until(lambda: seen['diag'] and level(seen['diag'][-1][1]) == 2, 2.0)
     assert 'exceeds the device limit switch' in seen['diag'][-1][1].message
     assert not emu.command_log
     node.set_parameters([Parameter('v_max', value=V_MAX)])
@@ -116,9 +109,9 @@ def test_driver_limits_ramp_unplug_and_reconnect(rig):
         ff.publish(Float64(data=21.0))
         spin_until(lambda: False, 0.01)
     assert spin_until(lambda: node.out is None and any(
-        _level(s) == 2 and 'device lost' in s.message and t > t_unplug
+        level(s) == 2 and 'device lost' in s.message and t > t_unplug
         for t, s in seen['diag']), 2.0)
-    t_err, st = [(t, s) for t, s in seen['diag'] if _level(s) == 2 and t > t_unplug][0]
+    t_err, st = [(t, s) for t, s in seen['diag'] if level(s) == 2 and t > t_unplug][0]
     assert t_err - t_unplug < 1.0
     assert st.message.startswith('device lost: MDT693B: ')
     assert '\n' not in st.message and 'Traceback' not in st.message

@@ -10,6 +10,8 @@ from std_msgs.msg import Float64
 
 from fiber_align.hardware.emulators.physics import Bench
 from fiber_align.hardware.emulators.pm100 import PM100Emulator
+import procs
+from procs import level
 
 
 def test_power_meter_node_reads_survives_a_lost_meter_and_recovers():
@@ -34,15 +36,7 @@ def test_power_meter_node_reads_survives_a_lost_meter_and_recovers():
         ex.add_node(probe)
 
         def spin_until(cond, bound_s):
-            end = time.monotonic() + bound_s
-            while time.monotonic() < end:
-                ex.spin_once(timeout_sec=0.02)
-                if cond():
-                    return True
-            return False
-
-        def level(s):
-            return s.level[0] if isinstance(s.level, bytes) else int(s.level)
+            return procs.spin_until(ex, cond, bound_s, 0.02)
 
         def rate(s):
             return float({kv.key: kv.value for kv in s.values}['rate_hz'])
