@@ -46,5 +46,5 @@ def spin_until(executor, cond, bound_s, slice_s=0.01):
 
 
 def level(status):
-    """Return the level (int) of a diagnostic_msgs/DiagnosticStatus."""
+    """Return the severity (int) of a diagnostic_msgs/DiagnosticStatus."""
     return status.level[0] if isinstance(status.level, bytes) else int(status.level)
