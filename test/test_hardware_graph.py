@@ -47,3 +47,42 @@ def test_hardware_graph_description(tmp_path):
         'backend': 'topic'}}}))
     with pytest.raises(graph.GraphError, match='backend mdt693b'):
         build_hardware(params_file=str(user))
+
+
+def test_unplugged_amplifier_errors_graph_runs_on_and_reconnects(tmp_path):
+    import json
+    import time
+
+    from std_srvs.srv import Trigger
+
+    from fiber_align.hardware.bench import emulated
+    from fiber_align.nodes.bringup.hardware import HardwareRun
+    from fiber_align.nodes.graph_hardware import build_hardware
+    bag = tmp_path / 'bag'
+    with emulated(seed=2, slot_position_m=20e-6) as (bench, mdt, pm):
+        hw = HardwareRun(build_hardware(port=mdt.port, visa_resource=pm.resource,
+                                        record=str(bag)))
+        try:
+            hw.start()
+            assert hw.align()[0], hw.status
+            t_unplug = time.monotonic()
+            mdt.unplug()
+            hw.wait(lambda: hw.level('actuator_driver') == 2, 1.0, 'driver ERROR in 1 s')
+            assert time.monotonic() - t_unplug < 1.0
+            msg = hw.diag['actuator_driver'][1]
+            assert msg.startswith('device lost: MDT693B: ') and '\n' not in msg
+            hw.wait(lambda: hw.status.get('state') == 'FAULT', 1.0, 'sequencer FAULT')
+            n = len(hw.power)
+            time.sleep(0.3)
+            hw.alive()                              # every process runs on
+            assert len(hw.power) > n + 10           # and the meter still reads
+            mdt.plug()
+            startup = hw.node.create_client(Trigger, 'lifecycle_manager/startup')
+            assert hw.call(startup, Trigger.Request(), 10.0).success
+            hw.wait(lambda: hw.level('actuator_driver') == 0, 2.0, 'driver OK again')
+            assert hw.align()[0], hw.status        # the reconnected bench aligns again
+        finally:
+            codes = hw.stop()
+    assert all(c == 0 for c in codes.values()), codes
+    counts = json.loads((bag / 'recorder_counts.json').read_text())
+    assert counts['/optical_power'] > 100 and counts['/drive_voltage_readback'] > 5, counts
