@@ -26,7 +26,8 @@ import numpy as np
 
 from fiber_align.hardware import errors as er
 from fiber_align.hardware.bench import align_trial, emulated, SensorlessBench
-from fiber_align.nodes.bringup.hardware import graph_trial
+from fiber_align.nodes.bringup.hardware import graph_trial, HardwareRun
+from fiber_align.nodes.graph_hardware import build_hardware
 
 
 def _rate(fn, n):
@@ -63,7 +64,40 @@ def align_trials(n_seeds, trial=None):
     return res
 
 
-def graph_main(n_seeds):
+def graph_track_switch(track_s, n_cycles, drift=0.2e-6, seed=5, slot_m=30e-6):
+    """
+    Through the ROS graph: align, track ``track_s`` s under ``drift`` (m/s), then switch
+    off/on ``n_cycles`` times; return the true losses (dB) and the switch timings (s).
+    """
+    with emulated(seed=seed, slot_position_m=slot_m, slot_drift_m_per_s=drift) as (
+            bench, mdt, pm):
+        hw = HardwareRun(build_hardware(port=mdt.port, visa_resource=pm.resource))
+        try:
+            hw.start()
+            ok, wall = hw.align()
+            x0 = bench.slot_position_m()
+            losses = []
+            end = time.monotonic() + (track_s if ok else 0.0)
+            while time.monotonic() < end and hw.status.get('state') == 'TRACKING':
+                losses.append(bench.true_loss_db())
+                time.sleep(0.01)
+            moved = bench.slot_position_m() - x0
+            state = hw.status.get('state')
+            cycles = []
+            for _ in range(n_cycles if state == 'TRACKING' else 0):
+                off, t_off = hw.switch(False)
+                dark = bench.true_loss_db()
+                on, t_on = hw.switch(True)
+                time.sleep(0.2)
+                cycles.append((off and on, dark, t_on, bench.true_loss_db()))
+            return dict(aligned=ok, align_wall_s=wall, moved_m=moved, state=state,
+                        fault=hw.status.get('fault_reason'), losses=losses, cycles=cycles,
+                        final_state=hw.status.get('state'))
+        finally:
+            hw.stop()
+
+
+def graph_main(n_seeds, track_s=60.0, n_cycles=10):
     """Align ``n_seeds`` times through the ROS graph; print a table; return 0."""
     t0 = time.time()
     trials = align_trials(n_seeds, graph_trial)
@@ -83,6 +117,20 @@ def graph_main(n_seeds):
           'wall median %.3f s, worst %.3f s (%.0f s wall in all)'
           % (len(good), len(trials), max(t['final_loss_db'] or 99.0 for t in trials),
              float(np.median(walls)), max(walls), time.time() - t0))
+    r = graph_track_switch(track_s, n_cycles)
+    ls = r['losses']
+    print('graph: track %.0f s at 0.2 um/s (slot moved %.2f um): max loss %s dB, mean %s dB, '
+          'state %s %s' % (track_s, r['moved_m'] * 1e6,
+                           '%.4f' % max(ls) if ls else '-',
+                           '%.4f' % (sum(ls) / len(ls)) if ls else '-',
+                           r['state'], r['fault'] or ''))
+    cy = r['cycles']
+    print('graph: %d switch cycles: %d without fault (final state %s); dark loss min %s dB; '
+          'on-to-TRACKING max %s s; loss 0.2 s after on max %s dB (%.0f s wall in all)' % (
+              len(cy), sum(1 for c in cy if c[0]), r['final_state'],
+              '%.1f' % min(c[1] for c in cy) if cy else '-',
+              '%.3f' % max(c[2] for c in cy) if cy else '-',
+              '%.4f' % max(c[3] for c in cy) if cy else '-', time.time() - t0))
     return 0
 
 
@@ -164,7 +212,7 @@ def main(argv=None):
     ap.add_argument('--seeds', type=int, default=20, help='--graph: number of seeds')
     args = ap.parse_args([] if argv is None else argv)
     if args.graph:
-        return graph_main(args.seeds)
+        return graph_main(*((5, 10.0, 3) if args.quick else (args.seeds, 60.0, 10)))
     n_seeds, track_s = (5, 10.0) if args.quick else (20, 60.0)
     t0 = time.time()
     r = rates()
