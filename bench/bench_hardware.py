@@ -66,8 +66,9 @@ def align_trials(n_seeds, trial=None):
 
 def graph_track_switch(track_s, n_cycles, drift=0.2e-6, seed=5, slot_m=30e-6):
     """
-    Through the ROS graph: align, track ``track_s`` s under ``drift`` (m/s), then switch
-    off/on ``n_cycles`` times; return the true losses (dB) and the switch timings (s).
+    Align, track and switch through the ROS graph; return true losses (dB) and timings (s).
+
+    Tracks ``track_s`` s under ``drift`` (m/s), then switches off and on ``n_cycles`` times.
     """
     with emulated(seed=seed, slot_position_m=slot_m, slot_drift_m_per_s=drift) as (
             bench, mdt, pm):
