@@ -86,3 +86,24 @@ def test_unplugged_amplifier_errors_graph_runs_on_and_reconnects(tmp_path):
     assert all(c == 0 for c in codes.values()), codes
     counts = json.loads((bag / 'recorder_counts.json').read_text())
     assert counts['/optical_power'] > 100 and counts['/drive_voltage_readback'] > 5, counts
+
+
+def test_bringup_hardware_emulate_end_to_end(tmp_path):
+    import json
+    import os
+    import sys
+
+    from procs import run_bounded
+    summary = tmp_path / 's.json'
+    code, out = run_bounded([sys.executable, '-m', 'fiber_align.nodes.bringup', '--hardware',
+                             '--emulate', '--slot', '25e-6', '--cycles', '1', '--hold',
+                             '0.3', '--quiet', '--summary', str(summary)], timeout=60)
+    assert code == 0, out[-2000:]
+    s = json.loads(summary.read_text())
+    assert s['aligned'] and s['final_state'] == 'TRACKING' and s['align_wall_s'] <= 3.0, s
+    assert [[a[0], b[0]] for a, b in s['switch_cycles']] == [[True, True]]
+    assert all(c == 0 for c in s['exit_codes'].values()), s['exit_codes']
+    # the emulator child is gone with bringup, and so is its serial link
+    assert not os.path.exists('/proc/%d' % s['emulator']['pid']) or open(
+        '/proc/%d/stat' % s['emulator']['pid']).read().split()[2] == 'Z'
+    assert not os.path.exists(s['emulator']['serial_link'])

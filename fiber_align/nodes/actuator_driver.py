@@ -97,6 +97,7 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
     def _refuse(self, why):
         self.get_logger().error('cannot configure: %s' % why)
         self.health.status(c.ERROR, why)
+        self.health.error(why)                          # on /diagnostics at once
         self.core = None
         return TransitionCallbackReturn.FAILURE
 

@@ -97,6 +97,7 @@ class HardwareRun:
         self.diag = {}              # node -> (level, message) of its newest /diagnostics
         self.power = []             # (monotonic s, W) of optical_power
         self.ctx = self.node = self.executor = None
+        self._failed = None         # monotonic s the start-up was first seen failed
 
     # -- processes and observer ---------------------------------------------------------
     def start(self, timeout_s=START_TIMEOUT_S):
@@ -116,10 +117,21 @@ class HardwareRun:
         self.executor = SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(self.node)
         threading.Thread(target=self._spin, daemon=True).start()
-        self.wait(lambda: self.level('actuator_driver') == 0 and 'active' in self.diag.get(
-            'actuator_driver', (0, ''))[1] and self.status.get('state') == 'IDLE'
-            and len(self.power) > 5, timeout_s, 'the driver active and the meter reading')
+        self.wait(self._ready, timeout_s, 'the driver active and the meter reading')
         time.sleep(FLOOR_WAIT_S)          # the sequencer's floor readings (IDLE)
+
+    def _ready(self):
+        """Return True when the graph can align; raise when the start-up failed."""
+        if self.level('lifecycle_manager') == 2:
+            # the driver's own reason follows within its diagnostics period
+            self._failed = self._failed or time.monotonic()
+            if self.level('actuator_driver') != 2 and time.monotonic() - self._failed < 1.0:
+                return False
+            raise HardwareError('%s (driver: %s)' % (self.diag['lifecycle_manager'][1],
+                                                     self.diag.get('actuator_driver')))
+        return (self.level('actuator_driver') == 0 and 'active' in self.diag.get(
+            'actuator_driver', (0, ''))[1] and self.status.get('state') == 'IDLE'
+            and len(self.power) > 5)
 
     def _wire(self):
         from diagnostic_msgs.msg import DiagnosticArray
