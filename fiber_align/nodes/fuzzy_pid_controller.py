@@ -31,9 +31,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64, Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import Trigger
 
-from fiber_align.config import ConfigError, flatten, load_params
+from fiber_align.config import ConfigError, flatten
 from fiber_align.control.factory import build_controller, CONTROLLERS
-from fiber_align.design import design_dynamics, load_actuator
 from fiber_align.nodes import _common as c
 
 NODE_NAME = 'fuzzy_pid_controller'
@@ -75,7 +74,7 @@ def unflatten(flat):
     return out
 
 
-def make_controller(controller, params, rate_hz, surface=None):
+def make_controller(controller, params, rate_hz, shaping, surface=None):
     """
     Build the feedback law exactly as the offline simulation does.
 
@@ -83,12 +82,13 @@ def make_controller(controller, params, rate_hz, surface=None):
         composite-pid, fuzzy, pid, feedforward, open-loop); the last two have no feedback.
     :param params: controller parameters (nested, SI).
     :param rate_hz: control rate (Hz).
+    :param shaping: the reference shaping and design file (the compensator's values,
+        :func:`~fiber_align.nodes._common.declare_shaping`).
     :param surface: the fuzzy surface of the controller it replaces (reused if it fits).
     :returns: an object with ``step(r, y) -> V`` or ``None``.
     """
-    comp = load_params('compensator.yaml', 'hysteresis_compensator')
-    return build_controller(controller, params, comp,
-                            design_dynamics(load_actuator('actuator.yaml')), rate_hz, surface)
+    return build_controller(controller, params, shaping, c.design_model(shaping), rate_hz,
+                            surface)
 
 
 def check_values(name, value):
@@ -141,7 +141,8 @@ class FuzzyPidControllerNode(Node):
         self.state_every = c.declare(self, d, 'controller_state_every',
                                      'publish controller_state every N samples (1); 0: off',
                                      0, 1000000)
-        core = {k: v for k, v in d.items() if k not in GRAPH_KEYS}
+        self.shaping = c.declare_shaping(self, d)   # the reference model's (SHARED)
+        core = {k: v for k, v in d.items() if k not in GRAPH_KEYS and k not in c.SHARED}
         self.core_names = []
         for name, value in flatten(core).items():
             key = name.split('.')[-1]
@@ -193,7 +194,7 @@ class FuzzyPidControllerNode(Node):
     # -- parameters -----------------------------------------------------------------
     def _make(self, mode, params):
         """Build the feedback law; realtime: its reference model's lead covers one more T."""
-        ctl = make_controller(mode, params, self.rate_hz,
+        ctl = make_controller(mode, params, self.rate_hz, self.shaping,
                               getattr(getattr(self, 'ctl', None), 'surface', None))
         if ctl is not None and not self.lockstep:
             c.extend_lead(getattr(ctl, 'reference_filter', None), 1.0 / self.rate_hz)

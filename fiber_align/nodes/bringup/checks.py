@@ -5,17 +5,17 @@ import os
 import time
 
 from fiber_align.config import config_path
-from fiber_align.nodes.bag_recorder import DEFAULT_TOPICS
 from fiber_align.nodes.bringup.children import cpu_time_s, rss_bytes
 
 
-def expected_endpoints(scenario, lockstep, record, composed=False):
+def expected_endpoints(scenario, lockstep, recorded=(), composed=False):
     """
     Return ``{topic: (publishers, subscribers)}`` (at least) the running graph must have.
 
     :param scenario: a scenario name of ``bringup``.
     :param lockstep: the plant publishes ``/clock``.
-    :param record: a recorder subscribes to every recorded topic too.
+    :param recorded: the topics a recorder subscribes to (its ``topics`` parameter;
+        empty: no recorder).
     :param composed: the control nodes share one process: their readers of each other's
         topics are in-process (``_common.LocalBus``), not DDS subscriptions.
     """
@@ -36,9 +36,8 @@ def expected_endpoints(scenario, lockstep, record, composed=False):
                     'alignment_state': (1, 1)})
     if lockstep:
         out['/clock'] = (1, 0)
-    recorded = {t.lstrip('/') for t in DEFAULT_TOPICS}
-    rec = 1 if record else 0
-    return {k: (p, s + (rec if p and k.lstrip('/') in recorded else 0))
+    recorded = {t.lstrip('/') for t in recorded}
+    return {k: (p, s + (1 if p and k.lstrip('/') in recorded else 0))
             for k, (p, s) in out.items()}
 
 

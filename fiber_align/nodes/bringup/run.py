@@ -244,8 +244,9 @@ class Bringup:
         all_names = list(self.names) + (['bag_recorder'] if self.args.record else [])
         self.runner.wait_nodes(all_names, timeout, self._alive)
         self.runner.activate_driver(timeout, self._alive)
-        want = expected_endpoints(self.scenario, lockstep, bool(self.args.record),
-                                  self.composed)
+        recorded = node_params(self.params, 'bag_recorder')['topics'] \
+            if self.args.record else ()
+        want = expected_endpoints(self.scenario, lockstep, recorded, self.composed)
         self.runner.wait_matched(want, timeout, self._alive)
         self.endpoints = want
         self._alive()
