@@ -37,6 +37,7 @@ SHARED = dict(
                                'setpoint_max_m', 'realtime_setpoint_rate_m_per_s')]
     + [(k, (COMPENSATOR, CONTROLLER)) for k in SHAPING_KEYS])
 
+
 class GraphError(ConfigError):
     """A launch argument or option is wrong; the message names what and what is allowed."""
 
