@@ -28,6 +28,10 @@ REFUSED = (InvalidParameterValueException, ParameterException, ConfigError, Valu
            TypeError)
 
 
+#: Namespace of the nodes built here.
+NAMESPACE = 'parameters_test'
+
+
 @pytest.fixture
 def ctx():
     """Yield a private rclpy context, shut down after the test (no global state left)."""
@@ -43,7 +47,9 @@ def ctx():
 def make(ctx, cls, *overrides, params_file=None):
     """Build node ``cls`` with ``-p`` ``overrides`` (``name:=value``) and a params file."""
     context, nodes = ctx
-    cli = ['--ros-args']
+    # a namespace of their own: no later test of this process may meet their services
+    # in the discovery cache (a ghost actuator_driver/change_state answers nothing)
+    cli = ['--ros-args', '-r', '__ns:=/' + NAMESPACE]
     if params_file:
         cli += ['--params-file', str(params_file)]
     for o in overrides:
@@ -56,13 +62,14 @@ def make(ctx, cls, *overrides, params_file=None):
 def params_file(tmp_path, sections, name='user.yaml'):
     """Write ``{node: {param: value}}`` as a ROS params file; return its path."""
     path = tmp_path / name
-    path.write_text(yaml.safe_dump({n: {'ros__parameters': p} for n, p in sections.items()}))
+    path.write_text(yaml.safe_dump({'/%s/%s' % (NAMESPACE, n) if n != '/**' else n:
+                                    {'ros__parameters': p} for n, p in sections.items()}))
     return path
 
 
 def graph_params(tmp_path, sections):
     """Return the graph's merged params file for a user file with ``sections``."""
-    g = graph.build(params_file=str(params_file(tmp_path, sections)))
+    g = graph.build(namespace=NAMESPACE, params_file=str(params_file(tmp_path, sections)))
     return g.write_params(str(tmp_path / 'graph.yaml'))
 
 
@@ -175,6 +182,6 @@ def test_shared_rate_is_one_value_for_the_loop(ctx, tmp_path):
 
 def test_shared_value_set_twice_differently_is_refused(tmp_path):
     with pytest.raises(graph.GraphError, match='shaping_damping_ratio'):
-        graph.build(params_file=str(params_file(tmp_path, {
+        graph.build(namespace=NAMESPACE, params_file=str(params_file(tmp_path, {
             'hysteresis_compensator': {'shaping_damping_ratio': 0.1},
             'fuzzy_pid_controller': {'shaping_damping_ratio': 0.2}})))

@@ -189,12 +189,20 @@ class Health:
         self._base_message = 'ok'
         self.values = {}
         self.sent = 0
+        #: a :class:`~fiber_align.nodes._cycle.CycleStats` whose window is reported with
+        #: every publish (per-sample nodes set it), or ``None``
+        self.cycle = None
         self._timer = node.create_timer(float(period_s), self.publish,
                                         clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def status(self, level, message):
         """Set the steady level (``OK``, ``WARN``, ``ERROR``: int) and message."""
         self._base_level, self._base_message = level, message
+
+    @property
+    def message(self):
+        """Steady status text (str) of the node."""
+        return self._base_message
 
     def _latch(self, level, message):
         self._level, self._message = level, message
@@ -218,6 +226,8 @@ class Health:
         counts = getattr(self._node, 'sent_counts', None)
         if counts is not None:
             self.values.update({'sent.' + k.lstrip('/'): v for k, v in counts().items()})
+        if self.cycle is not None:
+            self.values.update(self.cycle.window(time.monotonic_ns()))
         if time.monotonic() < self._until and self._level >= self._base_level:
             level, message = self._level, self._message
         else:

@@ -48,6 +48,7 @@ pairing holds) and the actuator stays where it was.
 
 import math
 import sys
+import time
 
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -59,6 +60,7 @@ from fiber_align.config import ConfigError
 from fiber_align.control.factory import build_feedforward, CONTROLLERS
 from fiber_align.hysteresis.pi import PIModel
 from fiber_align.nodes import _common as c
+from fiber_align.nodes._cycle import CycleStats
 
 NODE_NAME = 'hysteresis_compensator'
 AREA_FILES = ('compensator.yaml', 'models/compensator_model.yaml')
@@ -121,6 +123,7 @@ class HysteresisCompensatorNode(Node):
         self.create_service(Trigger, '~/reload_model', self._on_reload)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.health = c.Health(self, diag)
+        self.health.cycle = CycleStats(self.rate_hz)
         self.r = 0.0
         self.y_latest = 0.0
         self.n_ff = 0
@@ -197,7 +200,14 @@ class HysteresisCompensatorNode(Node):
             self._publish(self.ff.step(self.r))
 
     def _on_sample(self, msg):
-        """Realtime: step the feedforward through every sample period since the last one."""
+        """Realtime: step the feedforward; count the sample-to-feedforward latency (s)."""
+        self._step_sample(msg)
+        st, cyc = msg.header.stamp, self.health.cycle
+        ns = st.sec * 1_000_000_000 + st.nanosec
+        cyc.record((time.time_ns() - ns) * 1e-9, cyc.index(ns))
+
+    def _step_sample(self, msg):
+        """Step the feedforward through every sample period since the last one."""
         if len(msg.position):
             self.y_latest = msg.position[0]
         n = self.traj.periods(msg.header.stamp)
