@@ -39,7 +39,8 @@ import os
 import re
 from typing import Dict, Optional, Tuple
 
-from fiber_align.config import config_dir
+from fiber_align.config import config_dir, config_path
+from fiber_align.plant.actuator import PARAM_KEYS, SimulatedActuator
 # The node names and the params-merge law live in graph_params; re-exported here.
 from fiber_align.nodes.graph_params import (  # noqa: F401
     PLANT,
@@ -209,6 +210,36 @@ def control_nodes(scenario):
     return nodes + (SCENARIO_RUNNER,)
 
 
+def plant_reach_m(params):
+    """
+    Return the simulated plant's largest reachable displacement (m).
+
+    :param params: the merged params mapping (:meth:`Graph.params`-like, keyed by node).
+    The scenario runner clamps its setpoints to it, as the offline simulation does, so the
+    launch file, ``bringup`` and ``fiber-align simulate`` run the same setpoints.
+    """
+    p = effective(params, PLANT)
+    return SimulatedActuator.from_params({k: p[k] for k in PARAM_KEYS if k in p}) \
+        .reachable_m()
+
+
+def dds_environment(env=None):
+    """
+    Return the environment of the graph's processes (a copy of ``env`` or os.environ).
+
+    Used by ``bringup`` for its children and by the launch file.
+
+    Unless the user chose a Fast DDS profile, ``config/fastdds_profile.xml`` is used: a
+    50 ms heartbeat, so a reliable sample dropped in a burst is resent at once instead
+    of after 3 s (when its writer may have exited), and larger socket buffers.
+    """
+    out = dict(os.environ if env is None else env)
+    out.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    if 'FASTRTPS_DEFAULT_PROFILES_FILE' not in out:
+        out['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(config_path('fastdds_profile.xml'))
+    return out
+
+
 def area_files(directory=None):
     """Return the absolute paths of the area files and ``fiber_align.yaml``, in order."""
     d = config_dir() if directory is None else directory
@@ -303,6 +334,8 @@ def build(namespace='', composed=None, sync_mode='', controller='', params_file=
         over[SCENARIO_RUNNER] = {'scenario': _choice('scenario', scenario, SCENARIOS),
                                  'exit_when_done': True}
     merged = merge_params(files, over, ns)
+    if SCENARIO_RUNNER in over:
+        over[SCENARIO_RUNNER]['reach_m'] = plant_reach_m(merge_params(files, over))
     graph_wide = effective(merged, PLANT, ns)
     sync = _choice('sync_mode', graph_wide.get('sync_mode', 'realtime'), SYNC_MODES)
     law = _choice('controller', graph_wide.get('controller', 'composite'), CONTROLLERS)

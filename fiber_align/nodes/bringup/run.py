@@ -23,9 +23,8 @@ from fiber_align.nodes.bringup.diagnostics import DiagnosticsWatch
 from fiber_align.nodes.bringup.cli import param_overrides, TRACKING_SCENARIOS
 from fiber_align.nodes.bringup.observer import BadInput, BringupError, Runner, StartStall
 from fiber_align.nodes.bringup.params import compose, namespaced, node_params
-from fiber_align.nodes.graph import control_nodes
+from fiber_align.nodes.graph import control_nodes, plant_reach_m
 from fiber_align.nodes.scenario_runner import setpoint_range, Source
-from fiber_align.plant.actuator import PARAM_KEYS, SimulatedActuator
 
 EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 #: realtime goals ``--strict`` holds a run to: share of missed cycles, watchdog trips
@@ -97,9 +96,7 @@ class Bringup:
 
     def _source(self, ov):
         """Return the scenario's Source and set the runner's overrides (reach, duration)."""
-        p = node_params(self.params, 'simulated_actuator')
-        reach = SimulatedActuator.from_params({k: p[k] for k in PARAM_KEYS if k in p}) \
-            .reachable_m()
+        reach = plant_reach_m(self.params)
         name = self.scenario
         sp = node_params(self.params, 'scenario_runner')
         src = Source(name, *setpoint_range(sp['setpoint_min_m'], sp['setpoint_max_m'],
