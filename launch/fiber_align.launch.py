@@ -13,8 +13,9 @@ directory that is removed at shutdown. The processes get the graph's environment
 ``config/fastdds_profile.xml``) unless the user's sets it. ``lifecycle_manager`` brings
 the driver to active; Ctrl-C (SIGINT) stops every process, and the recorder finalises
 its bag. With a scenario, the launch shuts down when the process hosting
-``scenario_runner`` exits (the scenario is over); any other process that exits leaves the rest running (the driver's watchdog holds
-the actuator safe, and the graph recovers when the node is back).
+``scenario_runner`` exits (the scenario is over); any other process that exits leaves
+the rest running (the driver's watchdog holds the actuator safe, and the graph recovers
+when the node is back).
 """
 
 import os
