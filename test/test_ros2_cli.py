@@ -524,14 +524,15 @@ def test_sigint_stop_is_clean_every_process_exits_0_without_fatal(launched):
     assert len(clean) == len(launched['children'])
 
 
-def test_lockstep_launch_equals_simulate_sample_for_sample(ros2_env, tmp_path):
+@pytest.mark.parametrize('front_end', ['py', 'xml'])
+def test_lockstep_launch_equals_simulate_sample_for_sample(ros2_env, tmp_path, front_end):
     """``ros2 launch`` in lockstep (step scenario, recorded) equals ``fiber-align simulate``."""
     from test_bringup_lockstep import assert_bag_equals, simulate
     duration = 0.05
     user = tmp_path / 'user.yaml'
     user.write_text('scenario_runner:\n  ros__parameters:\n    duration_s: %r\n' % duration)
     bag, log = tmp_path / 'bag', tmp_path / 'launch.log'
-    proc = spawn(ros2_env, ['ros2', 'launch', 'fiber_align', 'fiber_align.launch.py',
+    proc = spawn(ros2_env, ['ros2', 'launch', 'fiber_align', 'fiber_align.launch.' + front_end,
                             'sync_mode:=lockstep', 'scenario:=step', 'composed:=false',
                             'params_file:=%s' % user, 'record:=%s' % bag], log)
     try:
