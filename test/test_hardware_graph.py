@@ -79,7 +79,8 @@ def test_unplugged_amplifier_errors_graph_runs_on_and_reconnects(tmp_path):
             mdt.plug()
             startup = hw.node.create_client(Trigger, 'lifecycle_manager/startup')
             assert hw.call(startup, Trigger.Request(), 10.0).success
-            hw.wait(lambda: hw.level('actuator_driver') == 0, 2.0, 'driver OK again')
+            # OK once the loss's latched ERROR (Health.hold_s, 2 s) has run out
+            hw.wait(lambda: hw.level('actuator_driver') == 0, 4.0, 'driver OK again')
             assert hw.align()[0], hw.status        # the reconnected bench aligns again
         finally:
             codes = hw.stop()
