@@ -353,7 +353,7 @@ class DeviceBackend:
 
     def destroy_node(self):
         """Process exit (SIGINT, no lifecycle shutdown): ramp to the safe voltage, close."""
-        if self.out is not None:
+        if getattr(self, 'out', None) is not None:
             self._ramp_device()
             self._close_device()
         return super().destroy_node()
