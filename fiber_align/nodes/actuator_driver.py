@@ -368,7 +368,10 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
 
     def sent_counts(self):
         """Return published message counts per topic."""
-        return {'drive_voltage': self.n_drive, 'drive_voltage_readback': self.n_rb}
+        out = {'drive_voltage': self.n_drive}
+        if self.backend == 'mdt693b':
+            out['drive_voltage_readback'] = self.n_rb
+        return out
 
 
 def main(args=None):
