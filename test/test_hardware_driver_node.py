@@ -27,20 +27,22 @@ V_MAX = 90.0            # V, below the emulator's 100 V limit switch
 def rig(tmp_path):
     """Yield the driver node (hardware graph params) on an emulator, and a probe node."""
     emu = MDT693BEmulator(Bench(v_limit=100.0))
-    params = build_hardware(port=emu.port).write_params(str(tmp_path / 'p.yaml'))
+    params = build_hardware(port=emu.port, namespace='drvtest').write_params(
+        str(tmp_path / 'p.yaml'))
     ctx = rclpy.Context()
     rclpy.init(context=ctx, args=['--ros-args', '--params-file', params,
                                   '-p', 'diagnostics_period_s:=0.1',
                                   '-p', 'readback_period_s:=0.05'])
     from fiber_align.nodes.actuator_driver import ActuatorDriverNode
     ex = SingleThreadedExecutor(context=ctx)
-    node = ActuatorDriverNode(context=ctx)
-    probe = rclpy.create_node('probe', context=ctx)
+    # a namespace of its own: no ghost /actuator_driver services for the graph tests
+    node = ActuatorDriverNode(context=ctx, namespace='/drvtest')
+    probe = rclpy.create_node('probe', context=ctx, namespace='/drvtest')
     seen = {'diag': [], 'drive': [], 'readback': []}
     probe.create_subscription(
         DiagnosticArray, '/diagnostics',
         lambda m: seen['diag'].extend((time.monotonic(), s) for s in m.status
-                                      if s.name == '/actuator_driver'), 50)
+                                      if s.name == '/drvtest/actuator_driver'), 50)
     probe.create_subscription(Float64, 'drive_voltage',
                               lambda m: seen['drive'].append(m.data), 1000)
     probe.create_subscription(Float64, 'drive_voltage_readback',
