@@ -19,8 +19,11 @@ from fiber_align.config import ConfigError
 from fiber_align.nodes import graph
 from fiber_align.nodes.actuator_driver import ActuatorDriverNode
 from fiber_align.nodes.alignment_sequencer import AlignmentSequencerNode
+from fiber_align.nodes.bag_recorder import BagRecorder
 from fiber_align.nodes.fuzzy_pid_controller import FuzzyPidControllerNode
 from fiber_align.nodes.hysteresis_compensator import HysteresisCompensatorNode
+from fiber_align.nodes.lifecycle_manager import LifecycleManager
+from fiber_align.nodes.scenario_runner import ScenarioRunnerNode
 from fiber_align.nodes.simulated_actuator import SimulatedActuatorNode
 
 #: What a node refuses at start-up: rclpy's range/type checks, or the node's own.
@@ -132,6 +135,33 @@ def test_sequencer_builds_from_its_parameters(ctx, tmp_path):
     node = make(ctx, AlignmentSequencerNode, 'threshold_sigma:=7.0')
     assert node.get_parameter('threshold_sigma').value == 7.0
     assert node.seq.p['threshold_sigma'] == 7.0
+    pf = params_file(tmp_path, {'alignment_sequencer': {'range_max_m': 50.0e-6}})
+    assert make(ctx, AlignmentSequencerNode, params_file=pf).seq.p['range_max_m'] == 50.0e-6
+    with pytest.raises(REFUSED):            # the unit's range: 1 m is no fiber offset
+        make(ctx, AlignmentSequencerNode, 'range_max_m:=1.0')
+
+
+def test_scenario_runner_builds_from_its_parameters(ctx, tmp_path):
+    node = make(ctx, ScenarioRunnerNode, 'scenario:=sine', 'duration_s:=0.25')
+    assert node.name_ == 'sine' and node.duration_s == 0.25
+    pf = params_file(tmp_path, {'scenario_runner': {'scenario': 'step',
+                                                    'setpoint_max_m': 30.0e-6}})
+    node = make(ctx, ScenarioRunnerNode, params_file=pf)
+    assert node.name_ == 'step' and node.source.hi == 30.0e-6
+    with pytest.raises(REFUSED):
+        make(ctx, ScenarioRunnerNode, 'scenario:=zigzag')
+
+
+def test_lifecycle_manager_and_recorder_build_from_their_parameters(ctx, tmp_path):
+    node = make(ctx, LifecycleManager, 'managed_nodes:=[a, b]', 'autostart:=false')
+    assert node.managed == ['a', 'b']
+    bag = tmp_path / 'bag'
+    pf = params_file(tmp_path, {'bag_recorder': {'output': str(bag), 'queue_depth': 123}})
+    rec = make(ctx, BagRecorder, params_file=pf)
+    assert rec.output == str(bag) and rec.depth == 123
+    rec.close()
+    with pytest.raises(REFUSED):
+        make(ctx, BagRecorder, 'queue_depth:=0', 'output:=%s' % (tmp_path / 'bag2'))
 
 
 @pytest.mark.parametrize('cls,override,why', [

@@ -213,10 +213,13 @@ def test_cycle_stats_report_rate_missed_share_and_latency_per_window():
     w = cs.window(t0 + 1_000_000_000)
     assert w['cycle.samples'] == 900
     assert w['cycle.achieved_rate_hz'] == pytest.approx(900.0)
-    assert w['cycle.missed_share'] == pytest.approx(0.1)
+    assert w['cycle.missed_share'] == pytest.approx(99 / 999), 'samples k0+1..k0+999'
     assert w['cycle.latency_p50_s'] == pytest.approx(1e-4)
     assert 1e-4 <= w['cycle.latency_p99_s'] < 1e-3, 'one slow sample in 900 is not the p99'
-    w = cs.window(t0 + 1_500_000_000)           # nothing acted on: every cycle missed
+    w = cs.window(t0 + 1_500_000_000)           # idle (plant held): rate 0, no misses
     assert w['cycle.samples'] == 0 and w['cycle.achieved_rate_hz'] == 0.0
-    assert w['cycle.missed_share'] == 1.0
-    assert 'cycle.latency_p99_s' not in w
+    assert 'cycle.missed_share' not in w and 'cycle.latency_p99_s' not in w
+    for i in range(2000, 2100):                 # resumed later: counted from its first
+        cs.record(1e-4, k0 + i)
+    w = cs.window(t0 + 2_000_000_000)
+    assert w['cycle.missed_share'] == 0.0

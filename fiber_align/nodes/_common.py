@@ -338,3 +338,28 @@ def declare_shaping(node, defaults):
 def design_model(shaping):
     """Return ``(omega_n_rad_s, alpha_m_per_v)`` of the design file in ``shaping``."""
     return design_dynamics(load_actuator(shaping['design_file']))
+
+
+#: Unit and allowed range of a parameter, by the end of its name (SI; checked in order).
+SI_SUFFIXES = (
+    ('_m_per_s', 'm/s', -1.0, 1.0), ('_rad_s', 'rad/s', 0.0, 1e7), ('_hz', 'Hz', 0.0, 1e6),
+    ('_db', 'dB', -300.0, 300.0), ('_w', 'W', 0.0, 100.0), ('_m', 'm', -1e-2, 1e-2),
+    ('_s', 's', 0.0, 3600.0), ('_samples', 'samples', 0, 10_000_000),
+    ('_sigma', 'standard deviations', 0.0, 1e6), ('_refits', 'count', 0, 1000))
+
+
+def declare_si(node, defaults, name, what, read_only=True):
+    """
+    Declare ``name`` with a unit and a range taken from the end of its name; return it.
+
+    For the core parameters of a params file whose names carry their SI unit
+    (``range_max_m``, ``search_timeout_s``, ``peak_drop_db``, ...).
+
+    :param what: whose parameter it is, for the description (e.g. ``'sequencer'``).
+    """
+    for suffix, unit, lo, hi in SI_SUFFIXES:
+        if name.endswith(suffix) and not isinstance(defaults.get(name), bool):
+            return declare(node, defaults, name, '%s parameter (%s)' % (what, unit), lo, hi,
+                           read_only)
+    return declare(node, defaults, name, '%s parameter (see its params file)' % what,
+                   read_only=read_only)

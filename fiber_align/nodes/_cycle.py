@@ -32,6 +32,7 @@ class CycleStats:
         self.lat = np.empty(int(capacity or 4 * rate_hz + 16))
         self.n = 0
         self.k_prev = None          # sample index acted on last in the previous window
+        self.k_first = None         # first and last sample index acted on in this one
         self.k_last = None
         self.t0_ns = None
 
@@ -52,6 +53,8 @@ class CycleStats:
             self.lat[n] = latency_s
         self.n = n + 1
         if index is not None:
+            if self.k_first is None:
+                self.k_first = index
             self.k_last = index
 
     def window(self, now_ns):
@@ -65,21 +68,26 @@ class CycleStats:
         if t0 is not None and now_ns > t0:
             dt = (now_ns - t0) * 1e-9
             out['cycle.achieved_rate_hz'] = n / dt
-            if n and self.k_last is not None and self.k_prev is not None:
-                expected = self.k_last - self.k_prev
-            else:
-                expected = int(round(dt * self.rate_hz))
-            out['cycle.missed_share'] = max(0.0, 1.0 - n / expected) if expected > 0 \
-                else 0.0
+            if n:
+                # misses count from the sample after the last one of the window before
+                # (or, after an idle window, from this window's first): a node that idles
+                # (plant held, no setpoint) reports its rate, not misses
+                if self.k_last is not None:
+                    base = self.k_prev if self.k_prev is not None else self.k_first - 1
+                    expected = self.k_last - base
+                else:
+                    expected = int(round(dt * self.rate_hz))
+                out['cycle.missed_share'] = max(0.0, 1.0 - n / expected) \
+                    if expected > 0 else 0.0
         if n:
             lat = self.lat[:min(n, self.lat.size)]
             p50, p99 = np.percentile(lat, (50, 99))
             out['cycle.latency_p50_s'] = float(p50)
             out['cycle.latency_p99_s'] = float(p99)
+        self.k_prev = self.k_last if n else None
+        self.k_first = None
         self.n = 0
         self.t0_ns = now_ns
-        if self.k_last is not None:
-            self.k_prev = self.k_last
         return out
 
 

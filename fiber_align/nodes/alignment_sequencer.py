@@ -79,8 +79,7 @@ class AlignmentSequencerNode(Node):
         core = {}
         for name in sq.KEYS + sq.NODE_KEYS:
             if name in d:
-                core[name] = c.declare(self, d, name, 'sequencer parameter (SI, see '
-                                       'sequencer.yaml)', read_only=True)
+                core[name] = c.declare_si(self, d, name, 'sequencer')
         self.seq = sq.Sequencer({k: v for k, v in core.items()})
         self.pub_sp = c.Pub(self, Float64, 'setpoint', c.CONTROL_QOS, bus)
         self.pub_state = self.create_publisher(String, 'alignment_state', STATE_QOS)

@@ -12,6 +12,11 @@ from fiber_align.nodes._common import DIAG_QOS
 from fiber_align.nodes.bringup.summary import worst_cycles
 
 
+#: s: the longest diagnostics period of a node of the graph (fiber_align.yaml: 0.5 s),
+#: plus margin: the first report counted starts its window inside the run.
+WINDOW_S = 0.6
+
+
 class DiagnosticsWatch:
     """
     Keep the newest ``/diagnostics`` values of every node, on a node and thread of its own.
@@ -28,6 +33,9 @@ class DiagnosticsWatch:
         """Subscribe and start spinning (``namespace``: the graph's, or ``''``)."""
         self.latest = {}
         self.worst = {}
+        #: monotonic s: reports of windows inside [run_from, run_to] count for ``worst``
+        self.run_from = None
+        self.run_to = None
         self.node = Node('bringup_diagnostics', namespace=namespace or None)
         self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag,
                                       DIAG_QOS)
@@ -41,9 +49,17 @@ class DiagnosticsWatch:
             lvl = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
             node = st.name.rsplit('/', 1)[-1]
             vals = {kv.key: kv.value for kv in st.values}
-            self.latest[node] = {'level': lvl, 'message': st.message,
-                                 '_t': time.monotonic(), **vals}
-            worst_cycles(self.worst, node, self.latest[node])
+            now = time.monotonic()
+            self.latest[node] = {'level': lvl, 'message': st.message, '_t': now, **vals}
+            if self.in_run(now):
+                worst_cycles(self.worst, node, self.latest[node])
+
+    def in_run(self, t):
+        """Return True when a report at ``t`` (monotonic s) covers run time only."""
+        # a report covers the diagnostics period before it (0.5 s by default): the
+        # first full window starts a period after the run did
+        return self.run_from is not None and t >= self.run_from + WINDOW_S and (
+            self.run_to is None or t <= self.run_to)
 
     def _spin(self):
         try:
@@ -52,9 +68,8 @@ class DiagnosticsWatch:
             pass
 
     def worst_windows(self):
-        """Return node -> worst cycle window, without bookkeeping keys."""
-        return {n: {k: v for k, v in w.items() if not k.startswith('_')}
-                for n, w in self.worst.items()}
+        """Return node -> worst cycle window (a copy)."""
+        return {n: dict(w) for n, w in self.worst.items()}
 
     def close(self):
         """Stop the executor and join the thread (it must leave rclpy before exit)."""

@@ -265,12 +265,14 @@ class Bringup:
         t0 = time.monotonic()
         if self.scenario == 'none':
             r.set_running(True)
+            self.watch.run_from = time.monotonic()
             print('bringup: running; publish `setpoint` (m). Ctrl-C stops.', flush=True)
             while True:
                 self._alive()
                 time.sleep(0.1)
         r.start()
         r.set_running(True)
+        self.watch.run_from = time.monotonic()
         try:
             if self.scenario == 'align':
                 self.summary['align_events'] = run_align(self)
@@ -285,6 +287,7 @@ class Bringup:
                     raise BringupError('scenario did not finish within %g s' % wall_limit)
         finally:
             self.summary['run_wall_s'] = time.monotonic() - t0
+            self.watch.run_to = time.monotonic()
 
     # -- stop -----------------------------------------------------------------------
     @property

@@ -189,7 +189,8 @@ def realtime_figures(diag):
     """
     out = {}
     plant = diag.get('simulated_actuator', {})
-    for k in ('missed_share', 'missed_cycles', 'periods', 'latency_p50_s', 'latency_p99_s',
+    for k in ('missed_share', 'missed_cycles', 'missed_no_drive', 'missed_late_tick',
+              'periods', 'latency_p50_s', 'latency_p99_s',
               'latency_max_s', 'achieved_rate_hz'):
         if _num(plant.get(k)) is not None:
             out[k] = _num(plant[k])
@@ -207,24 +208,20 @@ def realtime_figures(diag):
     return out
 
 
-def worst_cycles(worst, node, values, skip_s=2.0):
+def worst_cycles(worst, node, values):
     """
     Fold one ``/diagnostics`` report of ``node`` into its worst cycle window so far.
 
     :param worst: node -> ``{'rate_min_hz', 'missed_max', 'p99_max_s', 'windows'}``
         (updated in place).
     :param values: the report's key/value pairs (strings, ``cycle.*`` keys of
-        :mod:`fiber_align.nodes._cycle`).
-    :param skip_s: reports of the first seconds (start-up) are not counted; the first
-        report of a node starts its clock.
+        :mod:`fiber_align.nodes._cycle`); the caller passes only reports of windows
+        inside the run.
     """
     rate = _num(values.get('cycle.achieved_rate_hz'))
     if rate is None:
         return
-    w = worst.setdefault(node, {'windows': 0, '_t0': values.get('_t')})
-    if values.get('_t') is not None and w['_t0'] is not None \
-            and values['_t'] - w['_t0'] < skip_s:
-        return
+    w = worst.setdefault(node, {'windows': 0})
     w['windows'] += 1
     w['rate_min_hz'] = min(w.get('rate_min_hz', rate), rate)
     for key, out in (('cycle.missed_share', 'missed_max'), ('cycle.latency_p99_s',
