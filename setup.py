@@ -18,6 +18,8 @@ NODES = [
     'hysteresis_compensator',
     'fuzzy_pid_controller',
     'alignment_sequencer',
+    'alignment_sequencer2d',
+    'rig_optics',
     'bag_recorder',
     'bringup',
     'control_graph',

@@ -35,6 +35,10 @@ HOSTABLE = {
     'scenario_runner': ('fiber_align.nodes.scenario_runner', 'ScenarioRunnerNode'),
     'alignment_sequencer': ('fiber_align.nodes.alignment_sequencer',
                             'AlignmentSequencerNode'),
+    # the two-axis rig's own nodes (graph_rig.py): the optics, then the 2-D sequencer
+    'simulated_optics_2d': ('fiber_align.nodes.rig_optics', 'RigOpticsNode'),
+    'alignment_sequencer_2d': ('fiber_align.nodes.alignment_sequencer2d',
+                               'AlignmentSequencer2DNode'),
     'hysteresis_compensator': ('fiber_align.nodes.hysteresis_compensator',
                                'HysteresisCompensatorNode'),
     'fuzzy_pid_controller': ('fiber_align.nodes.fuzzy_pid_controller',

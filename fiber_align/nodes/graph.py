@@ -93,6 +93,8 @@ class Process:
         processes only; ``None`` for a process hosting several nodes).
     :ivar ends_graph: the graph stops when this process exits (it hosts
         ``scenario_runner``, which exits when its scenario is over).
+    :ivar namespace: the process's own namespace (the rig's axes, ``graph_rig.py``);
+        ``None``: the graph's.
     """
 
     name: str
@@ -101,6 +103,7 @@ class Process:
     arguments: Tuple[str, ...] = ()
     node_name: Optional[str] = None
     ends_graph: bool = False
+    namespace: Optional[str] = None
 
     @property
     def module(self):
@@ -116,6 +119,7 @@ class Process:
         :param remappings: (from, to) pairs.
         """
         out = ['--ros-args', '--params-file', str(params_file)]
+        namespace = namespace if self.namespace is None else self.namespace
         if namespace:
             out += ['-r', '__ns:=/' + namespace]
         for a, b in remappings:

@@ -141,6 +141,15 @@ class Bench2D(sc1.Stepping):
         return out
 
 
+def run_seeds(seed):
+    """
+    Return the noise seeds of run ``seed``: ``plant_x``, ``plant_y``, ``detector``.
+
+    One description for the offline rig and the ROS rig (``nodes/graph_rig.py``).
+    """
+    return dict(plant_x=2 * int(seed), plant_y=2 * int(seed) + 1, detector=int(seed) + 1000)
+
+
 def make_sequencer(method, **overrides):
     """Return a fresh ``sequencer`` (:class:`Sequencer2D`) or ``hillclimb`` baseline."""
     if method == 'sequencer':
@@ -171,11 +180,12 @@ def build(seed=0, method='sequencer', target=None, rig=None, record=False, seq_o
         target = random_target(seed, seq)
     ov = dict(optics_overrides)
     ov['position_x_m'], ov['position_y_m'] = float(target[0]), float(target[1])
+    seeds = run_seeds(seed)
     if rig is None or isinstance(rig, str):
-        rig = Rig2D(rig or 'composite', seq.p['control_period_s'], 2 * seed)
-    rig.reset(2 * seed)
+        rig = Rig2D(rig or 'composite', seq.p['control_period_s'], seeds['plant_x'])
+    rig.reset(seeds['plant_x'])
     ov.setdefault('sample_period_s', rig.period_s)
-    link = o2.OpticalLink2D.from_params(None, None, seed=seed + 1000, **ov)
+    link = o2.OpticalLink2D.from_params(None, None, seed=seeds['detector'], **ov)
     return Bench2D(rig, link, seq, record)
 
 

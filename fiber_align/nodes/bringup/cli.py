@@ -58,6 +58,10 @@ def parse_args(argv):
                  'record, stop, summarise.')
     ap.add_argument('--scenario', choices=SCENARIOS, default=None,
                     help='scenario to run (default: bringup.scenario of fiber_align.yaml)')
+    ap.add_argument('--rig', action='store_true',
+                    help='the two-axis rig (/rig/x, /rig/y, optics, 2-D sequencer) running '
+                         'align2d; lockstep: compared with the offline run (--seed: the '
+                         "run seed, as fiber-align simulate --scenario align2d's)")
     ap.add_argument('--duration', type=_positive(float, '--duration'), default=None,
                     help="scenario length (s of sample time; default: the scenario's)")
     ap.add_argument('--sync', choices=('realtime', 'lockstep'), default=None,
