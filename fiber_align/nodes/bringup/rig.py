@@ -90,7 +90,7 @@ class RigObserver:
 
     @property
     def samples(self):
-        """Return the number of complete samples (every stream) recorded so far."""
+        """Return how many samples are complete (recorded in every stream) so far."""
         with self.lock:
             return min(len(v) for v in self.data.values())
 
@@ -105,7 +105,7 @@ class RigObserver:
             return next((dict(s) for s in self.states if s.get('state') == state), None)
 
     def arrays(self):
-        """Return the streams as equal-length numpy arrays (SI)."""
+        """Return every stream, cut to the complete samples, as numpy arrays in SI units."""
         n = self.samples
         with self.lock:
             return {k: np.asarray(v[:n]) for k, v in self.data.items()}
