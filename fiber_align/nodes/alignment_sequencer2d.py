@@ -29,21 +29,18 @@ the same ``i T`` to the ns); a command (service) acts before the next update, wh
 y and the power received since the previous step, or none.
 """
 
-import json
 import math
 import sys
 
-from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64, String
-from std_srvs.srv import SetBool, Trigger
+from std_msgs.msg import Float64
 
 from fiber_align.alignment import sequencer2d as s2d
 from fiber_align.config import load_params
 from fiber_align.nodes import _common as c
-from fiber_align.nodes.alignment_sequencer import POWER_QUEUE_LIMIT, STATE_QOS
+from fiber_align.nodes._sequencer_node import SequencerNode
+from fiber_align.nodes.alignment_sequencer import POWER_QUEUE_LIMIT
 
 NODE_NAME = s2d.CONFIG_NODE         # alignment_sequencer_2d
 AREA_FILES = (s2d.CONFIG_FILE,)
@@ -52,23 +49,18 @@ AXES = ('x', 'y')
 PUBLISHES = ('x/setpoint', 'y/setpoint')
 
 
-class AlignmentSequencer2DNode(Node):
+class AlignmentSequencer2DNode(SequencerNode, Node):
     """Transport, services and health around the pure :class:`~s2d.Sequencer2D`."""
 
     def __init__(self, bus=None, **kwargs):
         """
-        Declare the parameters (defaults from config/), build the core, wire topics.
+        Declare every key of ``sequencer2d.yaml`` (read-only), build the core, wire both axes.
 
-        :param bus: the :class:`~fiber_align.nodes._common.LocalBus` of a composed
-            process, or ``None``.
+        :param bus: the ``LocalBus`` of the rig's composed process, or ``None``.
         """
         super().__init__(NODE_NAME, **kwargs)
         d = c.node_defaults(NODE_NAME, AREA_FILES)
-        self.lockstep = c.declare(self, d, 'sync_mode', 'message pairing', read_only=True,
-                                  choices=c.SYNC_MODES) == 'lockstep'
-        diag = c.declare(self, d, 'diagnostics_period_s', '/diagnostics period (s)', 0.01,
-                         60.0, True)
-        c.declare_priority(self, d)
+        self.lockstep, diag = c.declare_sync(self, d)
         core = {name: c.declare(self, d, name, 'sequencer parameter (SI, see '
                                 'sequencer2d.yaml)', read_only=True)
                 for name in load_params(s2d.CONFIG_FILE, s2d.CONFIG_NODE)}
@@ -76,25 +68,19 @@ class AlignmentSequencer2DNode(Node):
         self.period_s = float(core['control_period_s'])
         self.pub_sp = [c.Pub(self, Float64, a + '/setpoint', c.CONTROL_QOS, bus)
                        for a in AXES]
-        self.pub_state = self.create_publisher(String, 'alignment_state', STATE_QOS)
         qos = c.sample_qos(self.lockstep)
         c.subscription(self, JointState, 'x/displacement', self._on_x, qos, bus)
         c.subscription(self, JointState, 'y/displacement', self._on_y, qos, bus)
         c.subscription(self, Float64, 'optical_power', self._on_power, qos, bus)
-        self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, c.DIAG_QOS)
-        self.create_service(Trigger, 'align', self._on_align)
-        self.create_service(Trigger, 'release', self._on_release)
-        self.create_service(SetBool, 'switch', self._on_switch)
+        self._serve()
         self.health = c.Health(self, diag)
         ns = self.get_namespace().rstrip('/')
         self.drivers = {'%s/%s/actuator_driver' % (ns, a): None for a in AXES}
         self.q = {'x': [], 'y': [], 'p': []}
         self.y_latest = None
         self.n = 0                      # updates done = index of the next sample
-        self.n_state = 0
         self.align_sample = None
-        self._last = None
-        self._publish_state(force=True)
+        self._publish_state()
         self.get_logger().info('2-D sequencer ready (%s pairing)'
                                % ('index' if self.lockstep else 'latest y and power'))
 
@@ -131,12 +117,9 @@ class AlignmentSequencer2DNode(Node):
         while len(q['x']) > POWER_QUEUE_LIMIT and q['y']:
             self._step(self.n * self.period_s, q['x'].pop(0), q['y'].pop(0), None)
 
-    def _on_diag(self, msg):
-        for st in msg.status:
-            if st.name in self.drivers:
-                level = st.level[0] if isinstance(st.level, (bytes, bytearray)) \
-                    else int(st.level)
-                self.drivers[st.name] = level < c.ERROR
+    def _driver_report(self, name, ok):
+        if name in self.drivers:
+            self.drivers[name] = ok
 
     def driver_active(self):
         """Return False when a driver reports ERROR, True when both are fine, else None."""
@@ -153,43 +136,17 @@ class AlignmentSequencer2DNode(Node):
             pub.publish(Float64(data=float(r)))
         self._publish_state()
 
-    def _publish_state(self, force=False):
+    def _publish_state(self):
         s = self.seq.status()
-        key = (s['state'], s['fault_reason'])
-        if key == self._last and not force:
-            return
-        self._last = key
-        s['sample'] = self.n
-        s['align_sample'] = self.align_sample
-        self.pub_state.publish(String(data=json.dumps(s)))
-        self.n_state += 1
-        if s['state'] == s2d.FAULT:
-            self.health.status(c.ERROR, 'FAULT: %s' % s['fault_reason'])
-            self.get_logger().error('FAULT: %s' % s['fault_reason'])
-        else:
-            self.health.status(c.OK, s['state'])
-            self.get_logger().info('state %s at sample %d' % (s['state'], self.n))
-        self.health.set_values(state=s['state'], fault_reason=s['fault_reason'],
-                               aligned_x_m=s['aligned_x_m'], aligned_y_m=s['aligned_y_m'],
-                               peak_samples=s['peak_samples'], sample=self.n)
+        s.update(sample=self.n, align_sample=self.align_sample)
+        self._publish_status(s, aligned_x_m=s['aligned_x_m'], aligned_y_m=s['aligned_y_m'],
+                             sample=self.n)
 
-    # -- services -------------------------------------------------------------------
-    def _answer(self, response, result):
-        response.success, response.message = bool(result[0]), str(result[1])
-        self._publish_state(force=True)
-        return response
-
-    def _on_align(self, request, response):
+    def _command_align(self):
         result = self.seq.align()
         if result[0]:
             self.align_sample = self.n
-        return self._answer(response, result)
-
-    def _on_release(self, request, response):
-        return self._answer(response, self.seq.release())
-
-    def _on_switch(self, request, response):
-        return self._answer(response, self.seq.switch(bool(request.data)))
+        return result
 
     def sent_counts(self):
         """Return published message counts per topic."""
@@ -198,18 +155,7 @@ class AlignmentSequencer2DNode(Node):
 
 def main(args=None):
     """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
-    stop = c.init(args)
-    node = None
-    try:
-        node = AlignmentSequencer2DNode()
-        c.spin(node, realtime=not node.lockstep, priority=c.node_priority(node), stop=stop)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except c.NODE_ERRORS as exc:
-        return c.refuse(NODE_NAME, exc)
-    finally:
-        c.finish(node)
-    return 0
+    return c.run_node(AlignmentSequencer2DNode, NODE_NAME, args)
 
 
 if __name__ == '__main__':

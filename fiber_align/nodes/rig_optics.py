@@ -25,7 +25,6 @@ noise seed) of ``config/optics2d.yaml``, and the graph-wide ``sync_mode``,
 
 import sys
 
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
@@ -57,11 +56,7 @@ class RigOpticsNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         d = c.node_defaults(NODE_NAME, AREA_FILES)
         d.update(optics_defaults())
-        self.lockstep = c.declare(self, d, 'sync_mode', 'sample pairing', read_only=True,
-                                  choices=c.SYNC_MODES) == 'lockstep'
-        diag = c.declare(self, d, 'diagnostics_period_s', '/diagnostics period (s)', 0.01,
-                         60.0, True)
-        c.declare_priority(self, d)
+        self.lockstep, diag = c.declare_sync(self, d)
         seed = c.declare(self, d, 'seed', 'detector noise seed', 0, 2 ** 31 - 1, True)
         optics = {}
         for name in sorted(k for k in d if k.startswith('optics.')):
@@ -121,18 +116,7 @@ class RigOpticsNode(Node):
 
 def main(args=None):
     """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
-    stop = c.init(args)
-    node = None
-    try:
-        node = RigOpticsNode()
-        c.spin(node, realtime=not node.lockstep, priority=c.node_priority(node), stop=stop)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except c.NODE_ERRORS as exc:
-        return c.refuse(NODE_NAME, exc)
-    finally:
-        c.finish(node)
-    return 0
+    return c.run_node(RigOpticsNode, NODE_NAME, args)
 
 
 if __name__ == '__main__':
