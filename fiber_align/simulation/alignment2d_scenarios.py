@@ -102,11 +102,6 @@ class Bench2D(sc1.Stepping):
         self.states = []
         self.last = None
 
-    @property
-    def t(self):
-        """Return the time of the next period (s)."""
-        return self.k * self.period_s
-
     def step(self):
         """Run one period; return ``(t, x, y, power reading)`` (s, m, m, W)."""
         t = self.t
@@ -191,35 +186,18 @@ def build(seed=0, method='sequencer', target=None, rig=None, record=False, seq_o
 
 def align_bench(bench, idle_s=0.02, max_s=1.0, loss_window_s=0.02):
     """Idle ``idle_s``, command ``align``, run to TRACKING or FAULT; return metrics (SI)."""
-    seq = bench.seq
-    bench.run_until(idle_s)
-    t_cmd = bench.t
-    seq.align()
-    first = [None]
-
-    def stop(b):
-        if first[0] is None and seq.state == s2d.PEAKING:
-            first[0] = b.t - b.period_s
-        return seq.state in (s2d.TRACKING, s2d.FAULT)
-
-    bench.run_until(t_cmd + max_s, stop)
-    tx, ty = bench.link.coupling.target.position(bench.t)
+    run = bench.align_run(idle_s, max_s, loss_window_s)
+    tx, ty = bench.link.coupling.target.position(run['t_stop'])
     out = {k: None for k in METRIC_KEYS}
-    out.update(state=seq.state, fault_reason=seq.fault_reason, target_x_m=tx, target_y_m=ty,
-               iterations=seq.iterations)
-    if first[0] is not None:
-        out['time_to_first_light_s'] = first[0] - t_cmd
-    if seq.state == s2d.TRACKING:
-        out['time_to_peak_s'] = bench.t - bench.period_s - t_cmd
-        out['peak_samples'] = int(seq.peak_samples)
-        out['search_samples'] = int(seq.search_samples)
+    out.update(state=run['state'], fault_reason=run['fault_reason'], target_x_m=tx,
+               target_y_m=ty, iterations=run['iterations'],
+               time_to_first_light_s=run['time_to_first_light_s'])
+    if run['state'] == s2d.TRACKING:
+        out['time_to_peak_s'] = run['time_to_peak_s']
+        out['peak_samples'] = int(run['peak_samples'])
+        out['search_samples'] = int(run['search_samples'])
         out['samples'] = int(round(out['time_to_peak_s'] / bench.period_s))
-        losses = []
-        t_end = bench.t + loss_window_s
-        while bench.t < t_end - 1e-12 and seq.state == s2d.TRACKING:
-            bench.step()
-            losses.append(bench.true_loss())
-        out['final_loss_db'] = float(np.mean(losses)) if losses else None
+        out['final_loss_db'] = float(np.mean(run['losses'])) if run['losses'] else None
     out['aligned'] = bool(out['final_loss_db'] is not None
                           and out['final_loss_db'] <= GOAL['loss_db']
                           and out['time_to_peak_s'] <= GOAL['time_s']
