@@ -36,6 +36,7 @@ from fiber_align.alignment.plots2d import plot_run2d
 from fiber_align.simulation import alignment_bench as sc1
 from fiber_align.alignment import sequencer2d as s2d
 from fiber_align.config import load_params
+from fiber_align.jsonout import json_clean
 from fiber_align.plant import optics2d as o2
 
 SCENARIOS = ('align2d', 'track2d', 'switch2d')
@@ -327,19 +328,6 @@ def run(name, seed=0, loop='composite', record=False, rig=None, **kw):
     return out
 
 
-def _clean(obj):
-    """Return ``obj`` JSON-serialisable (numpy scalars, non-finite floats, no traces)."""
-    if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items() if k != 'trace'}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
 def run_cli(args):
     """
     Run ``fiber-align simulate --scenario align2d|track2d|switch2d``; return an exit code.
@@ -365,7 +353,7 @@ def run_cli(args):
     res = run(name, seed=seed, loop=loop, record=bool(plot), **kw)
     if plot:
         plot_run2d(res, plot)
-    clean = _clean(res)
+    clean = json_clean(res, drop=('trace',))
     if getattr(args, 'json', False):
         print(json.dumps(clean, indent=2, sort_keys=True))
     else:
