@@ -20,6 +20,9 @@ Layouts:
 In both layouts ``lifecycle_manager`` (brings the lifecycle nodes to active) and
 ``bag_recorder`` (only with ``record``) are processes of their own.
 
+The two-axis rig (two of these control graphs under ``/rig/x`` and ``/rig/y`` plus the
+rig's optics and 2-D sequencer) is described on top of this module in ``graph_rig.py``.
+
 Parameters: every process gets ONE params file (:meth:`Graph.write_params`), the merge of
 the per-area files (:data:`AREA_FILES`), ``fiber_align.yaml``, the user's ``params_file``
 and the launch-argument overrides, later ones winning, with numeric lists made float

@@ -22,6 +22,8 @@ Scenarios: ``step``, ``sine``, ``triangle``, ``staircase`` and
 ``hysteresis-experiment`` run the ``scenario_runner`` node (one setpoint, or open-loop
 drive, per sample); ``align`` runs ``alignment_sequencer`` (align, then ``--cycles``
 switch cycles); ``none`` runs until SIGINT (publish ``setpoint`` yourself).
+``--rig`` runs the two-axis rig instead (:mod:`~fiber_align.nodes.bringup.rig`):
+``align2d``, and in lockstep the comparison with the offline run.
 
 Signals: SIGINT and SIGTERM stop the run cleanly however ``bringup`` was started (its
 handlers are installed explicitly, also over an inherited SIG_IGN); a second signal
