@@ -18,10 +18,8 @@ Layouts:
   its own name and reads its own section of the params file.
 
 In both layouts ``lifecycle_manager`` (brings the lifecycle nodes to active) and
-``bag_recorder`` (only with ``record``) are processes of their own.
-
-The two-axis rig (two of these control graphs under ``/rig/x`` and ``/rig/y`` plus the
-rig's optics and 2-D sequencer) is described on top of this module in ``graph_rig.py``.
+``bag_recorder`` (only with ``record``) are processes of their own. The two-axis rig is
+described on top of this module: ``graph_rig.py``.
 
 Parameters: every process gets ONE params file (:meth:`Graph.write_params`), the merge of
 the per-area files (:data:`AREA_FILES`), ``fiber_align.yaml``, the user's ``params_file``
