@@ -23,6 +23,7 @@ noise seed) of ``config/optics2d.yaml``, and the graph-wide ``sync_mode``,
 ``diagnostics_period_s``, ``realtime_priority``.
 """
 
+import math
 import sys
 
 from rclpy.node import Node
@@ -84,19 +85,23 @@ class RigOpticsNode(Node):
                                   self.link.coupling.target.position(0.0)[0] * 1e6,
                                   self.link.coupling.target.position(0.0)[1] * 1e6))
 
+    @staticmethod
+    def _position(msg):
+        return float(msg.position[0]) if len(msg.position) else math.nan
+
     def _on_x(self, msg):
         if self.lockstep:
-            self.x_q.append(msg.position[0])
+            self.x_q.append(self._position(msg))
             self._pair()
         elif self.y_latest is not None:
-            self._read(c.stamp_to_s(msg.header.stamp), msg.position[0], self.y_latest)
+            self._read(c.stamp_to_s(msg.header.stamp), self._position(msg), self.y_latest)
 
     def _on_y(self, msg):
         if self.lockstep:
-            self.y_q.append(msg.position[0])
+            self.y_q.append(self._position(msg))
             self._pair()
         else:
-            self.y_latest = msg.position[0]
+            self.y_latest = self._position(msg)
 
     def _pair(self):
         while self.x_q and self.y_q:
@@ -104,7 +109,15 @@ class RigOpticsNode(Node):
 
     def _read(self, t_s, x_m, y_m):
         """Publish one detector reading (W) with the tip at ``(x_m, y_m)`` at ``t_s``."""
-        self._msg.data = float(self.link.measure(t_s, x_m, y_m, self.period_s))
+        if not (math.isfinite(x_m) and math.isfinite(y_m)):
+            # refused, not read: a NaN would stay in the detector's averaging for good;
+            # a NaN reading still goes out so that the index pairing holds
+            why = 'tip position (%r, %r) m is not a number: no reading' % (x_m, y_m)
+            self.get_logger().warning(why)
+            self.health.warn(why)
+            self._msg.data = math.nan
+        else:
+            self._msg.data = float(self.link.measure(t_s, x_m, y_m, self.period_s))
         self.pub.publish(self._msg)
         self.n += 1
         self.health.set_values(samples=self.n, optical_power_w=self._msg.data)
