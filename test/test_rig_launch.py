@@ -11,12 +11,11 @@ bounded; the launch is stopped by its pid and group.
 """
 
 import signal
-import subprocess
 import time
 
 import pytest
 
-from test_ros2_cli import kill_group, ros2, ros2_env, spawn  # noqa: F401
+from test_ros2_cli import ros2, ros2_env, spawn, stop_launch  # noqa: F401
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -49,10 +48,4 @@ def test_launch_rig_aligns_and_stops_cleanly(ros2_env, tmp_path):  # noqa: F811
         text = log.read_text(errors='replace')
         assert 'FATAL' not in text and 'Traceback' not in text, text[-4000:]
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                pass
-        kill_group(proc)
+        stop_launch(proc)
