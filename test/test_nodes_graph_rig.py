@@ -77,3 +77,13 @@ def test_rig_params_file_is_plain_yaml_and_one_axis_can_differ(tmp_path):
 def test_bad_rig_arguments_are_refused_in_one_line(kwargs):
     with pytest.raises(graph.GraphError):
         graph_rig.build_rig(**kwargs)
+
+
+@pytest.mark.parametrize('option', [['--record', 'bag'], ['--no-noise'], ['--duration', '1'],
+                                    ['-p', 'no-equals-sign']])
+def test_bringup_rig_refuses_one_axis_options_and_bad_params_in_one_line(option, tmp_path):
+    proc = subprocess.run([sys.executable, '-m', 'fiber_align.nodes.bringup', '--rig']
+                          + option, cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith('bringup: error: '), proc.stderr
