@@ -39,7 +39,8 @@ setup(
          glob('config/*.yaml') + glob('config/*.xml')),
         (os.path.join('share', package_name, 'config', 'models'),
          glob('config/models/*.yaml')),
-        (os.path.join('share', package_name, 'launch'), glob('launch/*.launch.py')),
+        (os.path.join('share', package_name, 'launch'),
+         glob('launch/*.launch.py') + glob('launch/*.launch.xml')),
     ],
     python_requires='>=3.10',
     # The ROS 2 client libraries are deliberately not here: a real Jazzy workspace

@@ -131,3 +131,16 @@ def write_params(path, node, params, header=''):
         for line in header.splitlines():
             f.write(('# ' + line).rstrip() + '\n')
         yaml.safe_dump({node: {'ros__parameters': params}}, f, sort_keys=False)
+
+
+def unflatten(flat):
+    """Turn ROS dotted names back into the nested mapping of the params file."""
+    out = {}
+    for name, value in flat.items():
+        parts = name.split('.')
+        d = out
+        for p in parts[:-1]:
+            d = d.setdefault(p, {})
+        d[parts[-1]] = list(value) if isinstance(value, (list, tuple)) or (
+            hasattr(value, 'tolist')) else value
+    return out

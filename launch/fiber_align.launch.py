@@ -8,11 +8,14 @@ lists the arguments. The processes, node names, params files and remappings come
 ``bringup``); this file only turns that description into launch_ros ``Node`` actions.
 Every process reads one params file, the merge of ``config/*.yaml`` (per-area files, then
 ``fiber_align.yaml``), ``params_file`` and the arguments below, written to a temporary
-directory that is removed at shutdown. ``lifecycle_manager`` brings the driver to active;
-Ctrl-C (SIGINT) stops every process, and the recorder finalises its bag. With a scenario,
-the launch shuts down when the process hosting ``scenario_runner`` exits (the scenario is
-over); any other process that exits leaves the rest running (the driver's watchdog holds
-the actuator safe, and the graph recovers when the node is back).
+directory that is removed at shutdown. The processes get the graph's environment
+(:func:`fiber_align.nodes.graph.dds_environment`: the Fast DDS profile of
+``config/fastdds_profile.xml``) unless the user's sets it. ``lifecycle_manager`` brings
+the driver to active; Ctrl-C (SIGINT) stops every process, and the recorder finalises
+its bag. With a scenario, the launch shuts down when the process hosting
+``scenario_runner`` exits (the scenario is over); any other process that exits leaves
+the rest running (the driver's watchdog holds the actuator safe, and the graph recovers
+when the node is back).
 
 ``rig:=true`` starts the two-axis rig instead (:mod:`fiber_align.nodes.graph_rig`: the
 actuator graphs ``/<namespace>/x`` and ``/<namespace>/y``, the optics and the 2-D
@@ -27,7 +30,7 @@ import tempfile
 
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler
-from launch.actions import Shutdown
+from launch.actions import SetEnvironmentVariable, Shutdown
 from launch.event_handlers import OnShutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
@@ -81,6 +84,10 @@ def launch_setup(context):
     params = g.write_params(os.path.join(tmp, 'params.yaml'))
     actions = [RegisterEventHandler(OnShutdown(
         on_shutdown=lambda event, ctx: shutil.rmtree(tmp, ignore_errors=True)))]
+    # the graph's environment (Fast DDS profile, discovery range) where the user's
+    # environment does not set it: the same as under bringup
+    actions += [SetEnvironmentVariable(k, v) for k, v in graph.dds_environment().items()
+                if os.environ.get(k) != v]
     for p in g.processes:
         actions.append(Node(
             package=graph.PACKAGE, executable=p.executable, name=p.node_name,

@@ -248,6 +248,46 @@ def test_bad_setpoints_rejected_actuator_stays(graph):
     assert cl.spin_for(5.0, lambda: cl.settled(t0))
 
 
+def test_wrong_type_publisher_burst_and_odd_service_calls_crash_nothing(graph):
+    """
+    A wrong-type publisher, a setpoint burst and odd service calls crash no node.
+
+    The burst: 1,000 setpoints at 1 kHz, a tenth of them invalid. Every node keeps
+    running, the drive stays within the driver's limits, and the loop settles at the last
+    valid setpoint.
+    """
+    import rclpy
+    from std_msgs.msg import String
+    from std_srvs.srv import SetBool, Trigger
+    cl, procs, _ = graph
+    t0 = time.monotonic()
+    # a type clash on the topic, from a participant of its own (as another process would)
+    other = rclpy.Context()
+    rclpy.init(context=other)
+    odd = rclpy.create_node('wrong_type_client', context=other)
+    wrong = odd.create_publisher(String, 'setpoint', 10)
+    for _ in range(20):
+        wrong.publish(String(data='fifty micrometres'))
+    for i in range(1000):                   # 1 kHz: 10..80 um, every tenth NaN or 1 m
+        v = (math.nan if i % 20 == 0 else 1.0) if i % 10 == 0 else (10 + 70 * (i % 7) / 6) * 1e-6
+        cl.publish(v)
+        cl.spin_for(0.001)
+    for name, srv, req in (('fuzzy_pid_controller/reset', Trigger, Trigger.Request()),
+                           ('hysteresis_compensator/reset', Trigger, Trigger.Request()),
+                           ('hysteresis_compensator/reload_model', Trigger,
+                            Trigger.Request()),
+                           ('actuator_driver/enable', SetBool, SetBool.Request(data=True)),
+                           ('actuator_driver/enable', SetBool, SetBool.Request(data=True))):
+        assert cl.call(cl.node.create_client(srv, name), req) is not None, name
+    odd.destroy_node()
+    rclpy.shutdown(context=other)
+    cl.publish(TARGET_M)
+    assert cl.spin_for(8.0, lambda: cl.settled(time.monotonic() - 0.2)), cl.ys_since(t0)[-5:]
+    assert all(p.poll() is None for p in procs.values()), 'a node died'
+    drives = [v for t, v in cl.drives if t > t0]
+    assert drives and min(drives) >= -1e-9 and max(drives) <= 100.0 + 1e-9
+
+
 def test_live_gain_update_accepted_and_rejected(graph):
     """SetParameters: ki0 in range is accepted and used; a negative ki0 is refused."""
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue

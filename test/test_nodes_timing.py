@@ -196,3 +196,27 @@ def test_trajectory_makes_skipped_samples_and_missed_cycles_benign():
     assert np.mean(ramp) - 50e-6 < 0.5 * (np.mean(step) - 50e-6)
     y = run_disturbed_step(c.REALTIME_SETPOINT_RATE_M_PER_S, 0, skip=0.0, missed=0.0)
     assert abs(y[-1] - 50e-6) < 0.1e-6 and y.max() < 50.5e-6
+
+
+def test_cycle_stats_report_rate_missed_share_and_latency_per_window():
+    """Windowed cycle figures: rate over the window, misses by sample index, percentiles."""
+    from fiber_align.nodes._cycle import CycleStats
+    cs = CycleStats(1000.0)
+    t0 = 5_000_000_000
+    cs.window(t0)                               # the first window starts here
+    k0 = cs.index(t0)
+    assert cs.index(t0 + 1_000_000 + 3) == k0 + 1, 'stamps k periods apart, rounded'
+    # 1 s: 1000 sample periods, every 10th skipped, latency 0.1 ms, one of 1 ms
+    for i in range(1, 1001):
+        if i % 10:
+            cs.record(1e-3 if i == 500 else 1e-4, k0 + i)
+    w = cs.window(t0 + 1_000_000_000)
+    assert w['cycle.samples'] == 900
+    assert w['cycle.achieved_rate_hz'] == pytest.approx(900.0)
+    assert w['cycle.missed_share'] == pytest.approx(0.1)
+    assert w['cycle.latency_p50_s'] == pytest.approx(1e-4)
+    assert 1e-4 <= w['cycle.latency_p99_s'] < 1e-3, 'one slow sample in 900 is not the p99'
+    w = cs.window(t0 + 1_500_000_000)           # nothing acted on: every cycle missed
+    assert w['cycle.samples'] == 0 and w['cycle.achieved_rate_hz'] == 0.0
+    assert w['cycle.missed_share'] == 1.0
+    assert 'cycle.latency_p99_s' not in w

@@ -524,3 +524,22 @@ def test_sigint_stop_is_clean_every_process_exits_0_without_fatal(launched):
     print('clean exits: %s; FATAL/Traceback/died lines: %d' % (sorted(clean), len(bad)))
     assert not bad, '\n'.join(bad[:20])
     assert len(clean) == len(launched['children'])
+
+
+@pytest.mark.parametrize('front_end', ['py', 'xml'])
+def test_lockstep_launch_equals_simulate_sample_for_sample(ros2_env, tmp_path, front_end):
+    """``ros2 launch`` in lockstep (step scenario, recorded) equals ``fiber-align simulate``."""
+    from test_bringup_lockstep import assert_bag_equals, simulate
+    duration = 0.05
+    user = tmp_path / 'user.yaml'
+    user.write_text('scenario_runner:\n  ros__parameters:\n    duration_s: %r\n' % duration)
+    bag, log = tmp_path / 'bag', tmp_path / 'launch.log'
+    proc = spawn(ros2_env, ['ros2', 'launch', 'fiber_align', 'fiber_align.launch.' + front_end,
+                            'sync_mode:=lockstep', 'scenario:=step', 'composed:=false',
+                            'params_file:=%s' % user, 'record:=%s' % bag], log)
+    try:
+        code = proc.wait(timeout=90)     # the runner ends the launch when the step is over
+    finally:
+        kill_group(proc)
+    assert code == 0, log.read_text()[-4000:]
+    assert_bag_equals(bag, simulate('step', duration))

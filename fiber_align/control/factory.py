@@ -15,6 +15,8 @@ Controllers (:data:`CONTROLLERS`): ``open-loop`` (r times a linear gain, V/m),
 (inverse PI + plain PID).
 """
 
+import math
+
 from fiber_align.control.feedforward import Feedforward
 from fiber_align.control.fuzzy_pid import FuzzyPid, make_pid, PlainPid
 from fiber_align.control.shaping import design, Lead, ReferenceModel, Shaper, shaper_delay_s
@@ -129,3 +131,35 @@ def build_controller(controller, params, comp, design_dynamics, rate_hz, surface
     if controller in ('pid', 'composite-pid'):
         return PlainPid(make_pid(params, rate_hz), refm)
     return FuzzyPid.from_params(params, rate_hz, reference_filter=refm, surface=surface)
+
+
+#: Allowed values of the controller parameters by the last part of their name: (lo, hi)
+#: for every value, SI.
+#: kp may be negative (the tuned 1 kHz loop uses kp = -0.1 / alpha, docs/control.md);
+#: ki and kd may not (a negative integral or derivative gain destabilises the loop).
+PARAM_RANGES = {
+    'kp0': (-1e12, 1e12), 'ki0': (0.0, 1e15), 'kd0': (0.0, 1e9),
+    'kp': (-1e12, 1e12), 'ki': (0.0, 1e15), 'kd': (0.0, 1e9),
+    'kp_unit': (0.0, 1e12), 'ki_unit': (0.0, 1e15), 'kd_unit': (0.0, 1e9),
+    'e_scale_per_m': (1e-3, 1e12), 'ec_scale_s_per_m': (1e-6, 1e9),
+    'output_scale': (0.0, 10.0), 'derivative_filter_hz': (0.0, 1e6),
+    'u_min': (-1000.0, 1000.0), 'u_max': (-1000.0, 1000.0), 'tracking_time_s': (0.0, 10.0),
+}
+
+
+def check_param(name, value):
+    """Return ``None`` or the reason why ``value`` is not allowed for parameter ``name``."""
+    key = name.split('.')[-1]
+    if key not in PARAM_RANGES:
+        return None
+    lo, hi = PARAM_RANGES[key]
+    vals = list(value) if isinstance(value, (list, tuple)) or hasattr(value, 'tolist') \
+        else [value]
+    for v in vals:
+        try:
+            f = float(v)
+        except (TypeError, ValueError):
+            return '%s=%r is not a number' % (name, v)
+        if not (math.isfinite(f) and lo <= f <= hi):
+            return '%s=%r is out of range [%g, %g]' % (name, v, lo, hi)
+    return None

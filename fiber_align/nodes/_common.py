@@ -19,10 +19,13 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rcl_interfaces.msg import SetParametersResult
 
-from fiber_align.config import config_path, ConfigError, flatten, read_yaml
+from fiber_align.config import config_path, ConfigError, flatten
+from fiber_align.design import design_dynamics, load_actuator
 # The transport (QoS, in-process delivery) and the process runtime live in modules of
 # their own; the nodes use them as c.<name>.
 from fiber_align.nodes._runtime import finish, guard_change_state, init  # noqa: F401
+from fiber_align.nodes.graph import AREA_FILES, effective, GRAPH_FILE, merge_params
+from fiber_align.nodes.graph import SHARED  # noqa: F401 - values the nodes share
 from fiber_align.nodes.graph import normalize  # noqa: F401 - one law for params types
 from fiber_align.nodes._runtime import make_executor  # noqa: F401
 from fiber_align.nodes._runtime import NODE_ERRORS, node_priority, refuse  # noqa: F401
@@ -39,8 +42,6 @@ from fiber_align.nodes._trajectory import MAX_CATCH_UP  # noqa: F401
 from fiber_align.nodes._trajectory import REALTIME_SETPOINT_RATE_M_PER_S  # noqa: F401
 from fiber_align.nodes._trajectory import SetpointTrajectory  # noqa: F401
 
-GRAPH_FILE = 'fiber_align.yaml'
-PLANT_FILE = 'plant.yaml'
 
 SYNC_MODES = ('realtime', 'lockstep')
 
@@ -48,36 +49,23 @@ SYNC_MODES = ('realtime', 'lockstep')
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 
 
-def _section(data, name):
-    """Return ``data[name]['ros__parameters']`` (or ``{}``) for a params-file mapping."""
-    for key in (name, '/' + name):
-        sec = data.get(key)
-        if isinstance(sec, dict) and isinstance(sec.get('ros__parameters'), dict):
-            return dict(sec['ros__parameters'])
-    return {}
-
-
 def node_defaults(node_name, area_files=()):
     """
     Return the default parameter mapping of ``node_name``.
 
+    Exactly what the node gets in a graph without user files: the shipped per-area files
+    (:data:`fiber_align.nodes.graph.AREA_FILES`, then ``area_files`` the graph does not
+    list), then ``fiber_align.yaml``, merged by the graph's one law
+    (:func:`fiber_align.nodes.graph.merge_params`: values the nodes share, such as
+    ``rate_hz`` or the shaping, come out once under ``/**``), ``/**`` then the node's
+    section.
+
     :param node_name: node name as in the params files (no namespace).
-    :param area_files: per-area params files (names in ``config/``), read in order.
-    :returns: the merged ``ros__parameters``: ``rate_hz`` of the plant (the graph's
-        control rate lives in ``plant.yaml``), then the area files, then ``fiber_align.yaml``
-        (``/**`` section, then the node's section); later values win.
+    :param area_files: extra params files (names in ``config/``) of this node.
     :raises ConfigError: a file is missing or malformed.
     """
-    out = {}
-    plant = _section(read_yaml(config_path(PLANT_FILE)), 'simulated_actuator')
-    if 'rate_hz' in plant:
-        out['rate_hz'] = plant['rate_hz']
-    for f in list(area_files) + [GRAPH_FILE]:
-        data = read_yaml(config_path(f))
-        if f == GRAPH_FILE:
-            out.update(_section(data, '/**'))
-        out.update(_section(data, node_name))
-    return normalize(out)
+    names = AREA_FILES + tuple(f for f in area_files if f not in AREA_FILES) + (GRAPH_FILE,)
+    return normalize(effective(merge_params([config_path(f) for f in names]), node_name))
 
 
 def flatten_defaults(defaults, key):
@@ -201,12 +189,20 @@ class Health:
         self._base_message = 'ok'
         self.values = {}
         self.sent = 0
+        #: a :class:`~fiber_align.nodes._cycle.CycleStats` whose window is reported with
+        #: every publish (per-sample nodes set it), or ``None``
+        self.cycle = None
         self._timer = node.create_timer(float(period_s), self.publish,
                                         clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def status(self, level, message):
         """Set the steady level (``OK``, ``WARN``, ``ERROR``: int) and message."""
         self._base_level, self._base_message = level, message
+
+    @property
+    def message(self):
+        """Steady status text (str) of the node."""
+        return self._base_message
 
     def _latch(self, level, message):
         self._level, self._message = level, message
@@ -230,6 +226,8 @@ class Health:
         counts = getattr(self._node, 'sent_counts', None)
         if counts is not None:
             self.values.update({'sent.' + k.lstrip('/'): v for k, v in counts().items()})
+        if self.cycle is not None:
+            self.values.update(self.cycle.window(time.monotonic_ns()))
         if time.monotonic() < self._until and self._level >= self._base_level:
             level, message = self._level, self._message
         else:
@@ -319,3 +317,38 @@ def declare_sync(node, defaults):
                    60.0, True)
     declare_priority(node, defaults)
     return lockstep, diag
+
+
+#: Reference shaping laws (``shaping`` parameter).
+SHAPING = ('none', 'zv', 'zvd')
+
+
+def declare_shaping(node, defaults):
+    """
+    Declare the reference shaping and design-model parameters (read-only); return them.
+
+    The compensator's shaper and the controller's reference model are built from these
+    values; the graph keeps them one value for both (:data:`graph.SHARED`).
+
+    :returns: ``{name: value}`` of :data:`graph.SHAPING_KEYS` (SI units).
+    """
+    out = {'shaping': declare(node, defaults, 'shaping',
+                              'resonance suppression of the reference', read_only=True,
+                              choices=SHAPING)}
+    for name, text, lo, hi in (
+            ('shaping_omega_n_rad_s', 'mode to suppress (rad/s); <= 0: the design model',
+             -1.0, 1e6),
+            ('shaping_damping_ratio', 'damping ratio of that mode (1)', 0.0, 0.999),
+            ('delay_compensation_max_accel_m_per_s2',
+             'growth limit of the predicted reference rate (m/s^2)', 0.0, 1e6),
+            ('delay_compensation', 'predict smooth references over the shaper delay plus '
+             'one period (bool)', None, None),
+            ('design_file', 'actuator design params file (a name in config/ or a path) '
+             'of the design model: mode frequency and gain', None, None)):
+        out[name] = declare(node, defaults, name, text, lo, hi, True)
+    return out
+
+
+def design_model(shaping):
+    """Return ``(omega_n_rad_s, alpha_m_per_v)`` of the design file in ``shaping``."""
+    return design_dynamics(load_actuator(shaping['design_file']))

@@ -29,9 +29,13 @@ CONTROL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAMPLE_DEPTH,
 #: pairing needs every message, including one published before the match completed).
 LOCKSTEP_QOS = CONTROL_QOS
 #: ``/clock``: reliable publisher, matched by the best-effort subscriber of rclpy's
-#: TimeSource; as deep as the control topics so a lagging recorder loses no tick.
+#: TimeSource; as deep as the control topics so a lagging recorder loses no tick, and
+#: transient local like them: under ``ros2 launch`` the plant starts without waiting for
+#: the recorder, which met a short lockstep run's /clock only after its last tick (seen
+#: with two CPU hogs: a bag without /clock).
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAMPLE_DEPTH,
-                       reliability=ReliabilityPolicy.RELIABLE)
+                       reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
 DIAG_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                       reliability=ReliabilityPolicy.RELIABLE)
 #: Realtime control readers of the per-sample topics: only the newest message matters,

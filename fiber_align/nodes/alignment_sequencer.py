@@ -71,6 +71,7 @@ class AlignmentSequencerNode(SequencerNode, Node):
         self.p_q = []
         self.driver_active = None
         self.n_sp = 0
+        self.t_last = None              # sample time (s) of the last sample stepped
         self._publish_state()
         self.get_logger().info('sequencer ready (%s pairing)'
                                % ('index' if self.lockstep else 'latest power'))
@@ -109,6 +110,7 @@ class AlignmentSequencerNode(SequencerNode, Node):
     # -- the step -------------------------------------------------------------------
     def _step(self, t, y, p):
         y = None if not math.isfinite(y) else y
+        self.t_last = t
         r = self.seq.update(t, y, p, driver_active=self.driver_active)
         self.pub_sp.publish(Float64(data=float(r)))
         self.n_sp += 1
@@ -116,6 +118,9 @@ class AlignmentSequencerNode(SequencerNode, Node):
 
     def _publish_state(self):
         s = self.seq.status()
+        # the sample time (s, its stamp) of the last sample stepped: an observer lagging
+        # behind a lockstep graph indexes the state by it, not by its own count
+        s['sample_time_s'] = self.t_last
         self._publish_status(s, aligned_position_m=s['aligned_position_m'])
 
     def sent_counts(self):

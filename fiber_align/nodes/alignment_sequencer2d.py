@@ -12,9 +12,9 @@ Runs in the rig's namespace (``/rig``); topics and services (relative names, SI 
 - pub ``x/setpoint``, ``y/setpoint`` (std_msgs/Float64, m): exactly one each per sample;
   each axis's ``hysteresis_compensator`` is their one consumer.
 - pub ``alignment_state`` (std_msgs/String, JSON: ``Sequencer2D.status()`` plus
-  ``sample``, the index of the next update, and ``align_sample``, that of the update
-  the last accepted ``align`` acted before), latched, on every change of state or fault
-  and after every command.
+  ``sample``, the index of the next update, ``sample_time_s``, the time of the last one
+  (s), and ``align_sample``, the index of the update the last accepted ``align`` acted
+  before), latched, on every change of state or fault and after every command.
 - ``/diagnostics``: OK in IDLE, SEARCHING, PEAKING, TRACKING, RELEASING; ERROR in FAULT.
 - srv ``align``, ``release`` (std_srvs/Trigger); ``switch`` (std_srvs/SetBool).
 - sub ``/diagnostics``: a status of ``x/actuator_driver`` or ``y/actuator_driver`` (this
@@ -138,7 +138,9 @@ class AlignmentSequencer2DNode(SequencerNode, Node):
 
     def _publish_state(self):
         s = self.seq.status()
-        s.update(sample=self.n, align_sample=self.align_sample)
+        # as the 1-D node: the sample time (s) of the last update, for a lagging observer
+        s.update(sample=self.n, align_sample=self.align_sample,
+                 sample_time_s=(self.n - 1) * self.period_s if self.n else None)
         self._publish_status(s, aligned_x_m=s['aligned_x_m'], aligned_y_m=s['aligned_y_m'],
                              sample=self.n)
 

@@ -47,13 +47,12 @@ from rclpy.signals import SignalHandlerOptions
 
 from fiber_align.analysis import bag as bagio
 from fiber_align.config import ConfigError
+from fiber_align.nodes import _common as c
 from fiber_align.nodes._common import DIAG_QOS, make_executor, set_realtime_priority
 from fiber_align.nodes._msgtypes import message_class
 
 NODE_NAME = 'bag_recorder'
-DEFAULT_TOPICS = ['reference', 'displacement', 'feedforward_voltage', 'feedback_voltage',
-                  'drive_voltage', 'optical_power', 'controller_state', 'alignment_state',
-                  '/diagnostics', '/clock']
+AREA_FILES = ('recorder.yaml',)
 
 
 def _default_output():
@@ -66,25 +65,26 @@ class BagRecorder(Node):
     def __init__(self, **kwargs):
         """Declare the parameters, open the bag and start discovery."""
         super().__init__(NODE_NAME, **kwargs)
-        self.declare_parameter('output', '')
-        self.declare_parameter('storage', 'mcap')
-        self.declare_parameter('topics', DEFAULT_TOPICS)
-        self.declare_parameter('discovery_period_s', 0.2)
-        self.declare_parameter('queue_depth', 1000)
-        self.declare_parameter('counts_file', True)
-        self.declare_parameter('flush_period_s', 0.5)
-        self.declare_parameter('diagnostics_period_s', 0.2)
-        self.declare_parameter('realtime_priority', 0)
+        d = c.node_defaults(NODE_NAME, AREA_FILES)
+        ro = True
+        self.output = c.declare(self, d, 'output', 'bag directory to create (must not '
+                                'exist); empty: fiber_align_<date_time>', read_only=ro) \
+            or _default_output()
+        storage = c.declare(self, d, 'storage', 'bag storage', read_only=ro,
+                            choices=('mcap', 'sqlite3'))
+        c.declare(self, d, 'topics', 'topics to record (relative names resolve in the '
+                  'namespace)', read_only=ro)
+        period = c.declare(self, d, 'discovery_period_s', 'topic discovery period (s)',
+                           0.01, 60.0, ro)
+        self.depth = c.declare(self, d, 'queue_depth', 'reader history per topic '
+                               '(messages)', 1, 10_000_000, ro)
+        self.counts_file = c.declare(self, d, 'counts_file', 'write recorder_events.json '
+                                     'next to the bag (bool)', read_only=ro)
+        c.declare(self, d, 'flush_period_s', 'period of mcap chunk flushes (s)', 0.01,
+                  60.0, ro)
+        c.declare(self, d, 'diagnostics_period_s', '/diagnostics period (s)', 0.01, 60.0, ro)
+        c.declare_priority(self, d)
         gp = self.get_parameter
-        self.output = gp('output').value or _default_output()
-        storage = str(gp('storage').value)
-        period = float(gp('discovery_period_s').value)
-        self.depth = int(gp('queue_depth').value)
-        self.counts_file = bool(gp('counts_file').value)
-        if not period > 0:
-            raise ConfigError('discovery_period_s must be > 0 s, got %r' % period)
-        if self.depth < 1:
-            raise ConfigError('queue_depth must be >= 1, got %r' % self.depth)
         self.wanted = [self.resolve_topic_name(t) for t in gp('topics').value]
         from rosbags.rosbag2 import Writer
         self.typestore = bagio.typestore()

@@ -31,10 +31,11 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64, Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import Trigger
 
-from fiber_align.config import ConfigError, flatten, load_params
-from fiber_align.control.factory import build_controller, CONTROLLERS
-from fiber_align.design import design_dynamics, load_actuator
+from fiber_align.config import ConfigError, flatten, unflatten
+from fiber_align.control.factory import build_controller, check_param, CONTROLLERS
+from fiber_align.control.factory import PARAM_RANGES
 from fiber_align.nodes import _common as c
+from fiber_align.nodes._cycle import CycleStats
 
 NODE_NAME = 'fuzzy_pid_controller'
 AREA_FILES = ('controller.yaml',)
@@ -49,33 +50,9 @@ GRAPH_KEYS = ('controller', 'sync_mode', 'rate_hz', 'diagnostics_period_s', 'set
               'realtime_priority')
 #: Topics this node publishes (relative names; see ``_common.LocalBus``).
 PUBLISHES = ('feedback_voltage', 'controller_state')
-#: Live-update rules by the last part of a parameter name: (lo, hi) for every value, SI.
-#: kp may be negative (the tuned 1 kHz loop uses kp = -0.1 / alpha, docs/control.md);
-#: ki and kd may not (a negative integral or derivative gain destabilises the loop).
-VALUE_RANGES = {
-    'kp0': (-1e12, 1e12), 'ki0': (0.0, 1e15), 'kd0': (0.0, 1e9),
-    'kp': (-1e12, 1e12), 'ki': (0.0, 1e15), 'kd': (0.0, 1e9),
-    'kp_unit': (0.0, 1e12), 'ki_unit': (0.0, 1e15), 'kd_unit': (0.0, 1e9),
-    'e_scale_per_m': (1e-3, 1e12), 'ec_scale_s_per_m': (1e-6, 1e9),
-    'output_scale': (0.0, 10.0), 'derivative_filter_hz': (0.0, 1e6),
-    'u_min': (-1000.0, 1000.0), 'u_max': (-1000.0, 1000.0), 'tracking_time_s': (0.0, 10.0),
-}
 
 
-def unflatten(flat):
-    """Turn ROS dotted names back into the nested mapping of the params file."""
-    out = {}
-    for name, value in flat.items():
-        parts = name.split('.')
-        d = out
-        for p in parts[:-1]:
-            d = d.setdefault(p, {})
-        d[parts[-1]] = list(value) if isinstance(value, (list, tuple)) or (
-            hasattr(value, 'tolist')) else value
-    return out
-
-
-def make_controller(controller, params, rate_hz, surface=None):
+def make_controller(controller, params, rate_hz, shaping, surface=None):
     """
     Build the feedback law exactly as the offline simulation does.
 
@@ -83,30 +60,13 @@ def make_controller(controller, params, rate_hz, surface=None):
         composite-pid, fuzzy, pid, feedforward, open-loop); the last two have no feedback.
     :param params: controller parameters (nested, SI).
     :param rate_hz: control rate (Hz).
+    :param shaping: the reference shaping and design file (the compensator's values,
+        :func:`~fiber_align.nodes._common.declare_shaping`).
     :param surface: the fuzzy surface of the controller it replaces (reused if it fits).
     :returns: an object with ``step(r, y) -> V`` or ``None``.
     """
-    comp = load_params('compensator.yaml', 'hysteresis_compensator')
-    return build_controller(controller, params, comp,
-                            design_dynamics(load_actuator('actuator.yaml')), rate_hz, surface)
-
-
-def check_values(name, value):
-    """Return ``None`` or the reason why ``value`` is not allowed for parameter ``name``."""
-    key = name.split('.')[-1]
-    if key not in VALUE_RANGES:
-        return None
-    lo, hi = VALUE_RANGES[key]
-    vals = list(value) if isinstance(value, (list, tuple)) or hasattr(value, 'tolist') \
-        else [value]
-    for v in vals:
-        try:
-            f = float(v)
-        except (TypeError, ValueError):
-            return '%s=%r is not a number' % (name, v)
-        if not (math.isfinite(f) and lo <= f <= hi):
-            return '%s=%r is out of range [%g, %g]' % (name, v, lo, hi)
-    return None
+    return build_controller(controller, params, shaping, c.design_model(shaping), rate_hz,
+                            surface)
 
 
 class FuzzyPidControllerNode(Node):
@@ -141,11 +101,12 @@ class FuzzyPidControllerNode(Node):
         self.state_every = c.declare(self, d, 'controller_state_every',
                                      'publish controller_state every N samples (1); 0: off',
                                      0, 1000000)
-        core = {k: v for k, v in d.items() if k not in GRAPH_KEYS}
+        self.shaping = c.declare_shaping(self, d)   # the reference model's (SHARED)
+        core = {k: v for k, v in d.items() if k not in GRAPH_KEYS and k not in c.SHARED}
         self.core_names = []
         for name, value in flatten(core).items():
             key = name.split('.')[-1]
-            lo, hi = VALUE_RANGES.get(key, (None, None))
+            lo, hi = PARAM_RANGES.get(key, (None, None))
             scalar = isinstance(value, (int, float)) and not isinstance(value, bool)
             c.declare(self, {name: value}, name, 'controller parameter (SI, see '
                       'controller.yaml)', lo if scalar else None, hi if scalar else None)
@@ -174,6 +135,9 @@ class FuzzyPidControllerNode(Node):
                            bus)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.health = c.Health(self, diag)
+        self._stamp_ns = 0              # realtime: stamp (ns) of the sample being answered
+        if not self.lockstep:
+            self.health.cycle = CycleStats(self.rate_hz)
         self.r = 0.0
         self.r_prev = 0.0               # realtime: latest setpoint at the previous sample
         self.has_setpoint = False       # realtime: feedback off until the first setpoint
@@ -193,7 +157,7 @@ class FuzzyPidControllerNode(Node):
     # -- parameters -----------------------------------------------------------------
     def _make(self, mode, params):
         """Build the feedback law; realtime: its reference model's lead covers one more T."""
-        ctl = make_controller(mode, params, self.rate_hz,
+        ctl = make_controller(mode, params, self.rate_hz, self.shaping,
                               getattr(getattr(self, 'ctl', None), 'surface', None))
         if ctl is not None and not self.lockstep:
             c.extend_lead(getattr(ctl, 'reference_filter', None), 1.0 / self.rate_hz)
@@ -219,7 +183,7 @@ class FuzzyPidControllerNode(Node):
                                                'one of %s' % (p.value, ', '.join(MODES)))
                 mode = p.value
             elif p.name in self.core_names:
-                why = check_values(p.name, p.value)
+                why = check_param(p.name, p.value)
                 if why:
                     return SetParametersResult(successful=False, reason=why)
                 changes[p.name] = p.value
@@ -326,7 +290,9 @@ class FuzzyPidControllerNode(Node):
             self._pair()
             return
         self.y_latest = y
-        n = self.traj.periods(msg.header.stamp)
+        st = msg.header.stamp
+        self._stamp_ns = st.sec * 1_000_000_000 + st.nanosec
+        n = self.traj.periods(st)
         if n > c.MAX_CATCH_UP and self.ctl is not None:
             self.ctl.reset()            # stalled: the integral is stale (docstring)
             self._park()
@@ -379,6 +345,9 @@ class FuzzyPidControllerNode(Node):
         msg.data = float(fb)
         self.pub_fb.publish(msg)
         self.n_fb += 1
+        cyc = self.health.cycle
+        if cyc is not None:             # realtime: sample-to-feedback latency
+            cyc.record((time.time_ns() - self._stamp_ns) * 1e-9, cyc.index(self._stamp_ns))
         if self.state_every and self.n_fb % self.state_every == 0:
             st = self._state_msg
             st.data = [float(e), float(de), float(gains[0]), float(gains[1]),

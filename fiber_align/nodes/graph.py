@@ -40,7 +40,31 @@ import os
 import re
 from typing import Dict, Optional, Tuple
 
-from fiber_align.config import ConfigError, config_dir, read_yaml
+from fiber_align.config import config_dir, config_path
+from fiber_align.plant.actuator import PARAM_KEYS, SimulatedActuator
+# The node names and the params-merge law live in graph_params; re-exported here.
+from fiber_align.nodes.graph_params import (  # noqa: F401
+    PLANT,
+    COMPENSATOR,
+    CONTROLLER,
+    DRIVER,
+    SCENARIO_RUNNER,
+    SEQUENCER,
+    RECORDER,
+    LIFECYCLE_MANAGER,
+    LIFECYCLE_NODES,
+    LOOP_NODES,
+    SHAPING_KEYS,
+    SHARED,
+    GraphError,
+    normalize,
+    merge,
+    nest,
+    _section_key,
+    lift_shared,
+    wildcard_last,
+    merge_params,
+    effective)
 
 PACKAGE = 'fiber_align'
 #: Layout when the launch argument ``composed`` (or bringup's option) is not given.
@@ -62,23 +86,9 @@ CONTROLLERS = ('composite', 'composite-pid', 'fuzzy', 'pid', 'feedforward', 'ope
 SCENARIOS = ('none', 'step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment',
              'align')
 
-PLANT = 'simulated_actuator'
-COMPENSATOR = 'hysteresis_compensator'
-CONTROLLER = 'fuzzy_pid_controller'
-DRIVER = 'actuator_driver'
-SCENARIO_RUNNER = 'scenario_runner'
-SEQUENCER = 'alignment_sequencer'
-RECORDER = 'bag_recorder'
-LIFECYCLE_MANAGER = 'lifecycle_manager'
-#: Nodes that are lifecycle (managed) nodes, brought to active by ``lifecycle_manager``.
-LIFECYCLE_NODES = (DRIVER,)
 #: Remappings applied to every process (``from``, ``to``); the nodes use the graph's
 #: relative names as they are, so there are none today.
 REMAPPINGS = ()
-
-
-class GraphError(ConfigError):
-    """A launch argument or option is wrong; the message names what and what is allowed."""
 
 
 @dataclass(frozen=True)
@@ -205,79 +215,33 @@ def control_nodes(scenario):
     return nodes + (SCENARIO_RUNNER,)
 
 
-def normalize(value):
-    """Return ``value`` with numeric lists as float lists (recursively)."""
-    if isinstance(value, dict):
-        return {k: normalize(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        if value and all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                         for v in value):
-            return [float(v) for v in value]
-        return list(value)
-    return value
-
-
-def merge(a, b):
-    """Return ``a`` updated recursively by ``b`` (mappings merge, other values replace)."""
-    out = dict(a)
-    for k, v in b.items():
-        if isinstance(v, dict) and isinstance(out.get(k), dict):
-            out[k] = merge(out[k], v)
-        else:
-            out[k] = v
-    return out
-
-
-def nest(name, value):
-    """Return ``{'a': {'b': value}}`` for the ROS dotted name ``a.b``."""
-    out = value
-    for part in reversed(name.split('.')):
-        out = {part: out}
-    return out
-
-
-def _section_key(key, namespace):
-    """Return a params-file key as a node name relative to ``namespace`` (or as it is)."""
-    if key in ('/**', '**'):
-        return '/**'
-    k = key.lstrip('/')
-    if namespace and k.startswith(namespace + '/'):
-        k = k[len(namespace) + 1:]
-    return k if '/' not in k and '*' not in k else key
-
-
-def merge_params(files, overrides=None, namespace=''):
+def plant_reach_m(params):
     """
-    Merge ROS params files and overrides into one mapping keyed for ``namespace``.
+    Return the simulated plant's largest reachable displacement (m).
 
-    :param files: params file paths, in order (later ones win, key by key).
-    :param overrides: ``{node or '/**': {name: value}}`` applied last; dotted names
-        (``optics.gap_m``) are nested.
-    :param namespace: the graph's namespace; node sections come out keyed
-        ``/<namespace>/<node>`` (``<node>`` without one); ``/**`` and keys with
-        wildcards or other namespaces stay as they are.
-    :raises ConfigError: a file is missing or not a params mapping.
+    :param params: the merged params mapping (:meth:`Graph.params`-like, keyed by node).
+    The scenario runner clamps its setpoints to it, as the offline simulation does, so the
+    launch file, ``bringup`` and ``fiber-align simulate`` run the same setpoints.
     """
-    data = {}
-    for f in files:
-        for key, sec in read_yaml(f).items():
-            data = merge(data, {_section_key(str(key), namespace): sec})
-    for node, params in (overrides or {}).items():
-        for name, value in params.items():
-            data = merge(data, {_section_key(node, namespace):
-                                {'ros__parameters': nest(name, value)}})
-    data = normalize(data)
-    if not namespace:
-        return data
-    return {(k if k.startswith('/') else '/%s/%s' % (namespace, k)): v
-            for k, v in data.items()}
+    p = effective(params, PLANT)
+    return SimulatedActuator.from_params({k: p[k] for k in PARAM_KEYS if k in p}) \
+        .reachable_m()
 
 
-def effective(params, node, namespace=''):
-    """Return the parameters ``node`` gets from a merged mapping (``/**``, then its own)."""
-    key = '/%s/%s' % (namespace, node) if namespace else node
-    out = dict(params.get('/**', {}).get('ros__parameters', {}))
-    out.update(params.get(key, {}).get('ros__parameters', {}))
+def dds_environment(env=None):
+    """
+    Return the environment of the graph's processes (a copy of ``env`` or os.environ).
+
+    Used by ``bringup`` for its children and by the launch file.
+
+    Unless the user chose a Fast DDS profile, ``config/fastdds_profile.xml`` is used: a
+    50 ms heartbeat, so a reliable sample dropped in a burst is resent at once instead
+    of after 3 s (when its writer may have exited), and larger socket buffers.
+    """
+    out = dict(os.environ if env is None else env)
+    out.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    if 'FASTRTPS_DEFAULT_PROFILES_FILE' not in out:
+        out['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(config_path('fastdds_profile.xml'))
     return out
 
 
@@ -375,6 +339,8 @@ def build(namespace='', composed=None, sync_mode='', controller='', params_file=
         over[SCENARIO_RUNNER] = {'scenario': _choice('scenario', scenario, SCENARIOS),
                                  'exit_when_done': True}
     merged = merge_params(files, over, ns)
+    if SCENARIO_RUNNER in over:
+        over[SCENARIO_RUNNER]['reach_m'] = plant_reach_m(merge_params(files, over))
     graph_wide = effective(merged, PLANT, ns)
     sync = _choice('sync_mode', graph_wide.get('sync_mode', 'realtime'), SYNC_MODES)
     law = _choice('controller', graph_wide.get('controller', 'composite'), CONTROLLERS)

@@ -85,8 +85,9 @@ class RigGraph(g.Graph):
         for n in tuple(RIG_NODES) + (g.LIFECYCLE_MANAGER,):
             if n in base:
                 out['%s/%s' % (root, n)] = base[n]
-        # a copy per section: no shared mappings, so no YAML aliases in the params file
-        return {k: copy.deepcopy(v) for k, v in out.items()}
+        # a copy per section: no shared mappings, so no YAML aliases in the params file;
+        # /** last, as graph.py writes it (graph_params.wildcard_last)
+        return g.wildcard_last({k: copy.deepcopy(v) for k, v in out.items()})
 
     def node_params(self, node):
         """Return the effective parameters of ``node`` (relative: ``x/simulated_actuator``)."""

@@ -48,6 +48,7 @@ pairing holds) and the actuator stays where it was.
 
 import math
 import sys
+import time
 
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -57,13 +58,12 @@ from std_srvs.srv import Trigger
 
 from fiber_align.config import ConfigError
 from fiber_align.control.factory import build_feedforward, CONTROLLERS
-from fiber_align.design import design_dynamics, load_actuator
 from fiber_align.hysteresis.pi import PIModel
 from fiber_align.nodes import _common as c
+from fiber_align.nodes._cycle import CycleStats
 
 NODE_NAME = 'hysteresis_compensator'
 AREA_FILES = ('compensator.yaml', 'models/compensator_model.yaml')
-SHAPING = ('none', 'zv', 'zvd')
 #: Topics this node publishes (relative names; see ``_common.LocalBus``).
 PUBLISHES = ('feedforward_voltage', 'reference')
 
@@ -97,19 +97,13 @@ class HysteresisCompensatorNode(Node):
                                '<= 0: none', -1.0, 10.0, True)
         c.declare_priority(self, d)
         self.traj = c.SetpointTrajectory(1.0 / self.rate_hz, rate)
-        self.comp_defaults = {k: v for k, v in d.items()}
         c.declare(self, d, 'model_file', 'PI model params file; empty: the inline model')
         c.declare(self, d, 'model_source', 'where the inline model comes from')
         c.declare(self, d, 'thresholds_v', 'PI play-operator thresholds (V)')
         c.declare(self, d, 'weights_m_per_v', 'PI weights (m/V)')
-        c.declare(self, d, 'shaping', 'resonance suppression of the reference',
-                  read_only=True, choices=SHAPING)
-        c.declare(self, d, 'shaping_omega_n_rad_s', 'mode to suppress (rad/s); <= 0: design',
-                  -1.0, 1e6, True)
-        c.declare(self, d, 'shaping_damping_ratio', 'damping ratio of that mode (1)', 0.0,
-                  0.999, True)
-        c.declare(self, d, 'open_loop_gain_v_per_m', 'linear feedforward gain (V/m)', 0.0,
-                  1e9, True)
+        self.shaping = c.declare_shaping(self, d)
+        self.open_loop_gain = c.declare(self, d, 'open_loop_gain_v_per_m',
+                                        'linear feedforward gain (V/m)', 0.0, 1e9, True)
         self.pub = c.Pub(self, Float64, 'feedforward_voltage', c.CONTROL_QOS, bus)
         # the accepted setpoint for the controller (one consumer of ``setpoint``)
         self.pub_ref = c.Pub(self, Float64, 'reference', c.CONTROL_QOS, bus,
@@ -129,6 +123,7 @@ class HysteresisCompensatorNode(Node):
         self.create_service(Trigger, '~/reload_model', self._on_reload)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.health = c.Health(self, diag)
+        self.health.cycle = CycleStats(self.rate_hz)
         self.r = 0.0
         self.y_latest = 0.0
         self.n_ff = 0
@@ -153,13 +148,9 @@ class HysteresisCompensatorNode(Node):
 
     def build(self):
         """Return a fresh :class:`Feedforward` (V from m) for the parameters."""
-        comp = dict(self.comp_defaults)
-        comp.update({k: self.get_parameter(k).value for k in
-                     ('shaping', 'shaping_omega_n_rad_s', 'shaping_damping_ratio',
-                      'open_loop_gain_v_per_m')})
+        comp = dict(self.shaping, open_loop_gain_v_per_m=self.open_loop_gain)
         ff = build_feedforward(self.get_parameter('controller').value, comp,
-                               self.load_model(),
-                               design_dynamics(load_actuator('actuator.yaml')), self.rate_hz)
+                               self.load_model(), c.design_model(self.shaping), self.rate_hz)
         if not self.lockstep:
             c.extend_lead(ff, 1.0 / self.rate_hz)    # the realtime loop's extra period
         return ff
@@ -209,7 +200,14 @@ class HysteresisCompensatorNode(Node):
             self._publish(self.ff.step(self.r))
 
     def _on_sample(self, msg):
-        """Realtime: step the feedforward through every sample period since the last one."""
+        """Realtime: step the feedforward; count the sample-to-feedforward latency (s)."""
+        self._step_sample(msg)
+        st, cyc = msg.header.stamp, self.health.cycle
+        ns = st.sec * 1_000_000_000 + st.nanosec
+        cyc.record((time.time_ns() - ns) * 1e-9, cyc.index(ns))
+
+    def _step_sample(self, msg):
+        """Step the feedforward through every sample period since the last one."""
         if len(msg.position):
             self.y_latest = msg.position[0]
         n = self.traj.periods(msg.header.stamp)

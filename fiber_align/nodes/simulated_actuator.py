@@ -43,12 +43,9 @@ Modes (parameter ``sync_mode``):
   by every elapsed period (the simulated plant keeps wall time) and counts the periods
   it skipped as missed too.
 
-In realtime mode the node measures the loop latency: for each sample, the wall time from
-publishing the displacement to the arrival of the first drive command after it (the
-definition ``fiber-align analyze`` uses for sensor-to-command latency); with no missed
-cycle that drive is the one computed from the sample. Latency percentiles and the share
-of missed cycles are on ``/diagnostics`` (``latency_p50_s``, ``latency_p99_s``,
-``latency_max_s``, ``missed_share``) and in :meth:`SimulatedActuatorNode.latency_stats`.
+Realtime: the sample-to-drive latency (publishing y_k to the first drive after it) and
+the missed cycles, per run (:meth:`SimulatedActuatorNode.latency_stats`, ``latency_*``)
+and per diagnostics window (``cycle.*``, :mod:`fiber_align.nodes._cycle`).
 """
 
 import sys
@@ -64,6 +61,7 @@ from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
 
 from fiber_align.nodes import _common as c
+from fiber_align.nodes._cycle import CycleStats, loop_summary
 from fiber_align.plant.actuator import KINDS, SimulatedActuator
 from fiber_align.plant.optics import OpticalLink
 
@@ -76,18 +74,6 @@ PLANT_KEYS = ('rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min'
               'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m', 'seed')
 LATENCY_BUFFER = 200_000   # realtime: latencies kept (200 s at 1 kHz), then not recorded
 WARMUP_SAMPLES = 1000      # realtime: samples before the statistics start (1 s at 1 kHz)
-
-
-def make_optics(params, seed):
-    """
-    Return the optical link (coupling + detector), or ``None`` without the optics model.
-
-    :param params: the node's ``optics.*`` parameters (ROS dotted names, SI units).
-    :param seed: detector noise seed.
-    """
-    if not params:
-        return None
-    return OpticalLink.from_params(params, seed=seed)
 
 
 class SimulatedActuatorNode(Node):
@@ -106,25 +92,25 @@ class SimulatedActuatorNode(Node):
         self.rate_hz = c.declare(self, d, 'rate_hz', 'control rate (Hz)', 1.0, 20000.0, ro)
         c.declare(self, d, 'hysteresis', 'true hysteresis law of the plant', read_only=ro,
                   choices=KINDS)
-        c.declare(self, d, 'omega_n_rad_s', 'first bending mode (rad/s); <= 0: design model',
-                  -1.0, 1e6, ro)
-        c.declare(self, d, 'damping_ratio', 'modal damping ratio (1)', 0.0, 0.999, ro)
-        c.declare(self, d, 'v_min', 'amplifier lower limit (V)', -200.0, 200.0, ro)
-        c.declare(self, d, 'v_max', 'amplifier upper limit (V)', -200.0, 200.0, ro)
-        c.declare(self, d, 'slew_rate_v_per_s', 'amplifier slew limit (V/s); <= 0: none',
-                  -1.0, 1e12, ro)
-        c.declare(self, d, 'noise_rms_m', 'sensor noise (m RMS)', 0.0, 1e-3, ro)
-        c.declare(self, d, 'resolution_m', 'sensor resolution (m)', 0.0, 1e-3, ro)
-        c.declare(self, d, 'seed', 'sensor noise seed', 0, 2 ** 31 - 1, ro)
+        for name, text, lo, hi in (
+                ('omega_n_rad_s', 'first bending mode (rad/s); <= 0: design model', -1.0, 1e6),
+                ('damping_ratio', 'modal damping ratio (1)', 0.0, 0.999),
+                ('v_min', 'amplifier lower limit (V)', -200.0, 200.0),
+                ('v_max', 'amplifier upper limit (V)', -200.0, 200.0),
+                ('slew_rate_v_per_s', 'amplifier slew limit (V/s); <= 0: none', -1.0, 1e12),
+                ('noise_rms_m', 'sensor noise (m RMS)', 0.0, 1e-3),
+                ('resolution_m', 'sensor resolution (m)', 0.0, 1e-3),
+                ('seed', 'sensor noise seed', 0, 2 ** 31 - 1)):
+            c.declare(self, d, name, text, lo, hi, ro)
         self.sync_mode = c.declare(self, d, 'sync_mode', 'sample clock', read_only=ro,
                                    choices=c.SYNC_MODES)
         self.timeout_s = c.declare(self, d, 'lockstep_timeout_s',
                                    'lockstep: warn when no drive within this time (s)',
                                    0.001, 3600.0)
-        self.autostart = c.declare(self, d, 'autostart',
-                                   'start the sample clock without a run call', read_only=ro)
-        diag_period = c.declare(self, d, 'diagnostics_period_s',
-                                '/diagnostics period (s)', 0.01, 60.0, ro)
+        self.autostart = c.declare(self, d, 'autostart', 'start the clock without ~/run',
+                                   read_only=ro)
+        diag_period = c.declare(self, d, 'diagnostics_period_s', '/diagnostics period (s)',
+                                0.01, 60.0, ro)
         self.power_every = c.declare(self, d, 'optical_power_every',
                                      'publish optical_power every N samples (1); 0: off '
                                      '(the alignment sequencer needs 1)', 0, 1000000)
@@ -135,7 +121,6 @@ class SimulatedActuatorNode(Node):
                           'the rig)', read_only=ro)
         c.declare_priority(self, d)
         self.add_on_set_parameters_callback(self._on_set)
-
         params = {k: self.get_parameter(k).value for k in PLANT_KEYS}
         self.plant = SimulatedActuator.from_params(params)
         self.period_s = self.plant.period_s
@@ -144,7 +129,8 @@ class SimulatedActuatorNode(Node):
             optics_params[name] = c.declare(self, {name: value}, name,
                                             'optics model parameter (SI, see optics.yaml)',
                                             read_only=ro)
-        self.optics = make_optics(optics_params, int(params['seed']))
+        self.optics = OpticalLink.from_params(optics_params, seed=int(params['seed'])) \
+            if optics_params else None
 
         self.pub_disp = c.Pub(self, JointState, 'displacement', c.CONTROL_QOS, bus)
         self.pub_power = c.Pub(self, Float64, 'optical_power', c.CONTROL_QOS, bus)
@@ -159,6 +145,8 @@ class SimulatedActuatorNode(Node):
                        c.sample_qos(self.sync_mode == 'lockstep'), bus)
         self.create_service(SetBool, '~/run', self._on_run)
         self.health = c.Health(self, diag_period)
+        if self.sync_mode == 'realtime':
+            self.health.cycle = CycleStats(self.rate_hz)
 
         self.running = False
         self.started = False
@@ -223,13 +211,10 @@ class SimulatedActuatorNode(Node):
         """Start (``data`` true) or hold (false) the sample clock."""
         if request.data:
             self._start()
-            response.message = 'running'
         else:
-            self.running = False
-            self.m0 = None
+            self.running, self.m0 = False, None
             self.health.status(0, 'held at sample %d' % self.k)
-            response.message = 'held at sample %d' % self.k
-        response.success = True
+        response.success, response.message = True, self.health.message
         return response
 
     def _start(self):
@@ -292,8 +277,10 @@ class SimulatedActuatorNode(Node):
             self.drives_in_period += 1
             if not self.drive_seen:
                 self.drive_seen = True
+                lat = time.perf_counter() - self.t_pub
+                self.health.cycle.record(lat, self.k)
                 if self.k >= self.stats_from and self.n_lat < LATENCY_BUFFER:
-                    self.lat[self.n_lat] = time.perf_counter() - self.t_pub
+                    self.lat[self.n_lat] = lat
                     self.n_lat += 1
             return
         self.pending.append(msg.data)
@@ -385,27 +372,9 @@ class SimulatedActuatorNode(Node):
         self.skipped = 0
 
     def latency_stats(self):
-        """
-        Return the realtime loop statistics since :meth:`reset_stats`.
-
-        :returns: dict with ``periods`` (sample periods counted), ``latency_n``,
-            ``missed_cycles`` (ticks with no new drive, ``missed_no_drive``, plus periods
-            skipped by late ticks, ``missed_late_tick``), ``missed_share`` (1), and
-            ``latency_p50_s``, ``latency_p99_s``, ``latency_max_s`` (s) when there is a
-            latency.
-        """
-        lat = self.lat[:self.n_lat]
-        periods = max(0, self.k - self.stats_from)
-        missed = self.missed + self.skipped
-        out = {'samples': int(self.k + 1 if self.started else 0), 'periods': int(periods),
-               'latency_n': int(lat.size), 'missed_cycles': int(missed),
-               'missed_no_drive': int(self.missed), 'missed_late_tick': int(self.skipped),
-               'missed_share': float(missed) / periods if periods else 0.0}
-        if lat.size:
-            out.update(latency_p50_s=float(np.percentile(lat, 50)),
-                       latency_p99_s=float(np.percentile(lat, 99)),
-                       latency_max_s=float(lat.max()))
-        return out
+        """Return the realtime loop statistics since :meth:`reset_stats` (loop_summary)."""
+        return loop_summary(self.lat[:self.n_lat], max(0, self.k - self.stats_from),
+                            self.missed, self.skipped, self.k + 1 if self.started else 0)
 
     def _update_values(self):
         vals = {'sample': self.k, 'sim_time_s': self.k * self.period_s,

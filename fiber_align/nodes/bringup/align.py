@@ -23,8 +23,9 @@ def run_align(b):
     wall = 30.0 + 40.0 * (sm.ALIGN_MAX_S + b.cycles * (sm.SWITCH_OFF_S + sm.SWITCH_ON_S))
     r.wait_samples(k(sm.ALIGN_IDLE_S), wall, b._alive)
     events = {}
+    n = len(r.states)
     res = r.call(r.align_cli, Trigger.Request(), 10.0)
-    events['align'] = r.samples
+    events['align'] = r.event(n)
     if not res.success:
         raise BringupError('align refused: %s' % res.message)
 
@@ -40,13 +41,15 @@ def run_align(b):
     r.wait_samples(events['tracking'] + k(sm.LOSS_WINDOW_S), wall, b._alive)
     cyc = []
     for _ in range(b.cycles):
+        n = len(r.states)
         res = r.call(r.switch_cli, SetBool.Request(data=False), 10.0)
-        k_off = r.samples
+        k_off = r.event(n)
         if not res.success:
             raise BringupError('switch off refused: %s' % res.message)
         r.wait_samples(k_off + k(sm.SWITCH_OFF_S), wall, b._alive)
+        n = len(r.states)
         res = r.call(r.switch_cli, SetBool.Request(data=True), 10.0)
-        k_on = r.samples
+        k_on = r.event(n)
         if not res.success:
             raise BringupError('switch on refused: %s' % res.message)
         r.wait_samples(k_on + k(sm.SWITCH_ON_S), wall, b._alive)

@@ -1,21 +1,20 @@
 # SPDX-License-Identifier: Apache-2.0
 """``bringup``'s checks of a graph: endpoints, environment, recorder catch-up, usage."""
 
-import os
 import time
 
-from fiber_align.config import config_path
-from fiber_align.nodes.bag_recorder import DEFAULT_TOPICS
+from fiber_align.nodes.graph import dds_environment  # noqa: F401 - bringup's API
 from fiber_align.nodes.bringup.children import cpu_time_s, rss_bytes
 
 
-def expected_endpoints(scenario, lockstep, record, composed=False):
+def expected_endpoints(scenario, lockstep, recorded=(), composed=False):
     """
     Return ``{topic: (publishers, subscribers)}`` (at least) the running graph must have.
 
     :param scenario: a scenario name of ``bringup``.
     :param lockstep: the plant publishes ``/clock``.
-    :param record: a recorder subscribes to every recorded topic too.
+    :param recorded: the topics a recorder subscribes to (its ``topics`` parameter;
+        empty: no recorder).
     :param composed: the control nodes share one process: their readers of each other's
         topics are in-process (``_common.LocalBus``), not DDS subscriptions.
     """
@@ -36,25 +35,9 @@ def expected_endpoints(scenario, lockstep, record, composed=False):
                     'alignment_state': (1, 1)})
     if lockstep:
         out['/clock'] = (1, 0)
-    recorded = {t.lstrip('/') for t in DEFAULT_TOPICS}
-    rec = 1 if record else 0
-    return {k: (p, s + (rec if p and k.lstrip('/') in recorded else 0))
+    recorded = {t.lstrip('/') for t in recorded}
+    return {k: (p, s + (1 if p and k.lstrip('/') in recorded else 0))
             for k, (p, s) in out.items()}
-
-
-def dds_environment(env=None):
-    """
-    Return the environment for the graph's processes (a copy of ``env`` or os.environ).
-
-    Unless the user chose a Fast DDS profile, ``config/fastdds_profile.xml`` is used: a
-    50 ms heartbeat, so a reliable sample dropped in a burst is resent at once instead
-    of after 3 s (when its writer may have exited), and larger socket buffers.
-    """
-    out = dict(os.environ if env is None else env)
-    out.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    if 'FASTRTPS_DEFAULT_PROFILES_FILE' not in out:
-        out['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(config_path('fastdds_profile.xml'))
-    return out
 
 
 def wait_recorder(diag, names, ch, limit_s):

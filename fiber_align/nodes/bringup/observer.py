@@ -138,7 +138,35 @@ class Runner:
         except ValueError:
             st = {'state': msg.data}
         with self.lock:
-            self.states.append((len(self.y), st))
+            self.states.append((self._state_index(st), st))
+
+    def _state_index(self, st):
+        """
+        Return the sample index from which state ``st`` holds.
+
+        Lockstep: the sample after the one the sequencer stepped last (its stamp in
+        ``sample_time_s``); this observer may be seconds behind the graph there. Realtime:
+        the number of samples received so far.
+        """
+        ts = st.get('sample_time_s')
+        if self.lockstep and ts is not None and self.t0_ns is not None:
+            return int(round((float(ts) - self.t0_ns * 1e-9) / self.period)) + 1
+        return len(self.y)
+
+    def event(self, n_before, timeout_s=5.0):
+        """
+        Return the sample index of the first state published after ``n_before`` states.
+
+        A service answer of the sequencer publishes its new state first; this waits for it
+        (bounded, s) and falls back to :meth:`samples` when none came.
+        """
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            with self.lock:
+                if len(self.states) > n_before:
+                    return self.states[n_before][0]
+            time.sleep(0.002)
+        return self.samples
 
     def state(self):
         """Return the latest ``alignment_state`` status dict (``{}`` before the first)."""

@@ -12,7 +12,8 @@ typo is refused with the closest known name instead of being dropped without a w
 import difflib
 
 from fiber_align.config import ConfigError, config_path, read_yaml
-from fiber_align.nodes.graph import AREA_FILES, GRAPH_FILE, merge, nest, normalize
+from fiber_align.nodes.graph import AREA_FILES, GRAPH_FILE, lift_shared, merge, nest
+from fiber_align.nodes.graph import normalize, wildcard_last
 #: Sections of the shipped files that are not nodes of the graph (read by tools).
 TOOL_SECTIONS = ('analyze', 'bringup')
 
@@ -31,7 +32,7 @@ def shipped():
     """Return the merged mapping of the shipped files (the known nodes and parameters)."""
     data = {}
     for f in AREA_FILES + (GRAPH_FILE,):
-        data = merge(data, read_yaml(config_path(f)))
+        data = merge(data, lift_shared(read_yaml(config_path(f)), f))
     return data
 
 
@@ -106,13 +107,13 @@ def compose(extra_files=(), overrides=None):
     for f in extra_files:
         user = read_yaml(config_path(f))
         check_names(user, known, f)
-        data = merge(data, user)
+        data = merge(data, lift_shared(user, f))
     ov = {}
     for node, params in (overrides or {}).items():
         for name, value in params.items():
             ov = merge(ov, {node: {'ros__parameters': nest(name, value)}})
     check_names(ov, known, 'command line')
-    return normalize(merge(data, ov))
+    return wildcard_last(normalize(merge(data, lift_shared(ov, 'command line'))))
 
 
 def node_params(data, node):

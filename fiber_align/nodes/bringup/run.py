@@ -14,18 +14,17 @@ import numpy as np
 import yaml
 
 from fiber_align.analysis.report import hysteresis_metrics
-from fiber_align.nodes._common import DIAG_QOS
 from fiber_align.nodes.bringup import summary as sm
 from fiber_align.nodes.bringup.align import run_align
 from fiber_align.nodes.bringup.checks import (dds_environment, expected_endpoints, usage,
                                               wait_recorder)
 from fiber_align.nodes.bringup.children import Child, cpu_time_s
+from fiber_align.nodes.bringup.diagnostics import DiagnosticsWatch
 from fiber_align.nodes.bringup.cli import param_overrides, TRACKING_SCENARIOS
 from fiber_align.nodes.bringup.observer import BadInput, BringupError, Runner, StartStall
 from fiber_align.nodes.bringup.params import compose, namespaced, node_params
-from fiber_align.nodes.graph import control_nodes
+from fiber_align.nodes.graph import control_nodes, plant_reach_m
 from fiber_align.nodes.scenario_runner import setpoint_range, Source
-from fiber_align.plant.actuator import PARAM_KEYS, SimulatedActuator
 
 EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 #: realtime goals ``--strict`` holds a run to: share of missed cycles, watchdog trips
@@ -92,14 +91,12 @@ class Bringup:
         self.endpoints = {}
         self._next_check = 0.0
         self.summary = {}
-        self.diag = {}
+        self.watch = None               # DiagnosticsWatch, once the graph starts
         self.cpu0 = {}
 
     def _source(self, ov):
         """Return the scenario's Source and set the runner's overrides (reach, duration)."""
-        p = node_params(self.params, 'simulated_actuator')
-        reach = SimulatedActuator.from_params({k: p[k] for k in PARAM_KEYS if k in p}) \
-            .reachable_m()
+        reach = plant_reach_m(self.params)
         name = self.scenario
         sp = node_params(self.params, 'scenario_runner')
         src = Source(name, *setpoint_range(sp['setpoint_min_m'], sp['setpoint_max_m'],
@@ -225,7 +222,7 @@ class Bringup:
         # the observer can deadlock in rclpy Jazzy (seen: bringup hung at 40 % CPU)
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.runner.node)
-        self._watch_diagnostics()
+        self.watch = DiagnosticsWatch(self.args.namespace)
         self.spin_thread = threading.Thread(target=self._spin, daemon=True)
         self.spin_thread.start()
         if not self.summary.get('restarts'):
@@ -244,8 +241,9 @@ class Bringup:
         all_names = list(self.names) + (['bag_recorder'] if self.args.record else [])
         self.runner.wait_nodes(all_names, timeout, self._alive)
         self.runner.activate_driver(timeout, self._alive)
-        want = expected_endpoints(self.scenario, lockstep, bool(self.args.record),
-                                  self.composed)
+        recorded = node_params(self.params, 'bag_recorder')['topics'] \
+            if self.args.record else ()
+        want = expected_endpoints(self.scenario, lockstep, recorded, self.composed)
         self.runner.wait_matched(want, timeout, self._alive)
         self.endpoints = want
         self._alive()
@@ -255,34 +253,6 @@ class Bringup:
         print('bringup: graph up in %.2f s (%s, %g Hz, %s, %s)'
               % (self.summary['startup_s'], self.sync, self.rate, self.args.controller,
                  'composed' if self.composed else 'multi-process'), flush=True)
-
-    def _watch_diagnostics(self):
-        """Keep the newest /diagnostics values of every node of the graph."""
-        from diagnostic_msgs.msg import DiagnosticArray
-
-        def on_diag(msg):
-            for st in msg.status:
-                lvl = st.level[0] if isinstance(st.level, (bytes, bytearray)) \
-                    else int(st.level)
-                vals = {kv.key: kv.value for kv in st.values}
-                self.diag[st.name.rsplit('/', 1)[-1]] = {
-                    'level': lvl, 'message': st.message, '_t': time.monotonic(), **vals}
-        # a node and a thread of its own: the observer's executor may be seconds behind
-        # with samples (Python executor) when the stop needs fresh reports
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.node import Node
-        self.diag_node = Node('bringup_diagnostics', namespace=self.args.namespace or None)
-        self.diag_node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, DIAG_QOS)
-        self.diag_exec = SingleThreadedExecutor()
-        self.diag_exec.add_node(self.diag_node)
-        self.diag_thread = threading.Thread(target=self._spin_diag, daemon=True)
-        self.diag_thread.start()
-
-    def _spin_diag(self):
-        try:
-            self.diag_exec.spin()
-        except Exception:  # noqa: BLE001 - executor shut down at exit
-            pass
 
     def _spin(self):
         try:
@@ -317,6 +287,11 @@ class Bringup:
             self.summary['run_wall_s'] = time.monotonic() - t0
 
     # -- stop -----------------------------------------------------------------------
+    @property
+    def diag(self):
+        """Return node -> its newest /diagnostics values (empty before the graph starts)."""
+        return self.watch.latest if self.watch is not None else {}
+
     def _stop(self):
         """Hold the plant, SIGINT the nodes, then the recorder, all within stop_timeout_s."""
         if self.stopping:
@@ -330,6 +305,7 @@ class Bringup:
         # the realtime figures of the run itself: holding the plant below stops the
         # loop's input, which the driver's watchdog then reports as a trip
         self.summary['realtime'] = sm.realtime_figures(self.diag)
+        self.summary['cycles'] = self.watch.worst_windows() if self.watch else {}
         if r is not None:
             r.active = False
             try:
@@ -356,13 +332,12 @@ class Bringup:
             ch.wait(max(deadline - time.monotonic(), 2.0))
         if r is not None:
             self.executor.shutdown(timeout_sec=0.5)
-            self.diag_exec.shutdown(timeout_sec=0.5)
             # the spin threads must have left rclpy before the process ends (a thread
             # still inside it at exit aborts the process: "terminate called ...")
-            for th in (getattr(self, 'spin_thread', None), getattr(self, 'diag_thread', None)):
-                if th is not None:
-                    th.join(timeout=2.0)
-            self.diag_node.destroy_node()
+            if self.watch is not None:
+                self.watch.close()
+            if getattr(self, 'spin_thread', None) is not None:
+                self.spin_thread.join(timeout=2.0)
             r.destroy()
         for ch in self.children:
             self.summary.setdefault('sent', {}).update(ch.sent)

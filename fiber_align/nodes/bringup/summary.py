@@ -148,6 +148,12 @@ def format_summary(s):
             lines.append('| realtime missed cycles | %.3g %% |' % (100 * v))
         else:
             lines.append('| realtime %s | %s |' % (k, v))
+    for name, w in sorted(s.get('cycles', {}).items()):
+        if w.get('windows'):
+            lines.append('| cycles %s (worst of %d windows) | %.0f Hz, missed %.3g %%, '
+                         'p99 %.3g ms |' % (name, w['windows'], w['rate_min_hz'],
+                                            100 * w.get('missed_max', 0.0),
+                                            1e3 * w.get('p99_max_s', 0.0)))
     for name, u in sorted(s.get('processes', {}).items()):
         cpu = u.get('cpu_per_s')
         lines.append('| process %s | CPU %s s/s, RSS %.0f MB |'
@@ -199,6 +205,33 @@ def realtime_figures(diag):
         if _num(rec.get(k)) is not None:
             out['recorder_' + k] = int(_num(rec[k]))
     return out
+
+
+def worst_cycles(worst, node, values, skip_s=2.0):
+    """
+    Fold one ``/diagnostics`` report of ``node`` into its worst cycle window so far.
+
+    :param worst: node -> ``{'rate_min_hz', 'missed_max', 'p99_max_s', 'windows'}``
+        (updated in place).
+    :param values: the report's key/value pairs (strings, ``cycle.*`` keys of
+        :mod:`fiber_align.nodes._cycle`).
+    :param skip_s: reports of the first seconds (start-up) are not counted; the first
+        report of a node starts its clock.
+    """
+    rate = _num(values.get('cycle.achieved_rate_hz'))
+    if rate is None:
+        return
+    w = worst.setdefault(node, {'windows': 0, '_t0': values.get('_t')})
+    if values.get('_t') is not None and w['_t0'] is not None \
+            and values['_t'] - w['_t0'] < skip_s:
+        return
+    w['windows'] += 1
+    w['rate_min_hz'] = min(w.get('rate_min_hz', rate), rate)
+    for key, out in (('cycle.missed_share', 'missed_max'), ('cycle.latency_p99_s',
+                                                            'p99_max_s')):
+        v = _num(values.get(key))
+        if v is not None:
+            w[out] = max(w.get(out, v), v)
 
 
 def goals_missed(s, sync, missed_goal):

@@ -1,0 +1,170 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The parameters of the fiber_align graph: one law for merging params files (pure Python).
+
+The graph's node names, the values its nodes share (:data:`SHARED`, one value for every
+node that uses it, whatever section of a file sets it) and the merge of params files and
+overrides into the one mapping every process reads (:func:`merge_params`). Used by
+:mod:`fiber_align.nodes.graph` (launch file, demo, benches), by ``bringup`` and by each
+node for its defaults (:func:`fiber_align.nodes._common.node_defaults`).
+"""
+
+from fiber_align.config import ConfigError, read_yaml
+
+PLANT = 'simulated_actuator'
+COMPENSATOR = 'hysteresis_compensator'
+CONTROLLER = 'fuzzy_pid_controller'
+DRIVER = 'actuator_driver'
+SCENARIO_RUNNER = 'scenario_runner'
+SEQUENCER = 'alignment_sequencer'
+RECORDER = 'bag_recorder'
+LIFECYCLE_MANAGER = 'lifecycle_manager'
+#: Nodes that are lifecycle (managed) nodes, brought to active by ``lifecycle_manager``.
+LIFECYCLE_NODES = (DRIVER,)
+#: The nodes of one actuator's control loop (they share its rate, sync mode, setpoints).
+LOOP_NODES = (PLANT, COMPENSATOR, CONTROLLER, DRIVER, SCENARIO_RUNNER, SEQUENCER)
+#: Reference shaping and the design model: the compensator's shaper and the controller's
+#: reference model must be built from the same values (the composite loop's two halves).
+SHAPING_KEYS = ('shaping', 'shaping_omega_n_rad_s', 'shaping_damping_ratio',
+                'delay_compensation', 'delay_compensation_max_accel_m_per_s2', 'design_file')
+#: Values the nodes of one graph must agree on: name -> the nodes that use it. A params
+#: file (or override) may set one under ``/**`` or under any of those nodes; the latest
+#: file that sets it decides it for all of them (:func:`lift_shared`), so no override of
+#: one node can make two nodes disagree. Setting it differently for two nodes in one
+#: file is refused.
+SHARED = dict(
+    [(k, LOOP_NODES) for k in ('rate_hz', 'sync_mode', 'controller', 'setpoint_min_m',
+                               'setpoint_max_m', 'realtime_setpoint_rate_m_per_s')]
+    + [(k, (COMPENSATOR, CONTROLLER)) for k in SHAPING_KEYS])
+
+
+class GraphError(ConfigError):
+    """A launch argument or option is wrong; the message names what and what is allowed."""
+
+
+def normalize(value):
+    """Return ``value`` with numeric lists as float lists (recursively)."""
+    if isinstance(value, dict):
+        return {k: normalize(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        if value and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                         for v in value):
+            return [float(v) for v in value]
+        return list(value)
+    return value
+
+
+def merge(a, b):
+    """Return ``a`` updated recursively by ``b`` (mappings merge, other values replace)."""
+    out = dict(a)
+    for k, v in b.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = merge(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def nest(name, value):
+    """Return ``{'a': {'b': value}}`` for the ROS dotted name ``a.b``."""
+    out = value
+    for part in reversed(name.split('.')):
+        out = {part: out}
+    return out
+
+
+def _section_key(key, namespace):
+    """Return a params-file key as a node name relative to ``namespace`` (or as it is)."""
+    if key in ('/**', '**'):
+        return '/**'
+    k = key.lstrip('/')
+    if namespace and k.startswith(namespace + '/'):
+        k = k[len(namespace) + 1:]
+    return k if '/' not in k and '*' not in k else key
+
+
+def lift_shared(layer, where=''):
+    """
+    Move the :data:`SHARED` values of one params mapping into its ``/**`` section.
+
+    :param layer: one params file's mapping (``{section: {'ros__parameters': ...}}``),
+        sections keyed by node name (a namespaced key counts by its last part).
+    :param where: the file or option, for the message.
+    :returns: a new mapping: each shared value set under a node that uses it is removed
+        there and set under ``/**`` (where every node of the graph reads it).
+    :raises GraphError: one mapping sets a shared value differently for two sections.
+    """
+    out, lifted, origin = {}, {}, {}
+    for key, sec in layer.items():
+        node = '/**' if str(key) in ('/**', '**') else str(key).split('/')[-1]
+        params = sec.get('ros__parameters') if isinstance(sec, dict) else None
+        if not isinstance(params, dict):
+            out[key] = sec
+            continue
+        keep = {}
+        for name, value in params.items():
+            if name in SHARED and (node == '/**' or node in SHARED[name]):
+                if name in lifted and normalize(lifted[name]) != normalize(value):
+                    raise GraphError(
+                        '%s: %s is one value for %s, but it is %r under %s and %r under '
+                        '%s: set it once (under /** or one node)'
+                        % (where or 'params', name, ', '.join(SHARED[name]), lifted[name],
+                           origin[name], value, key))
+                lifted[name], origin[name] = value, key
+            else:
+                keep[name] = value
+        out[key] = dict(sec, ros__parameters=keep)
+    if lifted:
+        out = merge(out, {'/**': {'ros__parameters': lifted}})
+    return out
+
+
+def wildcard_last(data):
+    """
+    Return the params mapping with its ``/**`` section last.
+
+    Seen with rclpy Jazzy: with ``/**`` before a node's own section, a ``-p name:=value``
+    on that node's command line lost to the node's section of the file (``bag_recorder
+    -p output:=DIR`` wrote to the default directory); with ``/**`` last it wins.
+    """
+    if '/**' not in data:
+        return data
+    out = {k: v for k, v in data.items() if k != '/**'}
+    out['/**'] = data['/**']
+    return out
+
+
+def merge_params(files, overrides=None, namespace=''):
+    """
+    Merge ROS params files and overrides into one mapping keyed for ``namespace``.
+
+    :param files: params file paths, in order (later ones win, key by key).
+    :param overrides: ``{node or '/**': {name: value}}`` applied last; dotted names
+        (``optics.gap_m``) are nested.
+    :param namespace: the graph's namespace; node sections come out keyed
+        ``/<namespace>/<node>`` (``<node>`` without one); ``/**`` and keys with
+        wildcards or other namespaces stay as they are.
+    :raises ConfigError: a file is missing or not a params mapping.
+    """
+    data = {}
+    for f in files:
+        for key, sec in lift_shared(read_yaml(f), str(f)).items():
+            data = merge(data, {_section_key(str(key), namespace): sec})
+    ov = {}
+    for node, params in (overrides or {}).items():
+        for name, value in params.items():
+            ov = merge(ov, {_section_key(node, namespace):
+                            {'ros__parameters': nest(name, value)}})
+    data = wildcard_last(normalize(merge(data, lift_shared(ov, 'overrides'))))
+    if not namespace:
+        return data
+    return {(k if k.startswith('/') else '/%s/%s' % (namespace, k)): v
+            for k, v in data.items()}
+
+
+def effective(params, node, namespace=''):
+    """Return the parameters ``node`` gets from a merged mapping (``/**``, then its own)."""
+    key = '/%s/%s' % (namespace, node) if namespace else node
+    out = dict(params.get('/**', {}).get('ros__parameters', {}))
+    out.update(params.get(key, {}).get('ros__parameters', {}))
+    return out

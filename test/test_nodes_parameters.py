@@ -1,0 +1,187 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+Parameters are the only truth of a node (issue 11).
+
+For each node: a ``-p`` override and a params-file override of a key of each core object
+reach that object (seen in the object the node built), a wrong type or an out-of-range
+value is refused with the reason, and values two nodes share (the shaping of the
+composite loop, the rate) stay one value for both whatever node an override names.
+Nodes are built in this process on their own rclpy context (no graph, no spinning).
+"""
+
+import pytest
+import rclpy
+from rclpy.exceptions import InvalidParameterValueException, ParameterException
+from rclpy.parameter import Parameter
+import yaml
+
+from fiber_align.config import ConfigError
+from fiber_align.nodes import graph
+from fiber_align.nodes.actuator_driver import ActuatorDriverNode
+from fiber_align.nodes.alignment_sequencer import AlignmentSequencerNode
+from fiber_align.nodes.fuzzy_pid_controller import FuzzyPidControllerNode
+from fiber_align.nodes.hysteresis_compensator import HysteresisCompensatorNode
+from fiber_align.nodes.simulated_actuator import SimulatedActuatorNode
+
+#: What a node refuses at start-up: rclpy's range/type checks, or the node's own.
+REFUSED = (InvalidParameterValueException, ParameterException, ConfigError, ValueError,
+           TypeError)
+
+
+#: Namespace of the nodes built here.
+NAMESPACE = 'parameters_test'
+
+
+@pytest.fixture
+def ctx():
+    """Yield a private rclpy context, shut down after the test (no global state left)."""
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    nodes = []
+    yield context, nodes
+    for n in nodes:
+        n.destroy_node()
+    rclpy.shutdown(context=context)
+
+
+def make(ctx, cls, *overrides, params_file=None):
+    """Build node ``cls`` with ``-p`` ``overrides`` (``name:=value``) and a params file."""
+    context, nodes = ctx
+    # a namespace of their own: no later test of this process may meet their services
+    # in the discovery cache (a ghost actuator_driver/change_state answers nothing)
+    cli = ['--ros-args', '-r', '__ns:=/' + NAMESPACE]
+    if params_file:
+        cli += ['--params-file', str(params_file)]
+    for o in overrides:
+        cli += ['-p', o]
+    node = cls(context=context, cli_args=cli)
+    nodes.append(node)
+    return node
+
+
+def params_file(tmp_path, sections, name='user.yaml'):
+    """Write ``{node: {param: value}}`` as a ROS params file; return its path."""
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump({'/%s/%s' % (NAMESPACE, n) if n != '/**' else n:
+                                    {'ros__parameters': p} for n, p in sections.items()}))
+    return path
+
+
+def graph_params(tmp_path, sections):
+    """Return the graph's merged params file for a user file with ``sections``."""
+    g = graph.build(namespace=NAMESPACE, params_file=str(params_file(tmp_path, sections)))
+    return g.write_params(str(tmp_path / 'graph.yaml'))
+
+
+def taps(shaper):
+    return list(shaper.taps)
+
+
+def test_compensator_builds_from_its_parameters(ctx, tmp_path):
+    base = make(ctx, HysteresisCompensatorNode).ff
+    assert base.lead is not None and base.shaper is not None
+    ff = make(ctx, HysteresisCompensatorNode, 'delay_compensation:=false',
+              'shaping_damping_ratio:=0.2').ff
+    assert ff.lead is None, '-p delay_compensation:=false reaches the feedforward'
+    assert taps(ff.shaper) != pytest.approx(taps(base.shaper)), '-p shaping reaches it'
+    w = [float(x) * 2 for x in base.model.weights]
+    pf = params_file(tmp_path, {'hysteresis_compensator': {
+        'weights_m_per_v': w, 'shaping': 'none'}})
+    ff = make(ctx, HysteresisCompensatorNode, params_file=pf).ff
+    assert list(ff.model.weights) == pytest.approx(w)
+    assert ff.shaper is None
+
+
+def test_controller_builds_from_its_parameters(ctx, tmp_path):
+    base = make(ctx, FuzzyPidControllerNode).ctl
+    ctl = make(ctx, FuzzyPidControllerNode, 'u_max:=40.0', 'shaping:=zvd').ctl
+    assert ctl.pid.u_max == 40.0
+    assert len(taps(ctl.reference_filter.shaper)) > len(taps(base.reference_filter.shaper))
+    pf = params_file(tmp_path, {'fuzzy_pid_controller': {'u_min': -30.0,
+                                                         'composite_feedback_reference':
+                                                         'raw'}})
+    ctl = make(ctx, FuzzyPidControllerNode, params_file=pf).ctl
+    assert ctl.pid.u_min == -30.0 and ctl.reference_filter is None
+
+
+def test_plant_builds_from_its_parameters(ctx, tmp_path):
+    node = make(ctx, SimulatedActuatorNode, 'damping_ratio:=0.05', 'optics.gap_m:=2.0e-5')
+    assert node.plant.damping_ratio == 0.05
+    assert node.optics.coupling.gap_m == 2.0e-5
+    pf = params_file(tmp_path, {'simulated_actuator': {'v_max': 80.0, 'optics': {
+        'rin_db': 0.0}}})
+    node = make(ctx, SimulatedActuatorNode, params_file=pf)
+    assert node.plant.v_max == 80.0
+    assert node.optics.detector.rin_db == 0.0
+
+
+def configured(node):
+    """Return the driver ``node`` after its configure transition (it builds its core)."""
+    node.trigger_configure()
+    return node
+
+
+def test_driver_builds_from_its_parameters(ctx, tmp_path):
+    core = configured(make(ctx, ActuatorDriverNode, 'v_max:=80.0', 'latch_trips:=5')).core
+    assert core.v_max == 80.0 and core.latch_trips == 5
+    pf = params_file(tmp_path, {'actuator_driver': {'watchdog_timeout_s': 0.02}})
+    assert configured(make(ctx, ActuatorDriverNode, params_file=pf)).core.timeout == 0.02
+
+
+def test_sequencer_builds_from_its_parameters(ctx, tmp_path):
+    node = make(ctx, AlignmentSequencerNode, 'threshold_sigma:=7.0')
+    assert node.get_parameter('threshold_sigma').value == 7.0
+    assert node.seq.p['threshold_sigma'] == 7.0
+
+
+@pytest.mark.parametrize('cls,override,why', [
+    (ActuatorDriverNode, 'v_max:=1000.0', 'range'),
+    (ActuatorDriverNode, 'v_max:=fast', 'type'),
+    (SimulatedActuatorNode, 'damping_ratio:=-1.0', 'range'),
+    (SimulatedActuatorNode, 'rate_hz:=fast', 'type'),
+    (FuzzyPidControllerNode, 'controller:=bang-bang', 'choice'),
+    (HysteresisCompensatorNode, 'shaping_damping_ratio:=2.0', 'range'),
+])
+def test_bad_start_values_are_refused(ctx, cls, override, why):
+    with pytest.raises(REFUSED) as info:
+        make(ctx, cls, override)
+    assert str(info.value), 'the refusal says why (%s)' % why
+
+
+def test_bad_live_values_are_refused_with_the_reason(ctx):
+    drv = configured(make(ctx, ActuatorDriverNode))
+    res = drv.set_parameters([Parameter('v_max', value=1000.0)])[0]
+    assert not res.successful and res.reason
+    assert drv.core.v_max != 1000.0
+    ctl = make(ctx, FuzzyPidControllerNode)
+    res = ctl.set_parameters([Parameter('u_max', value='high')])[0]
+    assert not res.successful and res.reason
+    res = ctl.set_parameters([Parameter('ki', value=-1.0)])[0] if ctl.has_parameter('ki') \
+        else ctl.set_parameters([Parameter('pid.ki', value=[-1.0, -1.0])])[0]
+    assert not res.successful and 'range' in res.reason
+
+
+def test_shared_shaping_is_one_value_for_compensator_and_controller(ctx, tmp_path):
+    """The defect: an override of one node's shaping split the composite loop's halves."""
+    default = taps(make(ctx, HysteresisCompensatorNode).ff.shaper)
+    for node in ('hysteresis_compensator', 'fuzzy_pid_controller', '/**'):
+        pf = graph_params(tmp_path, {node: {'shaping_damping_ratio': 0.2}})
+        comp = make(ctx, HysteresisCompensatorNode, params_file=pf).ff.shaper
+        ctl = make(ctx, FuzzyPidControllerNode, params_file=pf).ctl.reference_filter.shaper
+        assert taps(comp) == pytest.approx(taps(ctl)), node
+        assert taps(comp) != pytest.approx(default), node
+
+
+def test_shared_rate_is_one_value_for_the_loop(ctx, tmp_path):
+    """``rate_hz`` set for the plant only is the rate of every loop node."""
+    pf = graph_params(tmp_path, {'simulated_actuator': {'rate_hz': 2000.0}})
+    for cls in (SimulatedActuatorNode, HysteresisCompensatorNode, FuzzyPidControllerNode,
+                ActuatorDriverNode):
+        assert make(ctx, cls, params_file=pf).get_parameter('rate_hz').value == 2000.0
+
+
+def test_shared_value_set_twice_differently_is_refused(tmp_path):
+    with pytest.raises(graph.GraphError, match='shaping_damping_ratio'):
+        graph.build(namespace=NAMESPACE, params_file=str(params_file(tmp_path, {
+            'hysteresis_compensator': {'shaping_damping_ratio': 0.1},
+            'fuzzy_pid_controller': {'shaping_damping_ratio': 0.2}})))
