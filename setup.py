@@ -20,6 +20,7 @@ NODES = [
     'alignment_sequencer',
     'alignment_sequencer2d',
     'rig_optics',
+    'rig_actuator',
     'bag_recorder',
     'bringup',
     'control_graph',

@@ -28,6 +28,9 @@ def test_composed_rig_is_two_axis_graphs_the_rig_nodes_and_the_manager():
                             'lifecycle_manager')
     argv = g.processes[1].command('/p.yaml', g.namespace)
     assert argv[-2:] == ['-r', '__ns:=/rig/y'] and '--params-file' in argv
+    # the plant of each axis is the rig's (it publishes tip_position too)
+    assert g.processes[0].arguments == (
+        '--nodes', 'rig_actuator,hysteresis_compensator,fuzzy_pid_controller,actuator_driver')
     assert g.node_params('lifecycle_manager')['managed_nodes'] == [
         'x/actuator_driver', 'y/actuator_driver']
 
@@ -36,6 +39,8 @@ def test_multi_process_rig_uses_console_scripts_and_a_namespace_per_axis():
     g = graph_rig.build_rig(composed='false', namespace='bench1')
     assert len(g.processes) == 2 * len(CONTROL) + 3
     assert set(p.executable for p in g.processes) <= set(setup_py_nodes())
+    plants = [p for p in g.processes if p.node_name == 'simulated_actuator']
+    assert [p.executable for p in plants] == ['rig_actuator'] * 2
     assert {p.namespace for p in g.processes} == {'bench1', 'bench1/x', 'bench1/y'}
     assert 'x/actuator_driver' in g.nodes and 'y/simulated_actuator' in g.nodes
 

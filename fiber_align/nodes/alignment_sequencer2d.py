@@ -80,6 +80,7 @@ class AlignmentSequencer2DNode(SequencerNode, Node):
         self.y_latest = None
         self.n = 0                      # updates done = index of the next sample
         self.align_sample = None
+        self.t_last = None              # time (s) of the last update
         self._publish_state()
         self.get_logger().info('2-D sequencer ready (%s pairing)'
                                % ('index' if self.lockstep else 'latest y and power'))
@@ -132,6 +133,7 @@ class AlignmentSequencer2DNode(SequencerNode, Node):
             return v if v is not None and math.isfinite(v) else None
         rx, ry = self.seq.update(t, ok(x), ok(y), p, driver_active=self.driver_active())
         self.n += 1
+        self.t_last = t
         for pub, r in zip(self.pub_sp, (rx, ry)):
             pub.publish(Float64(data=float(r)))
         self._publish_state()
@@ -139,8 +141,7 @@ class AlignmentSequencer2DNode(SequencerNode, Node):
     def _publish_state(self):
         s = self.seq.status()
         # as the 1-D node: the sample time (s) of the last update, for a lagging observer
-        s.update(sample=self.n, align_sample=self.align_sample,
-                 sample_time_s=(self.n - 1) * self.period_s if self.n else None)
+        s.update(sample=self.n, align_sample=self.align_sample, sample_time_s=self.t_last)
         self._publish_status(s, aligned_x_m=s['aligned_x_m'], aligned_y_m=s['aligned_y_m'],
                              sample=self.n)
 

@@ -30,6 +30,8 @@ from fiber_align.nodes import _common as c
 #: are built (and so the order of in-process delivery) follows this table.
 HOSTABLE = {
     'simulated_actuator': ('fiber_align.nodes.simulated_actuator', 'SimulatedActuatorNode'),
+    # the rig's plant (graph_rig.py): node simulated_actuator, publishing tip_position too
+    'rig_actuator': ('fiber_align.nodes.rig_actuator', 'RigActuatorNode'),
     # the setpoint sources first: their answer to a sample reaches the compensator and
     # the controller within the same control period
     'scenario_runner': ('fiber_align.nodes.scenario_runner', 'ScenarioRunnerNode'),

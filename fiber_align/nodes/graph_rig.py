@@ -9,7 +9,8 @@ namespace (``rig`` unless told):
 - ``/rig/x/...`` and ``/rig/y/...``: two actuator graphs, each the control nodes of the
   1-D graph (``simulated_actuator``, ``hysteresis_compensator``, ``fuzzy_pid_controller``,
   ``actuator_driver``) with its own plant, sensor-noise seed and params sections
-  (``/rig/x/simulated_actuator``, ...);
+  (``/rig/x/simulated_actuator``, ...); the plant is the executable ``rig_actuator`` (the
+  1-D plant node publishing its true tip position too);
 - ``/rig/simulated_optics_2d`` (executable ``rig_optics``): reads both true tip
   positions (``x/tip_position``, ``y/tip_position``), publishes ``optical_power`` (W);
 - ``/rig/alignment_sequencer_2d`` (executable ``alignment_sequencer2d``): the 2-D
@@ -46,6 +47,9 @@ SEQUENCER_2D = 'alignment_sequencer_2d'
 RIG_NODES = {OPTICS: 'rig_optics', SEQUENCER_2D: 'alignment_sequencer2d'}
 #: Each axis's nodes, in start order (the 1-D graph without a setpoint source).
 AXIS_NODES = g.control_nodes('none')
+#: Executables (``control_graph --nodes`` names) of the axis nodes that differ from the
+#: node name: the rig's plant also publishes its true tip position (``rig_actuator``).
+AXIS_EXECUTABLES = {g.PLANT: 'rig_actuator'}
 #: Params files of the rig's nodes, merged after the 1-D graph's area files.
 RIG_FILES = ('optics2d.yaml', 'sequencer2d.yaml')
 MANAGED = tuple('%s/%s' % (a, g.DRIVER) for a in AXES)
@@ -101,14 +105,14 @@ def _axis_ns(ns, axis):
 def rig_processes(ns, composed):
     """Return the rig's processes (each with its namespace), the manager last."""
     if composed:
-        procs = [g.Process(a, g.COMPOSED_EXECUTABLE, AXIS_NODES,
-                           ('--nodes', ','.join(AXIS_NODES)), namespace=_axis_ns(ns, a))
-                 for a in AXES]
+        hosted = ','.join(AXIS_EXECUTABLES.get(n, n) for n in AXIS_NODES)
+        procs = [g.Process(a, g.COMPOSED_EXECUTABLE, AXIS_NODES, ('--nodes', hosted),
+                           namespace=_axis_ns(ns, a)) for a in AXES]
         procs.append(g.Process('rig', g.COMPOSED_EXECUTABLE, tuple(RIG_NODES),
                                ('--nodes', ','.join(RIG_NODES)), namespace=ns))
     else:
-        procs = [g.Process('%s/%s' % (a, n), n, (n,), node_name=n, namespace=_axis_ns(ns, a))
-                 for a in AXES for n in AXIS_NODES]
+        procs = [g.Process('%s/%s' % (a, n), AXIS_EXECUTABLES.get(n, n), (n,), node_name=n,
+                           namespace=_axis_ns(ns, a)) for a in AXES for n in AXIS_NODES]
         procs += [g.Process(n, exe, (n,), node_name=n, namespace=ns)
                   for n, exe in RIG_NODES.items()]
     procs.append(g.Process(g.LIFECYCLE_MANAGER, g.LIFECYCLE_MANAGER, (g.LIFECYCLE_MANAGER,),

@@ -30,7 +30,6 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
-from fiber_align.config import config_path, read_yaml
 from fiber_align.nodes import _common as c
 from fiber_align.plant import optics as op
 from fiber_align.plant import optics2d as o2
@@ -44,8 +43,7 @@ OPTICS_KEYS = o2.LINK_KEYS + o2.DETECTOR_KEYS
 
 def optics_defaults():
     """Return the ``optics.*`` defaults (dotted names) of ``config/optics.yaml``."""
-    sec = c._section(read_yaml(config_path(op.CONFIG_FILE)), op.CONFIG_NODE)
-    flat = c.flatten_defaults(c.normalize(sec), op.CONFIG_KEY)
+    flat = c.flatten_defaults(c.node_defaults(op.CONFIG_NODE), op.CONFIG_KEY)
     return {k: v for k, v in flat.items() if k.split('.', 1)[1] in OPTICS_KEYS}
 
 

@@ -12,11 +12,7 @@ period). Topics (relative names, SI units):
   time t_k (sim time in lockstep, wall time in realtime).
 - pub ``optical_power`` (std_msgs/Float64, W): coupled power at the detector, when the
   optics model (:mod:`fiber_align.plant.optics`) is installed.
-- pub ``/clock`` (rosgraph_msgs/Clock) in lockstep mode (``publish_clock``; the rig's y
-  plant leaves it to the x plant).
-- pub ``tip_position`` (sensor_msgs/JointState, m): the model's true tip position, every
-  ``tip_position_every`` samples (0: off); the two-axis rig's optics node
-  (``rig_optics``) computes the coupled power from it.
+- pub ``/clock`` (rosgraph_msgs/Clock) in lockstep mode.
 - srv ``~/run`` (std_srvs/SetBool): start (true) or hold (false) the sample clock; a held
   plant is frozen (realtime: the clock restarts on the next run).
 
@@ -69,7 +65,7 @@ NODE_NAME = 'simulated_actuator'
 AREA_FILES = ('plant.yaml', 'optics.yaml')
 JOINT_NAME = 'bimorph_tip'
 #: Topics this node publishes (relative names; see ``_common.LocalBus``).
-PUBLISHES = ('displacement', 'optical_power', 'tip_position')
+PUBLISHES = ('displacement', 'optical_power')
 PLANT_KEYS = ('rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min', 'v_max',
               'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m', 'seed')
 LATENCY_BUFFER = 200_000   # realtime: latencies kept (200 s at 1 kHz), then not recorded
@@ -114,11 +110,6 @@ class SimulatedActuatorNode(Node):
         self.power_every = c.declare(self, d, 'optical_power_every',
                                      'publish optical_power every N samples (1); 0: off '
                                      '(the alignment sequencer needs 1)', 0, 1000000)
-        self.tip_every = c.declare(self, d, 'tip_position_every', 'publish tip_position '
-                                   '(true position, m) every N samples; 0: off (the rig: 1)',
-                                   0, 1000000, ro)
-        clock = c.declare(self, d, 'publish_clock', 'lockstep: publish /clock (one plant of '
-                          'the rig)', read_only=ro)
         c.declare_priority(self, d)
         self.add_on_set_parameters_callback(self._on_set)
         params = {k: self.get_parameter(k).value for k in PLANT_KEYS}
@@ -134,10 +125,8 @@ class SimulatedActuatorNode(Node):
 
         self.pub_disp = c.Pub(self, JointState, 'displacement', c.CONTROL_QOS, bus)
         self.pub_power = c.Pub(self, Float64, 'optical_power', c.CONTROL_QOS, bus)
-        self.pub_tip = c.Pub(self, JointState, 'tip_position', c.CONTROL_QOS, bus) \
-            if self.tip_every else None
         self.pub_clock = None
-        if self.sync_mode == 'lockstep' and clock:
+        if self.sync_mode == 'lockstep':
             self.pub_clock = self.create_publisher(ClockMsg, '/clock', c.CLOCK_QOS)
         self._js = JointState(name=[JOINT_NAME], position=[0.0], velocity=[0.0])
         self._power = Float64()
@@ -257,10 +246,6 @@ class SimulatedActuatorNode(Node):
         js.velocity[0] = float(plant.velocity_m_per_s)
         self.pub_disp.publish(js)
         self.n_disp += 1
-        if self.pub_tip is not None and self.k % self.tip_every == 0:
-            tip = JointState(header=js.header, name=[JOINT_NAME],
-                             position=[float(plant.position_m)], velocity=list(js.velocity))
-            self.pub_tip.publish(tip)
         if self.optics is not None and self.power_every and self.k % self.power_every == 0:
             msg = self._power
             msg.data = float(self.optics.measure(self.k * self.period_s, plant.position_m,

@@ -220,6 +220,10 @@ def run_rig(a, g):
             return all(obs.call(cl, GetState.Request(), 10.0, alive).current_state.label
                        == 'active' for cl in obs.get_state.values())
         obs.wait(active, 60.0, alive, 'both drivers active')
+        # the align server discovered before the clock starts: a late discovery would
+        # otherwise let the lockstep graph idle on for seconds before the command
+        obs.wait(lambda: obs.align_cli.wait_for_service(timeout_sec=0.1), 30.0, alive,
+                 'the align service')
         for cl in obs.run_cli.values():
             obs.call(cl, SetBool.Request(data=True), 10.0, alive)
         summary['startup_s'] = time.monotonic() - t0
