@@ -16,6 +16,12 @@ its bag. With a scenario, the launch shuts down when the process hosting
 ``scenario_runner`` exits (the scenario is over); any other process that exits leaves
 the rest running (the driver's watchdog holds the actuator safe, and the graph recovers
 when the node is back).
+
+``rig:=true`` starts the two-axis rig instead (:mod:`fiber_align.nodes.graph_rig`: the
+actuator graphs ``/<namespace>/x`` and ``/<namespace>/y``, the optics and the 2-D
+sequencer, namespace ``rig`` unless given; ``seed`` is the run seed of the plants, the
+detector and the target, as ``fiber-align simulate --scenario align2d --seed``); call
+``/rig/align`` to align. ``model_file``, ``record`` and ``scenario`` are 1-D only.
 """
 
 import os
@@ -29,7 +35,7 @@ from launch.event_handlers import OnShutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from fiber_align.nodes import graph
+from fiber_align.nodes import graph, graph_rig
 
 #: name, default, description, choices (``None``: any value)
 ARGUMENTS = (
@@ -47,13 +53,33 @@ ARGUMENTS = (
     ('record', '', 'bag directory to record into (must not exist; "" = no recording)', None),
     ('scenario', '', 'setpoint scenario of scenario_runner ("" = as the params files say: '
      'none, the graph waits for setpoints)', [''] + list(graph.SCENARIOS)),
+    ('rig', 'false', 'true: the two-axis rig (/rig/x, /rig/y, optics, 2-D sequencer) '
+     'instead of the 1-D graph', ['true', 'false']),
+    ('seed', '0', 'rig: run seed (plant, detector seeds and target, as the offline align2d)',
+     None),
 )
+#: Arguments the rig does not take (1-D graph only).
+ONE_AXIS_ONLY = ('model_file', 'record', 'scenario')
+
+
+def describe(args):
+    """Return the graph (1-D, or the rig with ``rig:=true``) for the launch arguments."""
+    args = dict(args)
+    rig = graph.parse_bool('rig', args.pop('rig'))
+    seed = args.pop('seed')
+    if not rig:
+        return graph.build(**args)
+    given = [k for k in ONE_AXIS_ONLY if args.pop(k)]
+    if given:
+        raise graph.GraphError('%s: not available with rig:=true' % ', '.join(given))
+    return graph_rig.build_rig(namespace=args.pop('namespace') or graph_rig.RIG_NAMESPACE,
+                               seed=seed, **args)
 
 
 def launch_setup(context):
     """Build the graph from the launch arguments; return its Node actions."""
     args = {name: LaunchConfiguration(name).perform(context) for name, *_ in ARGUMENTS}
-    g = graph.build(**args)
+    g = describe(args)
     tmp = tempfile.mkdtemp(prefix='fiber_align_launch_')
     params = g.write_params(os.path.join(tmp, 'params.yaml'))
     actions = [RegisterEventHandler(OnShutdown(
@@ -65,12 +91,16 @@ def launch_setup(context):
     for p in g.processes:
         actions.append(Node(
             package=graph.PACKAGE, executable=p.executable, name=p.node_name,
-            namespace=('/' + g.namespace) if g.namespace else None,
+            namespace=_namespace(g.namespace if p.namespace is None else p.namespace),
             arguments=list(p.arguments), parameters=[params],
             remappings=list(g.remappings), output='screen',
             on_exit=[Shutdown(reason='%s exited: the scenario is over' % p.name)]
             if p.ends_graph else None))
     return actions
+
+
+def _namespace(ns):
+    return ('/' + ns) if ns else None
 
 
 def generate_launch_description():
