@@ -17,6 +17,12 @@ its bag. With a scenario, the launch shuts down when the process hosting
 the rest running (the driver's watchdog holds the actuator safe, and the graph recovers
 when the node is back).
 
+``rig:=true`` starts the two-axis rig instead (:mod:`fiber_align.nodes.graph_rig`: the
+actuator graphs ``/<namespace>/x`` and ``/<namespace>/y``, the optics and the 2-D
+sequencer, namespace ``rig`` unless given; ``seed`` is the run seed of the plants, the
+detector and the target, as ``fiber-align simulate --scenario align2d --seed``); call
+``/rig/align`` to align. ``model_file``, ``record`` and ``scenario`` are 1-D only.
+
 ``hardware:=true [port:=/dev/serial/by-id/...] [visa_resource:=USB0::...::INSTR]``: the
 sensorless bench instead (:func:`fiber_align.nodes.graph_hardware.build_hardware`: an
 MDT693B behind ``actuator_driver``, ``power_meter``, the sequencer on optical power; no
@@ -36,7 +42,7 @@ from launch.event_handlers import OnShutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from fiber_align.nodes import graph
+from fiber_align.nodes import graph, graph_rig
 from fiber_align.nodes.graph_hardware import build_hardware
 
 #: name, default, description, choices (``None``: any value)
@@ -55,36 +61,52 @@ ARGUMENTS = (
     ('record', '', 'bag directory to record into (must not exist; "" = no recording)', None),
     ('scenario', '', 'setpoint scenario of scenario_runner ("" = as the params files say: '
      'none, the graph waits for setpoints)', [''] + list(graph.SCENARIOS)),
+    ('rig', 'false', 'true: the two-axis rig (/rig/x, /rig/y, optics, 2-D sequencer) '
+     'instead of the 1-D graph', ['true', 'false']),
+    ('seed', '0', 'rig: run seed (plant, detector seeds and target, as the offline align2d)',
+     None),
     ('hardware', 'false', 'true: the sensorless bench (MDT693B + PM100) instead of the '
      'simulated actuator', ['true', 'false']),
     ('port', '', 'hardware: MDT693B serial device ("" = config/hardware.yaml)', None),
     ('visa_resource', '', 'hardware: PM100 VISA resource ("" = config/hardware.yaml)', None),
 )
-#: Arguments of the simulated graph only, and of the hardware graph only.
-SIMULATED_ONLY = ('sync_mode', 'controller', 'scenario')
+#: Arguments the rig does not take (1-D graph only).
+ONE_AXIS_ONLY = ('model_file', 'record', 'scenario')
+#: Arguments of the hardware graph only, and the ones it does not take.
 HARDWARE_ONLY = ('port', 'visa_resource')
+NOT_HARDWARE = ('sync_mode', 'controller', 'scenario')
 
 
-def build_graph(args):
-    """Return the graph of the launch arguments (a dict of strings)."""
+def describe(args):
+    """Return the graph (1-D, the rig or the hardware bench) for the launch arguments."""
+    args = dict(args)
+    rig = graph.parse_bool('rig', args.pop('rig'))
     hardware = graph.parse_bool('hardware', args.pop('hardware'))
-    given = [k for k in (SIMULATED_ONLY if hardware else HARDWARE_ONLY) if args[k]]
-    if given:
-        raise graph.GraphError('%s do(es) not apply with hardware:=%s'
-                               % (', '.join(given), str(hardware).lower()))
+    seed = args.pop('seed')
+    hw = {k: args.pop(k) for k in HARDWARE_ONLY}
+    if rig and hardware:
+        raise graph.GraphError('rig:=true and hardware:=true: choose one')
+    if not hardware and any(hw.values()):
+        raise graph.GraphError('%s: only with hardware:=true'
+                               % ', '.join(k for k in HARDWARE_ONLY if hw[k]))
     if hardware:
-        for k in SIMULATED_ONLY:
-            args.pop(k)
-        return build_hardware(**args)
-    for k in HARDWARE_ONLY:
-        args.pop(k)
-    return graph.build(**args)
+        given = [k for k in NOT_HARDWARE if args.pop(k)]
+        if given:
+            raise graph.GraphError('%s: not available with hardware:=true' % ', '.join(given))
+        return build_hardware(**hw, **args)
+    if not rig:
+        return graph.build(**args)
+    given = [k for k in ONE_AXIS_ONLY if args.pop(k)]
+    if given:
+        raise graph.GraphError('%s: not available with rig:=true' % ', '.join(given))
+    return graph_rig.build_rig(namespace=args.pop('namespace') or graph_rig.RIG_NAMESPACE,
+                               seed=seed, **args)
 
 
 def launch_setup(context):
     """Build the graph from the launch arguments; return its Node actions."""
     args = {name: LaunchConfiguration(name).perform(context) for name, *_ in ARGUMENTS}
-    g = build_graph(args)
+    g = describe(args)
     tmp = tempfile.mkdtemp(prefix='fiber_align_launch_')
     params = g.write_params(os.path.join(tmp, 'params.yaml'))
     actions = [RegisterEventHandler(OnShutdown(
@@ -96,12 +118,16 @@ def launch_setup(context):
     for p in g.processes:
         actions.append(Node(
             package=graph.PACKAGE, executable=p.executable, name=p.node_name,
-            namespace=('/' + g.namespace) if g.namespace else None,
+            namespace=_namespace(g.namespace if p.namespace is None else p.namespace),
             arguments=list(p.arguments), parameters=[params],
             remappings=list(g.remappings), output='screen',
             on_exit=[Shutdown(reason='%s exited: the scenario is over' % p.name)]
             if p.ends_graph else None))
     return actions
+
+
+def _namespace(ns):
+    return ('/' + ns) if ns else None
 
 
 def generate_launch_description():

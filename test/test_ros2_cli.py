@@ -33,6 +33,8 @@ import time
 
 import pytest
 
+from procs import stop
+
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 TARGET_M = 50e-6
@@ -151,6 +153,12 @@ def alive(pid):
         return Path('/proc/%d/stat' % pid).read_text().rsplit(')', 1)[1].split()[0] != 'Z'
     except (OSError, IndexError):
         return False
+
+
+def stop_launch(proc, timeout=10.0):
+    """SIGINT ``proc`` (``ros2 launch`` stops its processes), then kill its group."""
+    stop(proc, timeout)
+    kill_group(proc)
 
 
 def kill_group(proc):
@@ -342,13 +350,7 @@ def launched(ros2_env, tmp_path_factory):
         yield g
     finally:
         listener.close()
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                pass
-        kill_group(proc)
+        stop_launch(proc)
         for pid in g.get('children', []):
             if alive(pid):
                 os.kill(pid, signal.SIGKILL)

@@ -40,9 +40,10 @@ import math
 
 import numpy as np
 
+from fiber_align.alignment.machine import Machine
 from fiber_align.alignment.peaking import Peaking
-from fiber_align.alignment.states import (ACTIVE, FAULT, IDLE, PEAKING, RELEASING,
-                                          SEARCHING, TRACKING)
+from fiber_align.alignment.states import (ACTIVE, FAULT, IDLE, PEAKING,  # noqa: F401
+                                          RELEASING, SEARCHING, TRACKING)
 from fiber_align.config import ConfigError, load_params
 
 CONFIG_FILE = 'sequencer.yaml'
@@ -68,7 +69,7 @@ KEYS = (
 NODE_KEYS = ('control_period_s',)
 
 
-class Sequencer(Peaking):
+class Sequencer(Machine, Peaking):
     """Find, peak, track and switch the light on one axis (see the module docstring)."""
 
     def __init__(self, params=None, **overrides):
@@ -116,43 +117,22 @@ class Sequencer(Peaking):
         self._phase = ''
         self._enter(IDLE)
 
-    # ---- commands -------------------------------------------------------------------
-    def align(self):
-        """Start a full alignment (search, peak, track); return ``(ok, message)``."""
-        if self.state in (SEARCHING, PEAKING):
-            return False, 'busy: already %s' % self.state
-        self.fault_reason = ''
-        self._enter(SEARCHING)
+    # ---- commands (Machine: align, release, switch) ----------------------------------
+    def _start_search(self):
         self._phase = 'start'
-        return True, 'alignment started'
 
-    def release(self):
-        """Park the fiber at the park position and go IDLE; clears a FAULT."""
-        self.fault_reason = ''
-        self._enter(RELEASING)
-        return True, 'releasing to %.1f um' % (self.p['park_position_m'] * 1e6)
+    def _park_text(self):
+        return '%.1f um' % (self.p['park_position_m'] * 1e6)
 
-    def switch(self, on):
-        """Switch the light on (go to the last aligned spot and re-peak) or off (park)."""
-        if not on:
-            if self.state == FAULT:
-                return False, 'in FAULT (%s); call release' % self.fault_reason
-            self._enter(RELEASING)
-            return True, 'switching off'
-        if self.state == FAULT:
-            return False, 'in FAULT (%s); call release or align' % self.fault_reason
-        if self.state in (SEARCHING, PEAKING):
-            return False, 'busy: %s' % self.state
-        if self.state == TRACKING:
-            return True, 'already on'
-        if self.aligned_position_m is None:
-            return False, 'no aligned position yet: call align first'
-        self._enter(PEAKING)
+    def _aligned_point(self):
+        return self.aligned_position_m
+
+    def _start_repeak(self):
         self._phase = 'goto'
         self._goal = self.aligned_position_m
         self._switch_from = self._setpoint
         self._refits = 0
-        return True, 'switching on to %.2f um' % (self.aligned_position_m * 1e6)
+        return 'switching on to %.2f um' % (self.aligned_position_m * 1e6)
 
     @property
     def setpoint_m(self):
@@ -197,20 +177,6 @@ class Sequencer(Peaking):
         return self._setpoint
 
     # ---- internals ------------------------------------------------------------------
-    def _enter(self, state):
-        self.state = state
-        self._state_t = self._t
-        self._follow_since = None
-        if state == PEAKING:
-            self.peak_samples = 0
-        if state == IDLE:
-            self._idle_buf = []
-        self.events.append((self._t, state, self.fault_reason))
-
-    def _fault(self, reason):
-        self.fault_reason = reason
-        self._enter(FAULT)
-
     def _check_health(self, t, y, pw, driver_active):
         """Return True (and fault) when a sensor is silent or the driver is not driving."""
         p = self.p
@@ -243,9 +209,6 @@ class Sequencer(Peaking):
                 self._follow_since = None
         return False
 
-    def _elapsed(self, t):
-        return t - (self._state_t if self._state_t is not None else t)
-
     def _at_rest(self, y):
         """Return True when ``y`` (m) moved less than ``settle_tolerance_m`` since last call."""
         prev, self._y_prev = getattr(self, '_y_prev', None), y
@@ -258,9 +221,6 @@ class Sequencer(Peaking):
         elif pw is not None:
             self._idle_buf.append(pw)
             del self._idle_buf[:-int(self.p['floor_samples'])]
-
-    def _do_fault(self, t, y, pw):
-        pass  # hold the last setpoint; release() parks
 
     def _do_releasing(self, t, y, pw):
         p = self.p
@@ -366,9 +326,6 @@ class Sequencer(Peaking):
         self.aligned_position_m = self._x_hat
         self._setpoint = self._x_hat + p['dither_amplitude_m'] * math.sin(
             2.0 * math.pi * p['dither_frequency_hz'] * (t - self._track_t0))
-
-    def _log(self, text):
-        self.events.append((self._t, self.state, text))
 
     def status(self):
         """Return a dict describing the state (for topics, diagnostics and reports)."""

@@ -36,6 +36,7 @@ import math
 import numpy as np
 
 from fiber_align.alignment import search2d as s2
+from fiber_align.alignment.machine import Machine
 from fiber_align.alignment.peak2d import AXES, dbm as _dbm, PeakFitMixin
 from fiber_align.alignment.states import (ACTIVE, FAULT, IDLE, PEAKING,  # noqa: F401
                                           RELEASING, SEARCHING, STATES, TRACKING)
@@ -52,7 +53,7 @@ def load_sequencer2d_params(path=CONFIG_FILE, node=CONFIG_NODE, **overrides):
     return p
 
 
-class Sequencer2D(PeakFitMixin):
+class Sequencer2D(Machine, PeakFitMixin):
     """Find, peak, track and switch the light in x and y (see the module docstring)."""
 
     def __init__(self, params=None, **overrides):
@@ -103,39 +104,20 @@ class Sequencer2D(PeakFitMixin):
         self._phase = ''
         self._enter(IDLE)
 
-    # ---- commands -------------------------------------------------------------------
-    def align(self):
-        """Start a full alignment (search, peak, track); return ``(ok, message)``."""
-        if self.state in (SEARCHING, PEAKING):
-            return False, 'busy: already %s' % self.state
-        self.fault_reason = ''
-        self._enter(SEARCHING)
+    # ---- commands (Machine: align, release, switch) ----------------------------------
+    def _start_search(self):
         self._phase = 'floor'
         self._floor_buf = list(self._idle_buf)
-        return True, 'alignment started'
 
-    def release(self):
-        """Park both axes and go IDLE; clears a FAULT."""
-        self.fault_reason = ''
-        self._enter(RELEASING)
-        return True, 'releasing to (%.1f, %.1f) um' % tuple(self.park * 1e6)
+    def _park_text(self):
+        return '(%.1f, %.1f) um' % tuple(self.park * 1e6)
 
-    def switch(self, on):
-        """Switch the light on (the last aligned point, re-peak, track) or off (park)."""
-        if self.state == FAULT:
-            return False, 'in FAULT (%s); call release' % self.fault_reason
-        if not on:
-            self._enter(RELEASING)
-            return True, 'switching off'
-        if self.state in (SEARCHING, PEAKING):
-            return False, 'busy: %s' % self.state
-        if self.state == TRACKING:
-            return True, 'already on'
-        if self.aligned is None:
-            return False, 'no aligned position yet: call align first'
-        self._enter(PEAKING)
+    def _aligned_point(self):
+        return self.aligned
+
+    def _start_repeak(self):
         self._start_pattern(self.aligned, self.p['repeak_pattern_radius_m'])
-        return True, 'switching on to (%.2f, %.2f) um' % tuple(np.asarray(self.aligned) * 1e6)
+        return 'switching on to (%.2f, %.2f) um' % tuple(np.asarray(self.aligned) * 1e6)
 
     def spiral(self, start):
         """
@@ -201,29 +183,6 @@ class Sequencer2D(PeakFitMixin):
                     search_samples=self.search_samples, iterations=self.iterations)
 
     # ---- internals ------------------------------------------------------------------
-    def _enter(self, state):
-        self.state = state
-        self._state_t = self._t
-        self._follow_since = None
-        if state == PEAKING:
-            self.peak_samples = 0
-            self.iterations = 0
-        if state == SEARCHING:
-            self.search_samples = 0
-        if state == IDLE:
-            self._idle_buf = []
-        self.events.append((self._t, state, self.fault_reason))
-
-    def _log(self, text):
-        self.events.append((self._t, self.state, text))
-
-    def _fault(self, reason):
-        self.fault_reason = reason
-        self._enter(FAULT)
-
-    def _elapsed(self, t):
-        return t - (self._state_t if self._state_t is not None else t)
-
     def _unhealthy(self, t, pos, pw, driver_active):
         """Return True (and fault) when a reading is missing or an axis does not follow."""
         p = self.p
@@ -261,9 +220,6 @@ class Sequencer2D(PeakFitMixin):
         elif pw is not None:
             self._idle_buf.append(pw)
             del self._idle_buf[:-int(self.p['floor_samples'])]
-
-    def _do_fault(self, t, pos, pw):
-        pass  # hold the setpoints; release() parks
 
     def _do_releasing(self, t, pos, pw):
         self.sp = self.park.copy()

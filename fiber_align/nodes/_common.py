@@ -29,7 +29,7 @@ from fiber_align.nodes.graph import SHARED  # noqa: F401 - values the nodes shar
 from fiber_align.nodes.graph import normalize  # noqa: F401 - one law for params types
 from fiber_align.nodes._runtime import make_executor  # noqa: F401
 from fiber_align.nodes._runtime import NODE_ERRORS, node_priority, refuse  # noqa: F401
-from fiber_align.nodes._runtime import report_sent, SENT_PREFIX  # noqa: F401
+from fiber_align.nodes._runtime import report_sent, run_node, SENT_PREFIX  # noqa: F401
 from fiber_align.nodes._runtime import set_realtime_priority, spin  # noqa: F401
 from fiber_align.nodes._transport import CLOCK_QOS, CONTROL_QOS, DIAG_QOS  # noqa: F401
 from fiber_align.nodes._transport import LATCHED_QOS, LocalBus, LocalSub  # noqa: F401
@@ -303,6 +303,20 @@ def declare_priority(node, defaults):
                    'SCHED_FIFO priority of the executor thread (1..99); 0: normal '
                    'scheduling (needs root or an rtprio limit; refused: a WARN)', 0, 99,
                    True)
+
+
+def declare_sync(node, defaults):
+    """
+    Declare the read-only ``sync_mode``, ``diagnostics_period_s``, ``realtime_priority``.
+
+    :returns: ``(lockstep, diagnostics_period_s)``: True in lockstep; the period (s).
+    """
+    lockstep = declare(node, defaults, 'sync_mode', 'sample pairing: index (lockstep) or '
+                       'latest (realtime)', read_only=True, choices=SYNC_MODES) == 'lockstep'
+    diag = declare(node, defaults, 'diagnostics_period_s', '/diagnostics period (s)', 0.01,
+                   60.0, True)
+    declare_priority(node, defaults)
+    return lockstep, diag
 
 
 #: Reference shaping laws (``shaping`` parameter).

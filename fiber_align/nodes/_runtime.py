@@ -4,7 +4,8 @@ Runtime of a fiber_align node process: init, executor, realtime priority, spin, 
 
 Every executable's ``main()`` is the demo_nodes_py idiom built from these: :func:`init`
 (rclpy with the process's own SIGINT/SIGTERM handlers), :func:`spin`, :func:`refuse` for
-bad parameters (one line, exit 2) and :func:`finish`.
+bad parameters (one line, exit 2) and :func:`finish`; :func:`run_node` is that idiom for
+a process of one node.
 """
 
 import json
@@ -173,6 +174,33 @@ def spin(nodes, realtime=False, priority=0, stop=None):
             except Exception:  # noqa: BLE001 - context already shut down
                 pass
         executor.shutdown(timeout_sec=1.0)
+
+
+def run_node(factory, name, args=None, realtime=None):
+    """
+    Run one node in this process: the demo_nodes_py ``main()`` (init, spin, finish).
+
+    :param factory: returns the node (called after :func:`init`).
+    :param name: the node's name for the one-line refusal of bad parameters.
+    :param realtime: ``node -> bool``, spin with the realtime executor (``None``: the
+        node's ``sync_mode`` parameter is ``realtime``).
+    :returns: the exit code: 0, or 2 for bad parameters.
+    """
+    from rclpy.executors import ExternalShutdownException
+    stop = init(args)
+    node = None
+    try:
+        node = factory()
+        rt = realtime(node) if realtime is not None else \
+            node.get_parameter('sync_mode').value == 'realtime'
+        spin(node, realtime=rt, priority=node_priority(node), stop=stop)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except NODE_ERRORS as exc:
+        return refuse(name, exc)
+    finally:
+        finish(node)
+    return 0
 
 
 def node_priority(nodes):

@@ -83,6 +83,14 @@ class LocalBus:
         self.topics = set(topics)
         self._subs = {}
         self._last = {}
+        self.depth = 0          # in-process deliveries on the stack
+        self.deferred = []      # (publisher, message) DDS publishes made inside them
+
+    def flush(self):
+        """Hand the DDS publishes deferred by nested deliveries to DDS, in order."""
+        while self.deferred:
+            pub, msg = self.deferred.pop(0)
+            pub.publish(msg)
 
     def provide(self, *topics):
         """Mark ``topics`` (relative names) as published inside this process."""
@@ -123,17 +131,31 @@ class Pub:
         """
         Deliver ``msg`` to every in-process subscriber, then publish it to DDS.
 
-        In-process first: the loop's chain (sample, feedforward, feedback, drive) runs
-        inside the plant's publish, so the drive reaches the plant before any of the
-        chain's DDS publishes (10-20 us each) is paid; outside subscribers still receive
-        every message, a few tens of microseconds later.
+        In-process first, DDS after the outermost delivery: the loop's chain (sample,
+        feedforward, feedback, drive) runs inside the plant's publish, so the drive
+        reaches the plant before any of the chain's DDS publishes (10-20 us each with the
+        recorder matched) is paid; outside subscribers still receive every message, in
+        the order published, a few tens of microseconds later. A node publishes each
+        topic once per sample, so the message objects it reuses are not changed before
+        the deferred publish.
         """
-        if self._bus is not None:
-            if self._latched:
-                self._bus.latch(self.topic, msg)
+        bus = self._bus
+        if bus is None:
+            self.pub.publish(msg)
+            return
+        if self._latched:
+            bus.latch(self.topic, msg)
+        bus.depth += 1
+        try:
             for cb in tuple(self._local):
                 cb(msg)
-        self.pub.publish(msg)
+        finally:
+            bus.depth -= 1
+        if bus.depth:
+            bus.deferred.append((self.pub, msg))
+        else:
+            self.pub.publish(msg)
+            bus.flush()
 
     def get_subscription_count(self):
         """Return the DDS subscription count (in-process readers not included)."""

@@ -31,21 +31,17 @@ reports as "sensor silent" once active). ``realtime`` uses the power readings re
 since the previous displacement (the latest one), or none.
 """
 
-import json
 import math
 import sys
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64, String
-from std_srvs.srv import SetBool, Trigger
+from std_msgs.msg import Float64
 
 from fiber_align.alignment import sequencer as sq
 from fiber_align.nodes import _common as c
+from fiber_align.nodes._sequencer_node import SequencerNode, STATE_QOS  # noqa: F401
 
 NODE_NAME = 'alignment_sequencer'
 AREA_FILES = ('sequencer.yaml',)
@@ -54,12 +50,9 @@ POWER_QUEUE_LIMIT = 5
 MAX_GAP_PERIODS = 1.5
 #: Topics this node publishes (relative names; see ``_common.LocalBus``).
 PUBLISHES = ('setpoint',)
-STATE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                       reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-class AlignmentSequencerNode(Node):
+class AlignmentSequencerNode(SequencerNode, Node):
     """Transport, services and health around the pure :class:`~sq.Sequencer`."""
 
     def __init__(self, bus=None, **kwargs):
@@ -71,18 +64,13 @@ class AlignmentSequencerNode(Node):
         """
         super().__init__(NODE_NAME, **kwargs)
         d = c.node_defaults(NODE_NAME, AREA_FILES)
-        self.lockstep = c.declare(self, d, 'sync_mode', 'message pairing', read_only=True,
-                                  choices=c.SYNC_MODES) == 'lockstep'
-        diag = c.declare(self, d, 'diagnostics_period_s', '/diagnostics period (s)', 0.01,
-                         60.0, True)
-        c.declare_priority(self, d)
+        self.lockstep, diag = c.declare_sync(self, d)
         core = {}
         for name in sq.KEYS + sq.NODE_KEYS:
             if name in d:
                 core[name] = c.declare_si(self, d, name, 'sequencer')
         self.seq = sq.Sequencer({k: v for k, v in core.items()})
         self.pub_sp = c.Pub(self, Float64, 'setpoint', c.CONTROL_QOS, bus)
-        self.pub_state = self.create_publisher(String, 'alignment_state', STATE_QOS)
         qos = c.sample_qos(self.lockstep)
         self.sensorless = bool(c.declare(self, d, 'sensorless', 'no displacement sensor: '
                                          'step on each optical_power reading against the '
@@ -98,17 +86,12 @@ class AlignmentSequencerNode(Node):
         else:
             c.subscription(self, JointState, 'displacement', self._on_disp, qos, bus)
             c.subscription(self, Float64, 'optical_power', self._on_power, qos, bus)
-        self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, c.DIAG_QOS)
-        self.create_service(Trigger, 'align', self._on_align)
-        self.create_service(Trigger, 'release', self._on_release)
-        self.create_service(SetBool, 'switch', self._on_switch)
+        self._serve()
         self.health = c.Health(self, diag)
         self.y_q = []
         self.p_q = []
         self.driver_active = None
         self.n_sp = 0
-        self.n_state = 0
-        self._last = None
         self.t_last = None              # sample time (s) of the last sample stepped
         self._publish_state()
         self.get_logger().info('sequencer ready (%s pairing)'
@@ -142,8 +125,7 @@ class AlignmentSequencerNode(Node):
         gap = 0.0 if self._t is None else min(max(w - self._wall, 0.0), self.max_gap_s)
         self._t = gap if self._t is None else self._t + gap
         self._wall = w
-        y = self.y_ref if self.y_ref is not None else self.seq.status().get(
-            'setpoint_m', 0.0)
+        y = self.y_ref if self.y_ref is not None else self.seq.status()['setpoint_m']
         self._step(self._t, y, float(msg.data))
 
     def _pair(self):
@@ -154,12 +136,9 @@ class AlignmentSequencerNode(Node):
             t, y = self.y_q.pop(0)
             self._step(t, y, None)
 
-    def _on_diag(self, msg):
-        for st in msg.status:
-            if st.name.rstrip('/').endswith('actuator_driver'):
-                level = st.level[0] if isinstance(st.level, (bytes, bytearray)) \
-                    else int(st.level)
-                self.driver_active = level < c.ERROR
+    def _driver_report(self, name, ok):
+        if name.rstrip('/').endswith('actuator_driver'):
+            self.driver_active = ok
 
     # -- the step -------------------------------------------------------------------
     def _step(self, t, y, p):
@@ -175,36 +154,7 @@ class AlignmentSequencerNode(Node):
         # the sample time (s, its stamp) of the last sample stepped: an observer lagging
         # behind a lockstep graph indexes the state by it, not by its own count
         s['sample_time_s'] = self.t_last
-        key = (s['state'], s['fault_reason'])
-        if key == self._last:
-            return
-        self._last = key
-        self.pub_state.publish(String(data=json.dumps(s)))
-        self.n_state += 1
-        if s['state'] == sq.FAULT:
-            self.health.status(c.ERROR, 'FAULT: %s' % s['fault_reason'])
-            self.get_logger().error('FAULT: %s' % s['fault_reason'])
-        else:
-            self.health.status(c.OK, s['state'])
-            self.get_logger().info('state %s' % s['state'])
-        self.health.set_values(state=s['state'], fault_reason=s['fault_reason'],
-                               aligned_position_m=s['aligned_position_m'],
-                               peak_samples=s['peak_samples'])
-
-    # -- services -------------------------------------------------------------------
-    def _answer(self, response, result):
-        response.success, response.message = bool(result[0]), str(result[1])
-        self._publish_state()
-        return response
-
-    def _on_align(self, request, response):
-        return self._answer(response, self.seq.align())
-
-    def _on_release(self, request, response):
-        return self._answer(response, self.seq.release())
-
-    def _on_switch(self, request, response):
-        return self._answer(response, self.seq.switch(bool(request.data)))
+        self._publish_status(s, aligned_position_m=s['aligned_position_m'])
 
     def sent_counts(self):
         """Return published message counts per topic."""
@@ -213,18 +163,8 @@ class AlignmentSequencerNode(Node):
 
 def main(args=None):
     """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
-    stop = c.init(args)
-    node = None
-    try:
-        node = AlignmentSequencerNode()
-        c.spin(node, realtime=not node.lockstep, priority=c.node_priority(node), stop=stop)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except c.NODE_ERRORS as exc:
-        return c.refuse(NODE_NAME, exc)
-    finally:
-        c.finish(node)
-    return 0
+    return c.run_node(AlignmentSequencerNode, NODE_NAME, args,
+                      realtime=lambda node: not node.lockstep)
 
 
 if __name__ == '__main__':

@@ -30,11 +30,17 @@ from fiber_align.nodes import _common as c
 #: are built (and so the order of in-process delivery) follows this table.
 HOSTABLE = {
     'simulated_actuator': ('fiber_align.nodes.simulated_actuator', 'SimulatedActuatorNode'),
+    # the rig's plant (graph_rig.py): node simulated_actuator, publishing tip_position too
+    'rig_actuator': ('fiber_align.nodes.rig_actuator', 'RigActuatorNode'),
     # the setpoint sources first: their answer to a sample reaches the compensator and
     # the controller within the same control period
     'scenario_runner': ('fiber_align.nodes.scenario_runner', 'ScenarioRunnerNode'),
     'alignment_sequencer': ('fiber_align.nodes.alignment_sequencer',
                             'AlignmentSequencerNode'),
+    # the two-axis rig's own nodes (graph_rig.py): the optics, then the 2-D sequencer
+    'simulated_optics_2d': ('fiber_align.nodes.rig_optics', 'RigOpticsNode'),
+    'alignment_sequencer_2d': ('fiber_align.nodes.alignment_sequencer2d',
+                               'AlignmentSequencer2DNode'),
     'hysteresis_compensator': ('fiber_align.nodes.hysteresis_compensator',
                                'HysteresisCompensatorNode'),
     'fuzzy_pid_controller': ('fiber_align.nodes.fuzzy_pid_controller',

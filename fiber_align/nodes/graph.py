@@ -21,7 +21,8 @@ The hardware (sensorless) variant is this description with the plant swapped for
 bench: :func:`fiber_align.nodes.graph_hardware.build_hardware`.
 
 In both layouts ``lifecycle_manager`` (brings the lifecycle nodes to active) and
-``bag_recorder`` (only with ``record``) are processes of their own.
+``bag_recorder`` (only with ``record``) are processes of their own. The two-axis rig is
+described on top of this module: ``graph_rig.py``.
 
 Parameters: every process gets ONE params file (:meth:`Graph.write_params`), the merge of
 the per-area files (:data:`AREA_FILES`), ``fiber_align.yaml``, the user's ``params_file``
@@ -106,6 +107,8 @@ class Process:
         processes only; ``None`` for a process hosting several nodes).
     :ivar ends_graph: the graph stops when this process exits (it hosts
         ``scenario_runner``, which exits when its scenario is over).
+    :ivar namespace: the process's own namespace (the rig's axes, ``graph_rig.py``);
+        ``None``: the graph's.
     """
 
     name: str
@@ -114,6 +117,7 @@ class Process:
     arguments: Tuple[str, ...] = ()
     node_name: Optional[str] = None
     ends_graph: bool = False
+    namespace: Optional[str] = None
 
     @property
     def module(self):
@@ -129,6 +133,7 @@ class Process:
         :param remappings: (from, to) pairs.
         """
         out = ['--ros-args', '--params-file', str(params_file)]
+        namespace = namespace if self.namespace is None else self.namespace
         if namespace:
             out += ['-r', '__ns:=/' + namespace]
         for a, b in remappings:

@@ -48,6 +48,8 @@ UNCONFIGURED, INACTIVE, ACTIVE, FINALIZED = 1, 2, 3, 4
 CONFIGURE, CLEANUP, ACTIVATE, DEACTIVATE = 1, 2, 3, 4
 #: Slice (s) of the bounded waits, so a shutdown of the context ends them quickly.
 WAIT_SLICE_S = 0.1
+#: A ``get_state`` request unanswered this long (s) is sent again (see ``_call``).
+GET_STATE_RESEND_S = 1.0
 
 
 class LifecycleManager(Node):
@@ -207,17 +209,35 @@ class LifecycleManager(Node):
                     self.health.status(c.OK, 'waiting for %s/%s' % (name, srv))
         return None
 
-    def _call(self, name, srv, request):
-        """Call a service with a bounded wait; return the response or the reason (str)."""
+    def _call(self, name, srv, request, resend_s=None):
+        """
+        Call a service with a bounded wait; return the response or the reason (str).
+
+        :param resend_s: for a query (``get_state``): send the request again when no
+            answer came within this many seconds. A server may drop its response while
+            the discovery of this client is still under way ("failed to send response
+            (timeout)", seen when the four processes of the two-axis rig start at once),
+            and that call would then wait out the whole bound.
+        """
         cl = self._client(name, srv)
         done = threading.Event()
-        fut = cl.call_async(request)
-        fut.add_done_callback(lambda f: done.set())
         end = time.monotonic() + self._timeout()
-        while not done.wait(WAIT_SLICE_S):
-            if time.monotonic() >= end or not self.context.ok():
-                cl.remove_pending_request(fut)
+        futs, sent = [], 0.0
+        while not futs or not done.wait(WAIT_SLICE_S):
+            now = time.monotonic()
+            if futs and (now >= end or not self.context.ok()):
+                for f in futs:
+                    cl.remove_pending_request(f)
                 return 'no answer from %s within %g s' % (cl.srv_name, self._timeout())
+            if not futs or (resend_s is not None and now - sent >= resend_s):
+                fut = cl.call_async(request)
+                fut.add_done_callback(lambda f: done.set())
+                futs.append(fut)
+                sent = now
+        fut = next(f for f in futs if f.done())     # the first answer of any request
+        for f in futs:
+            if f is not fut and not f.done():
+                cl.remove_pending_request(f)
         exc = fut.exception()
         if exc is not None:
             return '%s failed: %s' % (cl.srv_name, exc)
@@ -225,7 +245,7 @@ class LifecycleManager(Node):
 
     def _get_state(self, name):
         from lifecycle_msgs.srv import GetState
-        res = self._call(name, 'get_state', GetState.Request())
+        res = self._call(name, 'get_state', GetState.Request(), resend_s=GET_STATE_RESEND_S)
         if isinstance(res, str):
             return res
         return res.current_state.id, res.current_state.label

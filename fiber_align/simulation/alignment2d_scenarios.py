@@ -36,6 +36,7 @@ from fiber_align.alignment.plots2d import plot_run2d
 from fiber_align.simulation import alignment_bench as sc1
 from fiber_align.alignment import sequencer2d as s2d
 from fiber_align.config import load_params
+from fiber_align.jsonout import json_clean
 from fiber_align.plant import optics2d as o2
 
 SCENARIOS = ('align2d', 'track2d', 'switch2d')
@@ -102,11 +103,6 @@ class Bench2D(sc1.Stepping):
         self.states = []
         self.last = None
 
-    @property
-    def t(self):
-        """Return the time of the next period (s)."""
-        return self.k * self.period_s
-
     def step(self):
         """Run one period; return ``(t, x, y, power reading)`` (s, m, m, W)."""
         t = self.t
@@ -141,6 +137,15 @@ class Bench2D(sc1.Stepping):
         return out
 
 
+def run_seeds(seed):
+    """
+    Return the noise seeds of run ``seed``: ``plant_x``, ``plant_y``, ``detector``.
+
+    One description for the offline rig and the ROS rig (``nodes/graph_rig.py``).
+    """
+    return dict(plant_x=2 * int(seed), plant_y=2 * int(seed) + 1, detector=int(seed) + 1000)
+
+
 def make_sequencer(method, **overrides):
     """Return a fresh ``sequencer`` (:class:`Sequencer2D`) or ``hillclimb`` baseline."""
     if method == 'sequencer':
@@ -171,45 +176,29 @@ def build(seed=0, method='sequencer', target=None, rig=None, record=False, seq_o
         target = random_target(seed, seq)
     ov = dict(optics_overrides)
     ov['position_x_m'], ov['position_y_m'] = float(target[0]), float(target[1])
+    seeds = run_seeds(seed)
     if rig is None or isinstance(rig, str):
-        rig = Rig2D(rig or 'composite', seq.p['control_period_s'], 2 * seed)
-    rig.reset(2 * seed)
+        rig = Rig2D(rig or 'composite', seq.p['control_period_s'], seeds['plant_x'])
+    rig.reset(seeds['plant_x'])
     ov.setdefault('sample_period_s', rig.period_s)
-    link = o2.OpticalLink2D.from_params(None, None, seed=seed + 1000, **ov)
+    link = o2.OpticalLink2D.from_params(None, None, seed=seeds['detector'], **ov)
     return Bench2D(rig, link, seq, record)
 
 
 def align_bench(bench, idle_s=0.02, max_s=1.0, loss_window_s=0.02):
     """Idle ``idle_s``, command ``align``, run to TRACKING or FAULT; return metrics (SI)."""
-    seq = bench.seq
-    bench.run_until(idle_s)
-    t_cmd = bench.t
-    seq.align()
-    first = [None]
-
-    def stop(b):
-        if first[0] is None and seq.state == s2d.PEAKING:
-            first[0] = b.t - b.period_s
-        return seq.state in (s2d.TRACKING, s2d.FAULT)
-
-    bench.run_until(t_cmd + max_s, stop)
-    tx, ty = bench.link.coupling.target.position(bench.t)
+    run = bench.align_run(idle_s, max_s, loss_window_s)
+    tx, ty = bench.link.coupling.target.position(run['t_stop'])
     out = {k: None for k in METRIC_KEYS}
-    out.update(state=seq.state, fault_reason=seq.fault_reason, target_x_m=tx, target_y_m=ty,
-               iterations=seq.iterations)
-    if first[0] is not None:
-        out['time_to_first_light_s'] = first[0] - t_cmd
-    if seq.state == s2d.TRACKING:
-        out['time_to_peak_s'] = bench.t - bench.period_s - t_cmd
-        out['peak_samples'] = int(seq.peak_samples)
-        out['search_samples'] = int(seq.search_samples)
+    out.update(state=run['state'], fault_reason=run['fault_reason'], target_x_m=tx,
+               target_y_m=ty, iterations=run['iterations'],
+               time_to_first_light_s=run['time_to_first_light_s'])
+    if run['state'] == s2d.TRACKING:
+        out['time_to_peak_s'] = run['time_to_peak_s']
+        out['peak_samples'] = int(run['peak_samples'])
+        out['search_samples'] = int(run['search_samples'])
         out['samples'] = int(round(out['time_to_peak_s'] / bench.period_s))
-        losses = []
-        t_end = bench.t + loss_window_s
-        while bench.t < t_end - 1e-12 and seq.state == s2d.TRACKING:
-            bench.step()
-            losses.append(bench.true_loss())
-        out['final_loss_db'] = float(np.mean(losses)) if losses else None
+        out['final_loss_db'] = float(np.mean(run['losses'])) if run['losses'] else None
     out['aligned'] = bool(out['final_loss_db'] is not None
                           and out['final_loss_db'] <= GOAL['loss_db']
                           and out['time_to_peak_s'] <= GOAL['time_s']
@@ -339,19 +328,6 @@ def run(name, seed=0, loop='composite', record=False, rig=None, **kw):
     return out
 
 
-def _clean(obj):
-    """Return ``obj`` JSON-serialisable (numpy scalars, non-finite floats, no traces)."""
-    if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items() if k != 'trace'}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
 def run_cli(args):
     """
     Run ``fiber-align simulate --scenario align2d|track2d|switch2d``; return an exit code.
@@ -377,7 +353,7 @@ def run_cli(args):
     res = run(name, seed=seed, loop=loop, record=bool(plot), **kw)
     if plot:
         plot_run2d(res, plot)
-    clean = _clean(res)
+    clean = json_clean(res, drop=('trace',))
     if getattr(args, 'json', False):
         print(json.dumps(clean, indent=2, sort_keys=True))
     else:

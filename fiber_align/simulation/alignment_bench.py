@@ -15,6 +15,7 @@ import math
 import numpy as np
 
 from fiber_align.alignment import sequencer as sq
+from fiber_align.alignment.states import FAULT, PEAKING, TRACKING
 from fiber_align.config import load_params
 from fiber_align.control.driver import DriverCore
 from fiber_align.plant import optics as op
@@ -145,8 +146,58 @@ class Record:
         return out
 
 
+#: What :meth:`Stepping.align_run` reports of the sequencer when the run stops.
+SNAPSHOT = ('state', 'fault_reason', 'peak_samples', 'search_samples', 'iterations')
+
+
 class Stepping:
-    """A bench stepped one control period at a time (``step()``, ``t`` in s)."""
+    """
+    A bench stepped one control period at a time (SI: s).
+
+    A subclass has ``k`` (periods run), ``period_s``, ``seq`` (a sequencer: ``align()``,
+    ``state``), ``step()`` and ``true_loss()`` (dB of the last period).
+    """
+
+    @property
+    def t(self):
+        """Return the time of the next period (s)."""
+        return self.k * self.period_s
+
+    def align_run(self, idle_s, max_s, loss_window_s):
+        """
+        Idle ``idle_s``, command ``align``, run to TRACKING or FAULT, then the loss window.
+
+        :param max_s: the longest run after the command (s).
+        :param loss_window_s: time in TRACKING over which the true loss is taken (s).
+        :returns: dict: ``t_cmd`` (s), ``time_to_first_light_s`` (command to the first
+            update in PEAKING, s), ``time_to_peak_s`` (command to the update that entered
+            TRACKING, s; ``None`` if it did not), ``losses`` (dB, one per period of the
+            window), and as they were when the run stopped (before the window): ``t_stop``
+            (s) and the sequencer's ``state``, ``fault_reason``, ``peak_samples``,
+            ``search_samples``, ``iterations`` (``None`` where it has none).
+        """
+        seq = self.seq
+        self.run_until(idle_s)
+        t_cmd = self.t
+        seq.align()
+        first = [None]
+
+        def stop(b):
+            if first[0] is None and seq.state == PEAKING:
+                first[0] = b.t - b.period_s
+            return seq.state in (TRACKING, FAULT)
+
+        self.run_until(t_cmd + max_s, stop)
+        out = {k: getattr(seq, k, None) for k in SNAPSHOT}
+        out.update(t_cmd=t_cmd, t_stop=self.t, time_to_peak_s=None, losses=[],
+                   time_to_first_light_s=None if first[0] is None else first[0] - t_cmd)
+        if seq.state == TRACKING:
+            out['time_to_peak_s'] = self.t - self.period_s - t_cmd
+            t_end = self.t + loss_window_s
+            while self.t < t_end - 1e-12 and seq.state == TRACKING:
+                self.step()
+                out['losses'].append(self.true_loss())
+        return out
 
     def run_until(self, t_end, stop=None):
         """Step until ``t_end`` (s) or until ``stop(bench)`` is true; return the time (s)."""
@@ -168,10 +219,9 @@ class Bench(Stepping):
         self.rec = Record() if record else None
         self.last = None
 
-    @property
-    def t(self):
-        """Return the time of the next period (s)."""
-        return self.k * self.period_s
+    def true_loss(self):
+        """Return the true loss (dB) of the last period."""
+        return true_loss(self)
 
     def step(self):
         """Run one control period; return ``(t, true position, power reading)``."""

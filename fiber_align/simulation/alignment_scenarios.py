@@ -45,31 +45,14 @@ METRIC_KEYS = ('time_to_first_light_s', 'time_to_peak_s', 'final_loss_db', 'peak
 def align_bench(bench, idle_s=0.02, max_s=1.0, loss_window_s=0.02):
     """Idle for ``idle_s``, command ``align``, run to TRACKING or FAULT; return metrics."""
     seq = bench.seq
-    bench.run_until(idle_s)
-    t_cmd = bench.t
-    ok, msg = seq.align()
-    first = [None]
-
-    def stop(b):
-        if first[0] is None and seq.state == sq.PEAKING:
-            first[0] = b.t - b.period_s
-        return seq.state in (sq.TRACKING, sq.FAULT)
-
-    bench.run_until(t_cmd + max_s, stop)
-    out = dict(state=seq.state, fault_reason=seq.fault_reason, slot_m=float(
-        bench.link.coupling.slot_position(bench.t)), time_to_first_light_s=None,
-        time_to_peak_s=None, final_loss_db=None, peak_samples=None)
-    if first[0] is not None:
-        out['time_to_first_light_s'] = first[0] - t_cmd
-    if seq.state == sq.TRACKING:
-        out['time_to_peak_s'] = bench.t - bench.period_s - t_cmd
-        out['peak_samples'] = int(seq.peak_samples)
-        losses = []
-        t_end = bench.t + loss_window_s
-        while bench.t < t_end - 1e-12 and seq.state == sq.TRACKING:
-            bench.step()
-            losses.append(true_loss(bench))
-        out['final_loss_db'] = float(np.mean(losses)) if losses else None
+    run = bench.align_run(idle_s, max_s, loss_window_s)
+    out = dict(state=run['state'], fault_reason=run['fault_reason'], slot_m=float(
+        bench.link.coupling.slot_position(run['t_stop'])), final_loss_db=None,
+        peak_samples=None, time_to_first_light_s=run['time_to_first_light_s'],
+        time_to_peak_s=run['time_to_peak_s'])
+    if run['state'] == sq.TRACKING:
+        out['peak_samples'] = int(run['peak_samples'])
+        out['final_loss_db'] = float(np.mean(run['losses'])) if run['losses'] else None
     out['aligned'] = bool(seq.state == sq.TRACKING and out['final_loss_db'] is not None
                           and out['final_loss_db'] <= 0.05
                           and out['time_to_peak_s'] <= 0.5 and out['peak_samples'] <= 60)

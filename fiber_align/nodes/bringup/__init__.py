@@ -22,6 +22,8 @@ Scenarios: ``step``, ``sine``, ``triangle``, ``staircase`` and
 ``hysteresis-experiment`` run the ``scenario_runner`` node (one setpoint, or open-loop
 drive, per sample); ``align`` runs ``alignment_sequencer`` (align, then ``--cycles``
 switch cycles); ``none`` runs until SIGINT (publish ``setpoint`` yourself).
+``--rig`` runs the two-axis rig instead (:mod:`~fiber_align.nodes.bringup.rig`):
+``align2d``, and in lockstep the comparison with the offline run.
 
 Signals: SIGINT and SIGTERM stop the run cleanly however ``bringup`` was started (its
 handlers are installed explicitly, also over an inherited SIG_IGN); a second signal
@@ -43,6 +45,7 @@ from fiber_align.config import ConfigError
 from fiber_align.nodes.bringup import hardware
 from fiber_align.nodes.bringup.cli import parse_args
 from fiber_align.nodes.bringup.observer import BringupError, Runner, StartStall
+from fiber_align.nodes.bringup.rig import rig_graph, run_rig
 from fiber_align.nodes.bringup.run import (Bringup, dds_environment, expected_endpoints,
                                            graph_nodes)
 from fiber_align.nodes.bringup.summary import scenario_skip_s
@@ -53,6 +56,19 @@ __all__ = ['Bringup', 'BringupError', 'Runner', 'StartStall', 'expected_endpoint
 
 def _interrupt(signum, frame):
     raise KeyboardInterrupt
+
+
+class _Rig:
+    """``bringup --rig``: the two-axis rig (:mod:`~fiber_align.nodes.bringup.rig`)."""
+
+    def __init__(self, args):
+        """Describe the rig (a bad option raises ``GraphError``: exit code 2)."""
+        self.args = args
+        self.graph = rig_graph(args)
+
+    def run(self):
+        """Run align2d on the rig; return the exit code."""
+        return run_rig(self.args, self.graph)
 
 
 def main(args=None):
@@ -68,7 +84,7 @@ def main(args=None):
             sys.exit(code)
         return code
     try:
-        b = Bringup(a)
+        b = _Rig(a) if a.rig else Bringup(a)
     except (ConfigError, ValueError) as exc:
         print('bringup: error: %s' % exc, file=sys.stderr, flush=True)
         code = 2

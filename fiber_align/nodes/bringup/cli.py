@@ -58,6 +58,10 @@ def parse_args(argv):
                  'record, stop, summarise.')
     ap.add_argument('--scenario', choices=SCENARIOS, default=None,
                     help='scenario to run (default: bringup.scenario of fiber_align.yaml)')
+    ap.add_argument('--rig', action='store_true',
+                    help='the two-axis rig (/rig/x, /rig/y, optics, 2-D sequencer) running '
+                         'align2d; lockstep: compared with the offline run (--seed: the '
+                         "run seed, as fiber-align simulate --scenario align2d's)")
     ap.add_argument('--duration', type=_positive(float, '--duration'), default=None,
                     help="scenario length (s of sample time; default: the scenario's)")
     ap.add_argument('--sync', choices=('realtime', 'lockstep'), default=None,
@@ -106,6 +110,8 @@ def parse_args(argv):
     if not a.hardware and (a.emulate or a.port or a.visa_resource or a.slot is not None
                            or a.hold is not None):
         ap.error('--emulate, --port, --visa-resource, --slot and --hold need --hardware')
+    if a.hardware and a.rig:
+        ap.error('--hardware and --rig: choose one')
     if a.emulate and (a.port or a.visa_resource):
         ap.error('--emulate chooses the port and the VISA resource itself')
     if a.cycles is not None and a.cycles < 0:
@@ -138,7 +144,17 @@ def param_overrides(args, sync):
         ov['simulated_actuator']['noise_rms_m'] = 0.0
     if args.model:
         ov['hysteresis_compensator'] = {'model_file': os.path.abspath(args.model)}
-    for item in args.param:
+    return parse_params(args.param, ov)
+
+
+def parse_params(items, ov):
+    """
+    Return ``ov`` (``{node or '/**': {name: value}}``) updated by ``-p`` items.
+
+    :param items: ``NODE:NAME:=VALUE`` strings (``NODE`` ``**`` = all nodes; VALUE YAML).
+    :raises ConfigError: an item that is not ``NODE:NAME:=VALUE`` or not YAML.
+    """
+    for item in items:
         node, sep1, rest = item.partition(':')
         name, sep2, value = rest.partition(':=')
         if not (node and sep1 and name and sep2):

@@ -1,0 +1,51 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+``ros2 launch fiber_align fiber_align.launch.py rig:=true``: the two-axis rig as a user starts it.
+
+The launch file builds the rig from ``graph_rig.py`` (the same description ``bringup
+--rig`` uses); with the colcon-built package and the ``ros2`` command line
+(``test_ros2_cli.py``'s environment), ``ros2 service call /<ns>/align`` aligns to
+TRACKING (realtime; the two axes' loops, the optics and the sequencer all take part), and
+SIGINT stops every process cleanly (exit 0, no FATAL, no traceback). Every wait is
+bounded; the launch is stopped by its pid and group.
+"""
+
+import signal
+import time
+
+import pytest
+
+from test_ros2_cli import ros2, ros2_env, spawn, stop_launch  # noqa: F401
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+NS = 'rigl'
+
+
+def _wait_log(log, text, seconds, proc):
+    """Wait (bounded, s) until ``text`` is in the log or the launch exited."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end and proc.poll() is None:
+        if text in log.read_text(errors='replace'):
+            return True
+        time.sleep(0.1)
+    return text in log.read_text(errors='replace')
+
+
+def test_launch_rig_aligns_and_stops_cleanly(ros2_env, tmp_path):  # noqa: F811
+    log = tmp_path / 'launch.log'
+    proc = spawn(ros2_env, ['ros2', 'launch', 'fiber_align', 'fiber_align.launch.py',
+                            'rig:=true', 'seed:=0', 'namespace:=' + NS], log)
+    try:
+        assert _wait_log(log, 'startup done', 60.0, proc), log.read_text()[-4000:]
+        # TRACKING needs every node of the rig: both axes' loops, the optics, the sequencer
+        rc, out = ros2(ros2_env, 'service', 'call', '/%s/align' % NS,
+                       'std_srvs/srv/Trigger', timeout=30.0)
+        assert rc == 0 and 'success=True' in out, out
+        assert _wait_log(log, 'state TRACKING', 20.0, proc), log.read_text()[-4000:]
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=10) == 0
+        text = log.read_text(errors='replace')
+        assert 'FATAL' not in text and 'Traceback' not in text, text[-4000:]
+    finally:
+        stop_launch(proc)
