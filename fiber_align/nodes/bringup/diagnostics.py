@@ -12,6 +12,18 @@ from fiber_align.nodes._common import DIAG_QOS
 from fiber_align.nodes.bringup.summary import worst_cycles
 
 
+def spin_thread(executor):
+    """Return a started daemon thread spinning ``executor`` until it is shut down."""
+    def spin():
+        try:
+            executor.spin()
+        except Exception:  # noqa: BLE001 - executor shut down at exit
+            pass
+    th = threading.Thread(target=spin, daemon=True)
+    th.start()
+    return th
+
+
 #: s: the longest diagnostics period of a node of the graph (fiber_align.yaml: 0.5 s),
 #: plus margin: the first report counted starts its window inside the run.
 WINDOW_S = 0.6
@@ -41,8 +53,7 @@ class DiagnosticsWatch:
                                       DIAG_QOS)
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
+        self.thread = spin_thread(self.executor)
 
     def _on_diag(self, msg):
         for st in msg.status:
@@ -60,12 +71,6 @@ class DiagnosticsWatch:
         # first full window starts a period after the run did
         return self.run_from is not None and t >= self.run_from + WINDOW_S and (
             self.run_to is None or t <= self.run_to)
-
-    def _spin(self):
-        try:
-            self.executor.spin()
-        except Exception:  # noqa: BLE001 - executor shut down at exit
-            pass
 
     def worst_windows(self):
         """Return node -> worst cycle window (a copy)."""

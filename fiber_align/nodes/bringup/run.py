@@ -7,7 +7,6 @@ from pathlib import Path
 import signal
 import sys
 import tempfile
-import threading
 import time
 
 import numpy as np
@@ -19,7 +18,7 @@ from fiber_align.nodes.bringup.align import run_align
 from fiber_align.nodes.bringup.checks import (dds_environment, expected_endpoints, usage,
                                               wait_recorder)
 from fiber_align.nodes.bringup.children import Child, cpu_time_s
-from fiber_align.nodes.bringup.diagnostics import DiagnosticsWatch
+from fiber_align.nodes.bringup.diagnostics import DiagnosticsWatch, spin_thread
 from fiber_align.nodes.bringup.cli import param_overrides, TRACKING_SCENARIOS
 from fiber_align.nodes.bringup.observer import BadInput, BringupError, Runner, StartStall
 from fiber_align.nodes.bringup.params import compose, namespaced, node_params
@@ -223,8 +222,7 @@ class Bringup:
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.runner.node)
         self.watch = DiagnosticsWatch(self.args.namespace)
-        self.spin_thread = threading.Thread(target=self._spin, daemon=True)
-        self.spin_thread.start()
+        self.spin_thread = spin_thread(self.executor)
         if not self.summary.get('restarts'):
             self._check_alone()
         if self.args.record:
@@ -253,12 +251,6 @@ class Bringup:
         print('bringup: graph up in %.2f s (%s, %g Hz, %s, %s)'
               % (self.summary['startup_s'], self.sync, self.rate, self.args.controller,
                  'composed' if self.composed else 'multi-process'), flush=True)
-
-    def _spin(self):
-        try:
-            self.executor.spin()
-        except Exception:  # noqa: BLE001 - executor shut down at exit
-            pass
 
     def _run_scenario(self):
         r = self.runner
