@@ -35,6 +35,7 @@ from std_srvs.srv import SetBool
 from fiber_align.config import ConfigError
 from fiber_align.control.driver import check_field_limits, DriverCore
 from fiber_align.nodes import _common as c
+from fiber_align.nodes._cycle import CycleStats
 from fiber_align.nodes import _driver_output as do
 
 NODE_NAME = 'actuator_driver'
@@ -124,6 +125,7 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
         if not self.lockstep:
             self._timer = self.create_timer(self.watchdog_period_s(), self._on_tick,
                                             clock=Clock(clock_type=ClockType.STEADY_TIME))
+            self.health.cycle = CycleStats(1.0 / self.period_s)     # feedforward to drive
         self.health.status(c.OK, 'configured (inactive): output %g V' % self.core.v)
         self._update_values()
         return TransitionCallbackReturn.SUCCESS
@@ -252,6 +254,8 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
         if core is not None and core.tripped and self.enabled and not self._recovered(now):
             return      # hold until the input has been fresh for RECOVERY_S (docstring)
         self._command(self.ff_latest, fb, now)
+        if self.health.cycle is not None and self.t_ff is not None:
+            self.health.cycle.record(self._now() - self.t_ff)
 
     def _recovered(self, now):
         """Return True once fresh input has flowed for ``RECOVERY_S`` after a trip."""
