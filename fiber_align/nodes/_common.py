@@ -298,7 +298,9 @@ def declare_graph(node, defaults, name, fallback, description, lo=None, hi=None,
 
 
 def declare_priority(node, defaults):
-    """Declare the read-only ``realtime_priority`` parameter (0..99); return it."""
+    """Declare the read-only ``realtime_priority`` (0..99) and ``lock_memory``; return it."""
+    declare(node, defaults, 'lock_memory', 'with realtime_priority: lock the process '
+            'memory in RAM (mlockall; bool)', read_only=True)
     return declare(node, defaults, 'realtime_priority',
                    'SCHED_FIFO priority of the executor thread (1..99); 0: normal '
                    'scheduling (needs root or an rtprio limit; refused: a WARN)', 0, 99,

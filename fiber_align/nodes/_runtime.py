@@ -50,7 +50,7 @@ def make_executor(realtime=False):
     return SingleThreadedExecutor()
 
 
-def set_realtime_priority(priority):
+def set_realtime_priority(priority, lock=False):
     """
     Run this process's threads (the executor's and the DDS threads) under ``SCHED_FIFO``.
 
@@ -61,6 +61,8 @@ def set_realtime_priority(priority):
     ``/etc/security/limits.conf``) it changes nothing and says why.
 
     :param priority: 1..99 (``SCHED_FIFO``), 0: leave the normal policy.
+    :param lock: also lock the process's memory (:func:`lock_memory`) when the policy
+        was set.
     :returns: a short text for the log and ``/diagnostics`` (``SCHED_FIFO 50``, or
         ``SCHED_OTHER (...)`` with the reason).
     """
@@ -79,7 +81,29 @@ def set_realtime_priority(priority):
             os.sched_setscheduler(int(tid), os.SCHED_FIFO, os.sched_param(priority))
         except (OSError, ValueError):
             pass
-    return 'SCHED_FIFO %d' % priority
+    if not lock:
+        return 'SCHED_FIFO %d' % priority
+    return 'SCHED_FIFO %d, %s' % (priority, 'memory locked' if lock_memory()
+                                  else 'memory not locked (mlockall refused)')
+
+
+def lock_memory():
+    """
+    Lock the process's pages in RAM (``mlockall``), as realtime ROS 2 loops do.
+
+    A page fault on a page the kernel had reclaimed (library code, with no swap) can
+    stall a tick by milliseconds (measured: the composed graph kept 99.86-99.92 % of its
+    1 kHz cycles unlocked, 99.99 % locked). The cost is resident memory: every mapped
+    page, the 8 MB stack of each DDS thread too (control_graph 142 -> 460 MB). Needs
+    root or a large enough ``memlock`` limit; where the present memory is over the limit
+    the call fails and changes nothing (returns False).
+    """
+    import ctypes
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.mlockall(1 | 2) == 0        # MCL_CURRENT | MCL_FUTURE
+    except (OSError, AttributeError):
+        return False
 
 
 #: Errors of a node's construction that are bad input (a parameter of the wrong type or
@@ -150,7 +174,9 @@ def spin(nodes, realtime=False, priority=0, stop=None):
     # lockstep runs as fast as the messages go: a realtime policy there could only
     # starve the other processes of the graph
     priority = priority if realtime else 0
-    sched = set_realtime_priority(priority)
+    lock = any(n.has_parameter('lock_memory') and n.get_parameter('lock_memory').value
+               for n in nodes)
+    sched = set_realtime_priority(priority, lock)
     for node in nodes:
         if priority:
             log = node.get_logger().info if sched.startswith('SCHED_FIFO') \

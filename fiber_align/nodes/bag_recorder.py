@@ -259,7 +259,8 @@ def main(args=None):
         node = BagRecorder()
         prio = int(node.get_parameter('realtime_priority').value)
         if prio:
-            node.get_logger().info('scheduling: %s' % set_realtime_priority(prio))
+            node.get_logger().info('scheduling: %s' % set_realtime_priority(
+                prio, node.get_parameter('lock_memory').value))
         # the C++ events executor: about 9,000 messages a second at 1 kHz, where the
         # Python wait-set loop of the SingleThreadedExecutor costs most of a core
         executor = make_executor(True)

@@ -47,7 +47,7 @@ STATE_LABELS = ('error_m', 'error_rate_m_per_s', 'kp_v_per_m', 'ki_v_per_m_s',
                 'kd_v_s_per_m', 'output_v')
 GRAPH_KEYS = ('controller', 'sync_mode', 'rate_hz', 'diagnostics_period_s', 'setpoint_min_m',
               'setpoint_max_m', 'realtime_setpoint_rate_m_per_s', 'controller_state_every',
-              'realtime_priority')
+              'realtime_priority', 'lock_memory')
 #: Topics this node publishes (relative names; see ``_common.LocalBus``).
 PUBLISHES = ('feedback_voltage', 'controller_state')
 
