@@ -65,7 +65,7 @@ from fiber_align.nodes.graph_params import (  # noqa: F401
     nest,
     _section_key,
     lift_shared,
-    wildcard_last,
+    wildcard_first,
     merge_params,
     effective)
 

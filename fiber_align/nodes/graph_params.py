@@ -121,18 +121,22 @@ def lift_shared(layer, where=''):
     return out
 
 
-def wildcard_last(data):
+def wildcard_first(data):
     """
-    Return the params mapping with its ``/**`` section last.
+    Return the params mapping with its ``/**`` section first.
 
-    Seen with rclpy Jazzy: with ``/**`` before a node's own section, a ``-p name:=value``
-    on that node's command line lost to the node's section of the file (``bag_recorder
-    -p output:=DIR`` wrote to the default directory); with ``/**`` last it wins.
+    rcl applies the sections of a params file that match a node in file order, a later
+    one winning for the same name (seen with rclpy Jazzy): with ``/**`` last, its values
+    beat the node's own section (``bag_recorder`` ran at ``realtime_priority`` 50 and
+    ``diagnostics_period_s`` 0.5 instead of its 10 and 0.2). With ``/**`` first, a node's
+    own value wins, as the ROS docs describe. (A ``-p`` on the command line counts as
+    ``/**`` too: it loses to the node's section of the file, so the graph passes every
+    value through the file.)
     """
     if '/**' not in data:
         return data
-    out = {k: v for k, v in data.items() if k != '/**'}
-    out['/**'] = data['/**']
+    out = {'/**': data['/**']}
+    out.update((k, v) for k, v in data.items() if k != '/**')
     return out
 
 
@@ -157,7 +161,7 @@ def merge_params(files, overrides=None, namespace=''):
         for name, value in params.items():
             ov = merge(ov, {_section_key(node, namespace):
                             {'ros__parameters': nest(name, value)}})
-    data = wildcard_last(normalize(merge(data, lift_shared(ov, 'overrides'))))
+    data = wildcard_first(normalize(merge(data, lift_shared(ov, 'overrides'))))
     if not namespace:
         return data
     return {(k if k.startswith('/') else '/%s/%s' % (namespace, k)): v

@@ -90,8 +90,8 @@ class RigGraph(g.Graph):
             if n in base:
                 out['%s/%s' % (root, n)] = base[n]
         # a copy per section: no shared mappings, so no YAML aliases in the params file;
-        # /** last, as graph.py writes it (graph_params.wildcard_last)
-        return g.wildcard_last({k: copy.deepcopy(v) for k, v in out.items()})
+        # /** first, as graph.py writes it (graph_params.wildcard_first)
+        return g.wildcard_first({k: copy.deepcopy(v) for k, v in out.items()})
 
     def node_params(self, node):
         """Return the effective parameters of ``node`` (relative: ``x/simulated_actuator``)."""

@@ -190,11 +190,13 @@ class SimulatedActuatorNode(Node):
 
     # -- start / hold ---------------------------------------------------------------
     def _maybe_autostart(self):
-        if self.autostart and not self.started:
-            if self.sync_mode == 'realtime' or (
-                    self.count_subscribers(self.pub_disp.topic_name) > 0
-                    and self.count_publishers(self.resolve_topic_name('drive_voltage')) > 0):
-                self._start()
+        # realtime too waits to hear a driver: a restarted plant sampling before its drive
+        # reader matched left the loop open and the controller wound up (100 V, 158 um)
+        if self.autostart and not self.started and self.count_publishers(
+                self.resolve_topic_name('drive_voltage')) > 0 and (
+                self.sync_mode == 'realtime'
+                or self.count_subscribers(self.pub_disp.topic_name) > 0):
+            self._start()
 
     def _on_run(self, request, response):
         """Start (``data`` true) or hold (false) the sample clock."""

@@ -13,7 +13,7 @@ import difflib
 
 from fiber_align.config import ConfigError, config_path, read_yaml
 from fiber_align.nodes.graph import AREA_FILES, GRAPH_FILE, lift_shared, merge, nest
-from fiber_align.nodes.graph import normalize, wildcard_last
+from fiber_align.nodes.graph import normalize, wildcard_first
 #: Sections of the shipped files that are not nodes of the graph (read by tools).
 TOOL_SECTIONS = ('analyze', 'bringup')
 
@@ -113,7 +113,7 @@ def compose(extra_files=(), overrides=None):
         for name, value in params.items():
             ov = merge(ov, {node: {'ros__parameters': nest(name, value)}})
     check_names(ov, known, 'command line')
-    return wildcard_last(normalize(merge(data, lift_shared(ov, 'command line'))))
+    return wildcard_first(normalize(merge(data, lift_shared(ov, 'command line'))))
 
 
 def node_params(data, node):

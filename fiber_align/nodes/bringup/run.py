@@ -64,6 +64,10 @@ class Bringup:
         self.composed = args.composed if args.composed is not None else \
             self.sync == 'realtime'
         ov = param_overrides(args, self.sync)
+        if args.record:     # through the params file: a -p would lose to its section
+            ov['bag_recorder'] = dict(ov.get('bag_recorder', {}),
+                                      output=os.path.abspath(args.record),
+                                      **({'storage': args.storage} if args.storage else {}))
         self.rate = float(args.rate or node_params(graph0, 'simulated_actuator')['rate_hz'])
         ov['/**']['rate_hz'] = self.rate
         self.params = compose(args.params_file, ov)
@@ -226,10 +230,7 @@ class Bringup:
         if not self.summary.get('restarts'):
             self._check_alone()
         if self.args.record:
-            rec = ['-p', 'output:=%s' % os.path.abspath(self.args.record)]
-            if self.args.storage:
-                rec += ['-p', 'storage:=%s' % self.args.storage]
-            self._spawn('fiber_align.nodes.bag_recorder', 'bag_recorder', rec)
+            self._spawn('fiber_align.nodes.bag_recorder', 'bag_recorder')
         if self.composed:
             self._spawn('fiber_align.nodes.control_graph', 'control_graph',
                         pre=['--nodes', ','.join(self.names)])
