@@ -91,12 +91,12 @@ def lock_memory():
     """
     Lock the process's pages in RAM (``mlockall``), as realtime ROS 2 loops do.
 
-    A page fault on a page the kernel had reclaimed (library code, with no swap) can
-    stall a tick by milliseconds (measured: the composed graph kept 99.86-99.92 % of its
-    1 kHz cycles unlocked, 99.99 % locked). The cost is resident memory: every mapped
-    page, the 8 MB stack of each DDS thread too (control_graph 142 -> 460 MB). Needs
-    root or a large enough ``memlock`` limit; where the present memory is over the limit
-    the call fails and changes nothing (returns False).
+    A page fault on a page the kernel had reclaimed can stall a tick by milliseconds
+    where memory is tight (here, 24 GB without swap, it made no measurable difference;
+    ``lock_memory`` in config/fiber_align.yaml is off). The cost is resident memory: every
+    mapped page, the 8 MB stack of each DDS thread too (control_graph 142 -> 460 MB).
+    Needs root or a large enough ``memlock`` limit; where the present memory is over the
+    limit the call fails and changes nothing (returns False).
     """
     import ctypes
     try:
