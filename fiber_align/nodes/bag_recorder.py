@@ -248,6 +248,7 @@ def main(args=None):
     """
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = threading.Event()
+    parent = os.getppid()
 
     def on_signal(signum, frame):
         stop.set()
@@ -267,7 +268,10 @@ def main(args=None):
         executor.add_node(node)
         while rclpy.ok() and not stop.is_set():
             executor.spin_once(timeout_sec=0.1)
-        _drain(executor, node)
+        # a parent that died (bringup killed: PR_SET_PDEATHSIG) wants every process of
+        # its graph gone within 2 s, while the graph may publish until its own exit:
+        # take what is queued for a moment, then close the bag
+        _drain(executor, node, limit_s=3.0 if os.getppid() == parent else 0.5)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except ConfigError as exc:
