@@ -136,6 +136,7 @@ class FuzzyPidControllerNode(Node):
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.health = c.Health(self, diag)
         self._stamp_ns = 0              # realtime: stamp (ns) of the sample being answered
+        self.wired = self.lockstep      # realtime: the driver and compensator are heard
         if not self.lockstep:
             self.health.cycle = CycleStats(self.rate_hz)
         self.r = 0.0
@@ -290,6 +291,8 @@ class FuzzyPidControllerNode(Node):
             self._pair()
             return
         self.y_latest = y
+        if not self.wired and not self._wire():
+            return
         st = msg.header.stamp
         self._stamp_ns = st.sec * 1_000_000_000 + st.nanosec
         n = self.traj.periods(st)
@@ -324,6 +327,17 @@ class FuzzyPidControllerNode(Node):
             for r in seq[:-2]:
                 rf.step(r)
         self._step(seq[-2], y)
+
+    def _wire(self):
+        """Realtime: True once the driver and compensator are heard (then start parked)."""
+        # a restarted controller that ran before its drive_voltage, drive_held and
+        # reference readers matched wound up blind to a held driver (two hogs: 102 um)
+        self.wired = all(self.count_publishers(self.resolve_topic_name(t)) > 0
+                         for t in ('drive_voltage', 'drive_held', 'reference'))
+        if self.wired and self.ctl is not None:
+            self.ctl.reset()
+            self._park()
+        return self.wired
 
     def _pair(self):
         while self.sp_q and self.y_q:
