@@ -269,9 +269,10 @@ def main(args=None):
         while rclpy.ok() and not stop.is_set():
             executor.spin_once(timeout_sec=0.1)
         # a parent that died (bringup killed: PR_SET_PDEATHSIG) wants every process of
-        # its graph gone within 2 s, while the graph may publish until its own exit:
-        # take what is queued for a moment, then close the bag
-        _drain(executor, node, limit_s=3.0 if os.getppid() == parent else 0.5)
+        # its graph gone within 2 s, while the graph may publish until its own exit: no
+        # drain then, the bag is closed with what was taken
+        if os.getppid() == parent:
+            _drain(executor, node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except ConfigError as exc:
@@ -282,6 +283,10 @@ def main(args=None):
             signal.signal(sig, signal.SIG_IGN)
         if node is not None:
             node.close()
+            if os.getppid() != parent:
+                # orphaned: the bag is final; the DDS teardown (up to a second under
+                # load) would keep a process of a killed graph alive past its 2 s
+                os._exit(code)
             node.destroy_node()
         rclpy.try_shutdown()
     return code
