@@ -196,8 +196,15 @@ class Health:
                                         clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def status(self, level, message):
-        """Set the steady level (``OK``, ``WARN``, ``ERROR``: int) and message."""
+        """
+        Set the steady level (``OK``, ``WARN``, ``ERROR``: int) and message.
+
+        A status at least as severe as a latched event replaces it: the newer news wins
+        (a device lost right after a refused configure reported the refusal for 2 s).
+        """
         self._base_level, self._base_message = level, message
+        if level >= self._level:
+            self._until = 0.0
 
     @property
     def message(self):

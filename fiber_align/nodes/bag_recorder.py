@@ -283,10 +283,6 @@ def main(args=None):
             signal.signal(sig, signal.SIG_IGN)
         if node is not None:
             node.close()
-            if os.getppid() != parent:
-                # orphaned: the bag is final; the DDS teardown (up to a second under
-                # load) would keep a process of a killed graph alive past its 2 s
-                os._exit(code)
             node.destroy_node()
         rclpy.try_shutdown()
     return code
