@@ -269,10 +269,9 @@ def main(args=None):
         while rclpy.ok() and not stop.is_set():
             executor.spin_once(timeout_sec=0.1)
         # a parent that died (bringup killed: PR_SET_PDEATHSIG) wants every process of
-        # its graph gone within 2 s, while the graph may publish until its own exit: no
-        # drain then, the bag is closed with what was taken
-        if os.getppid() == parent:
-            _drain(executor, node)
+        # its graph gone within 2 s, while the graph may publish until its own exit:
+        # take what is queued for a moment, then close the bag
+        _drain(executor, node, limit_s=3.0 if os.getppid() == parent else 0.5)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except ConfigError as exc:
