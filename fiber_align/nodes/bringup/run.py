@@ -325,7 +325,9 @@ class Bringup:
             ch.wait(node_deadline - time.monotonic())
         for ch in rec:
             ch.interrupt()
-            ch.wait(max(deadline - time.monotonic(), 2.0))
+            # at least 4 s: the recorder drains up to 3 s while the graph still publishes,
+            # then closes the bag; a SIGKILL before that leaves it without metadata
+            ch.wait(max(deadline - time.monotonic(), 4.0))
         if r is not None:
             self.executor.shutdown(timeout_sec=0.5)
             # the spin threads must have left rclpy before the process ends (a thread
