@@ -20,6 +20,11 @@ REALTIME_SETPOINT_RATE_M_PER_S = 2e-3
 MAX_CATCH_UP = 50
 
 
+def stamp_ns(stamp):
+    """Return a builtin_interfaces/Time as integer nanoseconds."""
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
 class SetpointTrajectory:
     """
     Realtime setpoint trajectory, advanced by sample index (m, m/s, s).
@@ -49,7 +54,7 @@ class SetpointTrajectory:
 
     def periods(self, stamp):
         """Return how many sample periods, at least 1, lie between the last two stamps."""
-        ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+        ns = stamp_ns(stamp)
         last, self.last_ns = self.last_ns, ns
         if last is None:
             return 1

@@ -294,7 +294,7 @@ class FuzzyPidControllerNode(Node):
         if not self.wired and not self._wire():
             return
         st = msg.header.stamp
-        self._stamp_ns = st.sec * 1_000_000_000 + st.nanosec
+        self._stamp_ns = c.stamp_ns(st)
         n = self.traj.periods(st)
         if n > c.MAX_CATCH_UP and self.ctl is not None:
             self.ctl.reset()            # stalled: the integral is stale (docstring)

@@ -210,7 +210,7 @@ class HysteresisCompensatorNode(Node):
         """Realtime: step the feedforward; count the sample-to-feedforward latency (s)."""
         self._step_sample(msg)
         st, cyc = msg.header.stamp, self.health.cycle
-        ns = st.sec * 1_000_000_000 + st.nanosec
+        ns = c.stamp_ns(st)
         cyc.record((time.time_ns() - ns) * 1e-9, cyc.index(ns))
 
     def _step_sample(self, msg):

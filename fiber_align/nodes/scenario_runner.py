@@ -130,8 +130,7 @@ class ScenarioRunnerNode(Node):
     def _on_disp(self, msg):
         if self.done:
             return
-        st = msg.header.stamp
-        ns = st.sec * 1_000_000_000 + st.nanosec
+        ns = c.stamp_ns(msg.header.stamp)
         if self.t0_ns is None:
             self.t0_ns = ns
             self.pub_state.publish(String(data='running'))

@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from fiber_align.nodes._common import CONTROL_QOS
+from fiber_align.nodes._common import CONTROL_QOS, stamp_ns
 
 
 class BringupError(RuntimeError):
@@ -99,8 +99,7 @@ class Runner:
     def _on_disp(self, msg):
         if not self.active or self.done.is_set():
             return
-        st = msg.header.stamp
-        ns = st.sec * 1_000_000_000 + st.nanosec
+        ns = stamp_ns(msg.header.stamp)
         if self.t0_ns is None:
             self.t0_ns = ns
         t = (ns - self.t0_ns) * 1e-9
