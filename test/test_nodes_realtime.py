@@ -138,6 +138,14 @@ class Client:
         """Publish one setpoint (m)."""
         self.pub.publish(self.Float64(data=float(value)))
 
+    def explain(self, t0, log_dir):
+        """Return what the graph showed since ``t0`` (monotonic s), for a failed assert."""
+        return ('y %s; drive %s; held %s; statuses since %s; values %s; logs %s' % (
+            self.ys_since(t0)[-3:], self.drives[-3:], self.held[-3:],
+            [(round(t - t0, 3), n, lv, m) for t, n, lv, m in self.diags
+             if t > t0 and lv != OK][-8:],
+            {n: v for n, v in self.values.items() if 'pid' in n or 'driver' in n}, log_dir))
+
     def ys_since(self, t0):
         """Return the positions (m) received after ``t0`` (monotonic s)."""
         return [y for t, y in self.ys if t > t0]
@@ -354,8 +362,15 @@ def test_stalled_compensator_trips_and_resumes_without_windup(graph):
 
 def test_watchdog_ramps_to_zero_and_restart_recovers(graph):
     """Kill the controller: 0 V within the timeout and ERROR; a restart recovers."""
+    from std_srvs.srv import SetBool
     cl, procs, log_dir = graph
     ctl = procs['fuzzy_pid_controller']
+    drv = 'actuator_driver'
+    # the trips of the earlier tests (the stalled compensator's) must not count towards
+    # this test's latch (3 trips within 10 s): the operator's ~/enable clears the history
+    res = cl.call(cl.node.create_client(SetBool, drv + '/enable'), SetBool.Request(data=True))
+    assert res.success, res.message
+    trips_before = int(cl.values.get(drv, {}).get('watchdog_count', '0'))
     t_kill = time.monotonic()
     ctl.kill()
     ctl.wait(timeout=5)
@@ -378,18 +393,25 @@ def test_watchdog_ramps_to_zero_and_restart_recovers(graph):
     procs['fuzzy_pid_controller'] = spawn('fuzzy_pid_controller', log_dir)
     t_start = time.monotonic()
     assert cl.spin_for(30, lambda: cl.matched()
-                       and any(t > t_start and v > 1.0 for t, v in cl.drives)), log_dir
-    assert cl.spin_for(3.0, lambda: any(
+                       and any(t > t_start and v > 1.0 for t, v in cl.drives)), (
+        'no drive after the restart: driver %s; last driver status %s; logs %s' % (
+            cl.values.get(drv), [m for t, n, lv, m in cl.diags if n.endswith(drv)][-1:],
+            log_dir))
+    # OK once the trip's ERROR (held 2 s on /diagnostics) has expired; with two CPU hogs
+    # about one restart in eight trips once more just after the resume (a 50 ms stall of
+    # the loaded machine), which starts its own 2 s
+    assert cl.spin_for(6.0, lambda: any(
         t > t_start and n.endswith('actuator_driver') and lv == OK
-        for t, n, lv, m in cl.diags))
+        for t, n, lv, m in cl.diags)), cl.explain(t_kill, log_dir)
     cl.spin_for(0.3)
     ys = cl.ys_since(time.monotonic() - 0.1)
     print('feedforward alone after the restart: %.3f um' % (1e6 * sum(ys) / len(ys)))
     t0 = time.monotonic()
     # no re-send: the restarted controller takes the held setpoint from the latched
     # `reference` of the compensator
-    assert cl.spin_for(5.0, lambda: cl.settled(t0)), cl.ys_since(t0)[-5:]
-    print('recovered without a re-send: settled %.3f s after the restart'
-          % (time.monotonic() - t_start))
+    assert cl.spin_for(5.0, lambda: cl.settled(t0)), cl.explain(t_kill, log_dir)
+    print('recovered without a re-send: settled %.3f s after the restart; watchdog trips '
+          'since the kill: %d' % (time.monotonic() - t_start, int(
+              cl.values[drv]['watchdog_count']) - trips_before))
     ys = cl.ys_since(t_kill)
     assert max(ys) <= 90e-6 + 2e-6 and min(ys) >= -2e-6, (min(ys), max(ys))

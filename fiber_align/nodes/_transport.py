@@ -40,9 +40,12 @@ DIAG_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                       reliability=ReliabilityPolicy.RELIABLE)
 #: Realtime control readers of the per-sample topics: only the newest message matters,
 #: so a node that fell behind skips stale samples instead of working through a backlog.
-#: Reliable (matches the reliable publishers), volatile (no stale history on joining).
+#: Best effort: a reliable reader delivers in order, so one sample lost on the way held
+#: every newer one until its repair (a restarted controller's feedback stopped for 51 ms
+#: and tripped the watchdog); a newest-only reader has no use for the lost one. Volatile
+#: (no stale history on joining). Matches the reliable publishers.
 REALTIME_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                          reliability=ReliabilityPolicy.RELIABLE,
+                          reliability=ReliabilityPolicy.BEST_EFFORT,
                           durability=DurabilityPolicy.VOLATILE)
 #: State topics published on change only (``drive_held``): a late joiner (e.g. a restarted
 #: controller) gets the present state at once.

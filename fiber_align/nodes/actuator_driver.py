@@ -79,7 +79,7 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
         self.fb_q = []
         self._msg = Float64()
         self.ff_latest = 0.0
-        self.t_ff = None                # realtime: wall time (s) of the latest feedforward
+        self.t_ff = self.t_fb = None    # realtime: wall time (s) of the latest ff, fb
         self.i = 0
         self._subs = []
         self._timer = None
@@ -210,10 +210,14 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
         if self.enabled and not request.data and self.core is not None:
             self.core.start_safe_ramp(self._now())
         self.enabled = bool(request.data)
-        if self.enabled and self.core is not None and self.core.latched:
+        if self.enabled and self.core is not None and (self.core.latched
+                                                       or self.core.trip_times):
+            # the operator's enable acknowledges the trips so far: re-arms a latch and
+            # starts a new trip history
+            if self.core.latched:
+                self.health.status(c.OK, 'active' if self.active else 'inactive')
             self.core.rearm()
-            self.get_logger().info('watchdog latch re-armed by ~/enable')
-            self.health.status(c.OK, 'active' if self.active else 'inactive')
+            self.get_logger().info('watchdog re-armed by ~/enable (trip history cleared)')
         self._set_held(not self.enabled or not self.active or (
             self.core is not None and self.core.tripped), 'enable %s' % self.enabled)
         response.success = True
@@ -240,6 +244,7 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
             self.fb_q.append(msg.data)
             self._pair()
         else:
+            self.t_fb = self._now()
             self._realtime(msg.data)
 
     def _realtime(self, fb):
@@ -323,8 +328,10 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
         was_at = core.v
         v = core.tick(t)
         if core.watchdog_count > before:
-            msg = ('watchdog: no fresh feedback_voltage and feedforward_voltage for %.3g s: '
-                   'ramping to %g V' % (core.timeout, core.safe))
+            ages = ', '.join('%s %s' % (k, 'never' if tk is None else '%.3f s old' % (t - tk))
+                             for k, tk in (('feedforward', self.t_ff), ('feedback', self.t_fb)))
+            msg = ('watchdog: no fresh feedback_voltage and feedforward_voltage for %.3g s '
+                   '(%s): ramping to %g V' % (core.timeout, ages, core.safe))
             self.get_logger().error(msg)
             self.health.status(c.ERROR, msg)
             self.health.set_values(watchdog_count=core.watchdog_count)
