@@ -40,10 +40,10 @@ DIAG_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                       reliability=ReliabilityPolicy.RELIABLE)
 #: Realtime control readers of the per-sample topics: only the newest message matters,
 #: so a node that fell behind skips stale samples instead of working through a backlog.
-#: Best effort: a reliable reader delivers in order, so one sample lost on the way held
-#: every newer one until its repair (a restarted controller's feedback stopped for 51 ms
-#: and tripped the watchdog); a newest-only reader has no use for the lost one. Volatile
-#: (no stale history on joining). Matches the reliable publishers.
+#: Best effort, as ROS's sensor-data profile: a reliable reader delivers in order, so one
+#: sample lost on the way would hold every newer one until its repair, and a newest-only
+#: reader has no use for the lost one. Volatile (no stale history on joining). Matches
+#: the reliable publishers.
 REALTIME_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                           reliability=ReliabilityPolicy.BEST_EFFORT,
                           durability=DurabilityPolicy.VOLATILE)
