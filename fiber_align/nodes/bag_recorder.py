@@ -225,11 +225,16 @@ class BagRecorder(Node):
         return self.counts
 
 
-def _drain(executor, node, quiet_s=0.2, limit_s=3.0):
-    """Run callbacks until none has run for ``quiet_s`` s (at most ``limit_s`` s)."""
-    end = time.monotonic() + limit_s
-    last, quiet_since = sum(node.counts.values()), time.monotonic()
-    while rclpy.ok() and time.monotonic() < end:
+def _drain(executor, node, orphaned, quiet_s=0.2, limit_s=3.0, orphan_limit_s=0.5):
+    """
+    Run callbacks until none has run for ``quiet_s`` s (at most ``limit_s`` s).
+
+    :param orphaned: callable, True once the parent died; from then on the drain ends
+        ``orphan_limit_s`` s after it began.
+    """
+    t0 = time.monotonic()
+    last, quiet_since = sum(node.counts.values()), t0
+    while rclpy.ok() and time.monotonic() - t0 < (orphan_limit_s if orphaned() else limit_s):
         executor.spin_once(timeout_sec=0.02)
         now_count = sum(node.counts.values())
         if now_count != last:
@@ -270,8 +275,11 @@ def main(args=None):
             executor.spin_once(timeout_sec=0.1)
         # a parent that died (bringup killed: PR_SET_PDEATHSIG) wants every process of
         # its graph gone within 2 s, while the graph may publish until its own exit:
-        # take what is queued for a moment, then close the bag
-        _drain(executor, node, limit_s=3.0 if os.getppid() == parent else 0.5)
+        # take what is queued for a moment, then close the bag. Asked on every turn: the
+        # signal comes when the parent's forking thread exits, and while its other
+        # threads still exit getppid() is unchanged (seen: a 1.1 s drain, then a second
+        # SIGTERM 37 ms later)
+        _drain(executor, node, lambda: os.getppid() != parent)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except ConfigError as exc:
