@@ -37,29 +37,55 @@ import numpy as np
 BRINGUP = [sys.executable, '-m', 'fiber_align.nodes.bringup']
 
 
-def machine_floor(seconds=5.0, rate_hz=1000.0, priority=0):
+_SLEEP_LOOP = (
+    'T=1.0/rate; n=int(seconds/T)\n'
+    't0=time.perf_counter()\n'
+    'for k in range(n):\n'
+    '    dl=t0+(k+1)*T; d=dl-time.perf_counter()\n'
+    '    if d>0: time.sleep(d)\n'
+    '    lat.append(time.perf_counter()-dl)\n')
+# the same loop on an rclpy timer of the C++ events executor, as the plant ticks: the
+# executor's timer thread wakes, hands the timer to the executor thread, which calls
+# back; a deadline the timer skipped counts as late from the first skipped one
+_RCLPY_LOOP = (
+    'import rclpy\n'
+    'from rclpy.clock import Clock, ClockType\n'
+    'from rclpy.experimental import EventsExecutor\n'
+    'rclpy.init(); node=rclpy.create_node("bench_floor"); T=1.0/rate; st={}\n'
+    'for tid in os.listdir("/proc/self/task"):\n'
+    '    p and os.sched_setscheduler(int(tid), os.SCHED_FIFO, os.sched_param(p))\n'
+    'ex=EventsExecutor(); ex.add_node(node)\n'
+    'def cb():\n'
+    '    now=time.perf_counter(); s=now+tm.time_until_next_call()*1e-9-T\n'
+    '    prev=st.get("prev"); st["prev"]=s\n'
+    '    lat.append(now-(prev+T if prev is not None else s))\n'
+    'tm=node.create_timer(T, cb, clock=Clock(clock_type=ClockType.STEADY_TIME))\n'
+    'end=time.monotonic()+seconds\n'
+    'while time.monotonic()<end: ex.spin_once(timeout_sec=0.1)\n'
+    'node.destroy_node(); rclpy.try_shutdown()\n')
+
+
+def machine_floor(seconds=5.0, rate_hz=1000.0, priority=0, timer='sleep'):
     """
     Return how late a bare Python loop wakes for ``rate_hz`` ticks (s percentiles).
 
     :param priority: SCHED_FIFO priority of the loop's process (0: normal).
+    :param timer: ``sleep`` (``time.sleep`` to each deadline) or ``rclpy`` (an rclpy
+        timer of the events executor, every thread at ``priority``).
     """
     code = ('import time,os,sys,json\n'
-            'p=int(sys.argv[3])\n'
+            'seconds=float(sys.argv[1]); rate=float(sys.argv[2]); p=int(sys.argv[3]); lat=[]\n'
             'if p: os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(p))\n'
-            'T=1.0/float(sys.argv[2]); n=int(float(sys.argv[1])/T); lat=[]\n'
-            't0=time.perf_counter()\n'
-            'for k in range(n):\n'
-            '    dl=t0+(k+1)*T; d=dl-time.perf_counter()\n'
-            '    if d>0: time.sleep(d)\n'
-            '    lat.append(time.perf_counter()-dl)\n'
-            'print(json.dumps(lat))\n')
+            + (_RCLPY_LOOP if timer == 'rclpy' else _SLEEP_LOOP)
+            + 'print(json.dumps(lat))\n')
     out = subprocess.run([sys.executable, '-c', code, str(seconds), str(rate_hz),
                           str(priority)], capture_output=True, text=True, timeout=seconds + 60)
     if out.returncode != 0:
         return {'error': out.stderr.strip().splitlines()[-1:]}
-    lat = np.array(json.loads(out.stdout))
+    lat = np.array(json.loads(out.stdout.strip().splitlines()[-1]))
     return {'p50_s': float(np.percentile(lat, 50)), 'p99_s': float(np.percentile(lat, 99)),
-            'late_1ms_share': float(np.mean(lat > 1.0 / rate_hz)), 'priority': priority}
+            'late_1ms_share': float(np.mean(lat > 1.0 / rate_hz)), 'priority': priority,
+            'timer': timer, 'ticks': int(lat.size)}
 
 
 def run_bringup(tmp, tag, seconds, sync, extra=()):
@@ -127,9 +153,10 @@ def table(rows, floors):
     lines.append('| bare 1 kHz Python loop | lateness p50 / p99 (ms) | > 1 ms late |')
     lines.append('|---|---|---|')
     for fl in floors:
-        lines.append('| priority %s | %s / %s | %s %% |' % (
-            fl.get('priority'), f(fl.get('p50_s'), 1e3), f(fl.get('p99_s'), 1e3),
-            f(fl.get('late_1ms_share'), 100, '%.2f')))
+        lines.append('| %s, priority %s, %s ticks | %s / %s | %s %% |' % (
+            fl.get('timer', 'sleep'), fl.get('priority'), fl.get('ticks'),
+            f(fl.get('p50_s'), 1e3), f(fl.get('p99_s'), 1e3),
+            f(fl.get('late_1ms_share'), 100, '%.3f')))
     return '\n'.join(lines)
 
 
@@ -140,6 +167,8 @@ def main(argv=None):
     ap.add_argument('--hogs', type=int, default=0, help='busy loops beside the graph')
     ap.add_argument('--layouts', default='composed,multi-process')
     ap.add_argument('--json', default=None)
+    ap.add_argument('--floor-seconds', type=float, default=10.0,
+                    help='length of each bare-loop baseline (s)')
     a = ap.parse_args(argv)
     hogs = [subprocess.Popen([sys.executable, '-c', 'while True: pass'])
             for _ in range(a.hogs)]
@@ -147,7 +176,9 @@ def main(argv=None):
         with tempfile.TemporaryDirectory(prefix='bench_graph_') as tmp:
             lock = run_bringup(tmp, 'lockstep', a.seconds, 'lockstep')
             lock_rms = lock.get('metrics', {}).get('rms_error_m')
-            floors = [machine_floor(5.0, priority=0), machine_floor(5.0, priority=50)]
+            floors = [machine_floor(a.floor_seconds, priority=0),
+                      machine_floor(a.floor_seconds, priority=50),
+                      machine_floor(a.floor_seconds, priority=50, timer='rclpy')]
             rows = []
             for layout in a.layouts.split(','):
                 extra = ['--multi-process'] if layout == 'multi-process' else []

@@ -36,6 +36,7 @@ from fiber_align.nodes._transport import LATCHED_QOS, LocalBus, LocalSub  # noqa
 from fiber_align.nodes._transport import LOCKSTEP_QOS, Pub, REALTIME_QOS  # noqa: F401
 from fiber_align.nodes._transport import REFERENCE_LATCHED_QOS, sample_qos  # noqa: F401
 from fiber_align.nodes._transport import SAMPLE_DEPTH, SETPOINT_QOS  # noqa: F401
+from fiber_align.nodes._cycle import Slack  # noqa: F401
 from fiber_align.nodes._transport import subscription, unsubscribe  # noqa: F401
 # The realtime setpoint trajectory lives in its own module; the nodes use it as c.<name>.
 from fiber_align.nodes._trajectory import MAX_CATCH_UP  # noqa: F401
@@ -175,8 +176,13 @@ class Health:
     every subscriber; ``set_values`` adds key/value pairs (units in the key names).
     """
 
-    def __init__(self, node, period_s=0.5, hold_s=2.0, hardware_id='fiber_align'):
-        """Create the publisher and a wall-clock timer (period in s)."""
+    def __init__(self, node, period_s=0.5, hold_s=2.0, hardware_id='fiber_align', slack=None):
+        """
+        Create the publisher and a wall-clock timer (period in s).
+
+        :param slack: a :class:`~fiber_align.nodes._cycle.Slack`: the periodic report
+            then runs right after a cycle of the node's process, never just before one.
+        """
         from rclpy.clock import Clock, ClockType
         self._node = node
         self._pub = node.create_publisher(DiagnosticArray, '/diagnostics', DIAG_QOS)
@@ -192,8 +198,9 @@ class Health:
         #: a :class:`~fiber_align.nodes._cycle.CycleStats` whose window is reported with
         #: every publish (per-sample nodes set it), or ``None``
         self.cycle = None
-        self._timer = node.create_timer(float(period_s), self.publish,
-                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._timer = node.create_timer(
+            float(period_s), self.publish if slack is None else lambda: slack.submit(self.publish),
+            clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def status(self, level, message):
         """

@@ -10,6 +10,8 @@ every message is still published to DDS.
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from fiber_align.nodes._cycle import Slack
+
 #: Seconds of history every per-sample publisher keeps (``displacement``,
 #: ``feedforward_voltage``, ``feedback_voltage``, ``drive_voltage``, ``reference``,
 #: ``optical_power``, ``controller_state``): a reader that falls behind (the recorder on a
@@ -88,6 +90,7 @@ class LocalBus:
         self._last = {}
         self.depth = 0          # in-process deliveries on the stack
         self.deferred = []      # (publisher, message) DDS publishes made inside them
+        self.slack = Slack()    # the process's housekeeping, after each answered sample
 
     def flush(self):
         """Hand the DDS publishes deferred by nested deliveries to DDS, in order."""
@@ -119,16 +122,22 @@ class LocalBus:
 class Pub:
     """A publisher that also delivers to the in-process subscribers of a :class:`LocalBus`."""
 
-    __slots__ = ('pub', 'topic', 'topic_name', '_local', '_bus', '_latched')
+    __slots__ = ('pub', 'topic', 'topic_name', '_local', '_bus', '_latched', '_slack')
 
-    def __init__(self, node, msg_type, topic, qos, bus=None, latched=False):
-        """Create the DDS publisher of ``topic`` (relative name) with ``qos``."""
+    def __init__(self, node, msg_type, topic, qos, bus=None, latched=False, slack=None):
+        """
+        Create the DDS publisher of ``topic`` (relative name) with ``qos``.
+
+        :param slack: the :class:`~fiber_align.nodes._cycle.Slack` of a node's per-sample
+            output: told after each outermost publish that a cycle's work is done.
+        """
         self.pub = node.create_publisher(msg_type, topic, qos)
         self.topic = topic
         self.topic_name = self.pub.topic_name
         self._bus = bus if bus is not None and bus.local(topic) else None
         self._local = self._bus.callbacks(topic) if self._bus is not None else ()
         self._latched = latched
+        self._slack = slack
 
     def publish(self, msg):
         """
@@ -145,6 +154,8 @@ class Pub:
         bus = self._bus
         if bus is None:
             self.pub.publish(msg)
+            if self._slack is not None:
+                self._slack.after_cycle()
             return
         if self._latched:
             bus.latch(self.topic, msg)
@@ -159,6 +170,8 @@ class Pub:
         else:
             self.pub.publish(msg)
             bus.flush()
+            if self._slack is not None:
+                self._slack.after_cycle()
 
     def get_subscription_count(self):
         """Return the DDS subscription count (in-process readers not included)."""

@@ -3,24 +3,16 @@
 ``actuator_driver``: a managed (lifecycle) node around :class:`DriverCore`.
 
 Sums ``feedforward_voltage`` and ``feedback_voltage`` (std_msgs/Float64, V), clamps and
-slew-limits them and publishes ``drive_voltage`` (V) while active; ``~/enable``
-(std_srvs/SetBool) false ramps to the safe voltage and holds it. Lockstep pairs the i-th
-feedforward with the i-th feedback; realtime takes the newest of each. The realtime
-watchdog (1 ms ticks) ramps to ``safe_voltage_v`` at ``safe_ramp_rate_v_per_s`` when the
-input stops for ``watchdog_timeout_s``, holds until the input has been fresh for
-:data:`RECOVERY_S`, and latches after ``latch_trips`` trips within ``latch_window_s``
-(until ``~/enable`` true or a lifecycle deactivate/activate). ``drive_held`` (latched
-Bool) tells the compensator and the controller to park at the measured position, so a
-resume is bumpless. ``v_min``, ``v_max`` and ``safe_voltage_v`` are checked against both
-field limits of the PZT layers (``fiber_align.control.driver.check_field_limits``); a
-``change_state`` the present state does not offer is refused, not fatal
-(``_runtime.guard_change_state``). ``backend`` ``mdt693b`` also drives a Thorlabs MDT693B
-channel (:mod:`fiber_align.nodes._driver_output`): configure opens and identifies it and
-refuses a ``v_max`` above its limit switch, deactivate and shutdown ramp it to the safe
-voltage, ``drive_voltage_readback`` (Float64, V) carries its read-back, and a lost device
-takes the node to ERROR (then unconfigured: a configure reconnects). ``sensorless``: no
-``feedback_voltage``, the feedforward alone is driven. The full behaviour, with the
-reasons: docs/ros_interface.md, section "actuator_driver".
+slew-limits them and publishes ``drive_voltage`` (V) while active (lockstep: the i-th of
+each; realtime: the newest). ``~/enable`` false ramps to the safe voltage. The realtime
+watchdog ramps to ``safe_voltage_v`` when the input stops for ``watchdog_timeout_s``,
+resumes after :data:`RECOVERY_S` of fresh input, and latches after ``latch_trips`` trips
+within ``latch_window_s`` (until ``~/enable`` true or a lifecycle cycle); ``drive_held``
+(latched Bool) parks the compensator and the controller for a bumpless resume. The
+voltage limits are checked against both field limits of the PZT layers. ``backend``
+``mdt693b`` drives a Thorlabs MDT693B channel (:mod:`fiber_align.nodes._driver_output`);
+``sensorless`` drives the feedforward alone. The full behaviour, with the reasons:
+docs/ros_interface.md, section "actuator_driver".
 """
 
 import sys
@@ -58,6 +50,7 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
         """
         super().__init__(NODE_NAME, **kwargs)
         self.bus = bus
+        self.slack = bus.slack if bus is not None else c.Slack()
         d = c.node_defaults(NODE_NAME, AREA_FILES)
         do.declare_all(self, d)
         self.backend = self.get_parameter('backend').value
@@ -89,7 +82,8 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
         self.held = None                # last value published on drive_held
         self.pub_held = c.Pub(self, Bool, 'drive_held', c.LATCHED_QOS, bus, latched=True)
         self._set_held(True, 'unconfigured')
-        self.health = c.Health(self, self.get_parameter('diagnostics_period_s').value)
+        self.health = c.Health(self, self.get_parameter('diagnostics_period_s').value,
+                               slack=self.slack)
         self.health.status(c.WARN, 'unconfigured: output 0 V')
         self.refused_transitions = 0
         c.guard_change_state(self)
@@ -114,7 +108,8 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
         why = self._open_device(Float64)
         if why:
             return self._refuse(why)
-        self.pub = c.Pub(self, Float64, 'drive_voltage', c.CONTROL_QOS, self.bus)
+        self.pub = c.Pub(self, Float64, 'drive_voltage', c.CONTROL_QOS, self.bus,
+                         slack=self.slack)
         qos = c.sample_qos(self.lockstep)
         self._subs = [
             c.subscription(self, Float64, 'feedforward_voltage', self._on_ff, qos, self.bus)]
@@ -212,8 +207,7 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
         self.enabled = bool(request.data)
         if self.enabled and self.core is not None and (self.core.latched
                                                        or self.core.trip_times):
-            # the operator's enable acknowledges the trips so far: re-arms a latch and
-            # starts a new trip history
+            # the operator's enable acknowledges the trips so far (and re-arms a latch)
             if self.core.latched:
                 self.health.status(c.OK, 'active' if self.active else 'inactive')
             self.core.rearm()

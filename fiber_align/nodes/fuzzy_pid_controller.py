@@ -6,11 +6,10 @@ Runs once per ``displacement`` sample (sensor_msgs/JointState, m): ``fb_k =
 controller.step(r_k, y_k)`` with the law the factory builds for the graph's
 ``controller`` (composite and fuzzy: fuzzy PID; composite-pid and pid: PID; feedforward
 and open-loop: 0 V), exactly what the offline loop computes. ``r`` is ``reference``
-(std_msgs/Float64, m): the setpoint the compensator accepted (it is the only consumer of
-``setpoint``), latched in realtime so a restarted controller has it at once. Publishes
-``feedback_voltage`` (V) and ``controller_state`` (Float64MultiArray, labelled dims
-``error_m``, ``error_rate_m_per_s``, ``kp_v_per_m``, ``ki_v_per_m_s``,
-``kd_v_s_per_m``, ``output_v``; every ``controller_state_every`` samples). ``~/reset``
+(std_msgs/Float64, m): the setpoint the compensator accepted (the only consumer of
+``setpoint``), latched so a restarted controller has it at once. Publishes
+``feedback_voltage`` (V) and ``controller_state`` (Float64MultiArray, labelled dims in SI;
+every ``controller_state_every`` samples). ``~/reset``
 (std_srvs/Trigger) clears the integral and filters. Lockstep pairs the i-th displacement
 with the i-th reference; realtime steps on the newest sample along the realtime setpoint
 trajectory, with one period more delay than lockstep, and parks (0 V, no integral,
@@ -114,7 +113,9 @@ class FuzzyPidControllerNode(Node):
         self.ctl = self._make(self.mode, self._core_params())
         self.add_on_set_parameters_callback(self._on_set)
 
-        self.pub_fb = c.Pub(self, Float64, 'feedback_voltage', c.CONTROL_QOS, bus)
+        self.slack = bus.slack if bus is not None else c.Slack()
+        self.pub_fb = c.Pub(self, Float64, 'feedback_voltage', c.CONTROL_QOS, bus,
+                            slack=self.slack)
         self.pub_state = c.Pub(self, Float64MultiArray, 'controller_state', c.CONTROL_QOS,
                                bus)
         self._fb_msg = Float64()
@@ -134,7 +135,7 @@ class FuzzyPidControllerNode(Node):
             c.subscription(self, Float64, 'drive_voltage', self._on_drive, c.REALTIME_QOS,
                            bus)
         self.create_service(Trigger, '~/reset', self._on_reset)
-        self.health = c.Health(self, diag)
+        self.health = c.Health(self, diag, slack=self.slack)
         self._stamp_ns = 0              # realtime: stamp (ns) of the sample being answered
         self.wired = self.lockstep      # realtime: the driver and compensator are heard
         if not self.lockstep:

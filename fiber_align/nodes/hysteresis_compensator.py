@@ -111,7 +111,9 @@ class HysteresisCompensatorNode(Node):
         self.shaping = c.declare_shaping(self, d)
         self.open_loop_gain = c.declare(self, d, 'open_loop_gain_v_per_m',
                                         'linear feedforward gain (V/m)', 0.0, 1e9, True)
-        self.pub = c.Pub(self, Float64, 'feedforward_voltage', c.CONTROL_QOS, bus)
+        self.slack = bus.slack if bus is not None else c.Slack()
+        self.pub = c.Pub(self, Float64, 'feedforward_voltage', c.CONTROL_QOS, bus,
+                         slack=self.slack)
         # the accepted setpoint for the controller (one consumer of ``setpoint``)
         self.pub_ref = c.Pub(self, Float64, 'reference', c.CONTROL_QOS, bus,
                              latched=not self.lockstep)
@@ -129,7 +131,7 @@ class HysteresisCompensatorNode(Node):
             c.subscription(self, Bool, 'drive_held', self._on_held, c.LATCHED_QOS, bus)
         self.create_service(Trigger, '~/reload_model', self._on_reload)
         self.create_service(Trigger, '~/reset', self._on_reset)
-        self.health = c.Health(self, diag)
+        self.health = c.Health(self, diag, slack=self.slack)
         self.health.cycle = CycleStats(self.rate_hz)
         self.r = 0.0
         self.y_latest = 0.0

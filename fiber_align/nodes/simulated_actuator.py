@@ -47,7 +47,6 @@ and per diagnostics window (``cycle.*``, :mod:`fiber_align.nodes._cycle`).
 import sys
 import time
 
-import numpy as np
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -57,7 +56,7 @@ from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
 
 from fiber_align.nodes import _common as c
-from fiber_align.nodes._cycle import CycleStats, loop_summary
+from fiber_align.nodes._cycle import CycleStats, LatencyHistogram, loop_summary
 from fiber_align.plant.actuator import KINDS, SimulatedActuator
 from fiber_align.plant.optics import OpticalLink
 
@@ -68,7 +67,6 @@ JOINT_NAME = 'bimorph_tip'
 PUBLISHES = ('displacement', 'optical_power')
 PLANT_KEYS = ('rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min', 'v_max',
               'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m', 'seed')
-LATENCY_BUFFER = 200_000   # realtime: latencies kept (200 s at 1 kHz), then not recorded
 WARMUP_SAMPLES = 1000      # realtime: samples before the statistics start (1 s at 1 kHz)
 
 
@@ -123,7 +121,9 @@ class SimulatedActuatorNode(Node):
         self.optics = OpticalLink.from_params(optics_params, seed=int(params['seed'])) \
             if optics_params else None
 
-        self.pub_disp = c.Pub(self, JointState, 'displacement', c.CONTROL_QOS, bus)
+        self.slack = bus.slack if bus is not None else c.Slack()
+        self.pub_disp = c.Pub(self, JointState, 'displacement', c.CONTROL_QOS, bus,
+                              slack=self.slack)
         self.pub_power = c.Pub(self, Float64, 'optical_power', c.CONTROL_QOS, bus)
         self.pub_clock = None
         if self.sync_mode == 'lockstep':
@@ -133,7 +133,7 @@ class SimulatedActuatorNode(Node):
         c.subscription(self, Float64, 'drive_voltage', self._on_drive,
                        c.sample_qos(self.sync_mode == 'lockstep'), bus)
         self.create_service(SetBool, '~/run', self._on_run)
-        self.health = c.Health(self, diag_period)
+        self.health = c.Health(self, diag_period, slack=self.slack)
         if self.sync_mode == 'realtime':
             self.health.cycle = CycleStats(self.rate_hz)
 
@@ -160,12 +160,13 @@ class SimulatedActuatorNode(Node):
         self.drives_in_period = 0
         self.t_pub = None
         self.drive_seen = True
-        self.lat = np.empty(LATENCY_BUFFER)
+        self.lat = LatencyHistogram()   # realtime: sample-to-drive latencies (s)
         self.reset_stats()
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         if self.sync_mode == 'realtime':
             self.timer = self.create_timer(self.period_s, self._on_tick, clock=steady)
-            self.create_timer(diag_period, self._update_values, clock=steady)
+            self.create_timer(diag_period, lambda: self.slack.submit(self._update_values),
+                              clock=steady)
         else:
             self.timer = self.create_timer(min(0.1, self.timeout_s / 2), self._on_watch,
                                            clock=steady)
@@ -266,9 +267,8 @@ class SimulatedActuatorNode(Node):
                 self.drive_seen = True
                 lat = time.perf_counter() - self.t_pub
                 self.health.cycle.record(lat, self.k)
-                if self.k >= self.stats_from and self.n_lat < LATENCY_BUFFER:
-                    self.lat[self.n_lat] = lat
-                    self.n_lat += 1
+                if self.k >= self.stats_from:
+                    self.lat.record(lat)
             return
         self.pending.append(msg.data)
         if self.running and not self._advancing:
@@ -354,13 +354,13 @@ class SimulatedActuatorNode(Node):
     def reset_stats(self, warmup=WARMUP_SAMPLES):
         """Restart the realtime statistics ``warmup`` samples from now (0: at once)."""
         self.stats_from = self.k + int(warmup)
-        self.n_lat = 0
+        self.lat = LatencyHistogram()
         self.missed = 0
         self.skipped = 0
 
     def latency_stats(self):
         """Return the realtime loop statistics since :meth:`reset_stats` (loop_summary)."""
-        return loop_summary(self.lat[:self.n_lat], max(0, self.k - self.stats_from),
+        return loop_summary(self.lat, max(0, self.k - self.stats_from),
                             self.missed, self.skipped, self.k + 1 if self.started else 0)
 
     def _update_values(self):
