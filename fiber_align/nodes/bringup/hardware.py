@@ -27,7 +27,8 @@ import threading
 import time
 
 from fiber_align.hardware.bench import emulated
-from fiber_align.nodes._common import DIAG_QOS, REALTIME_QOS
+from fiber_align.nodes import bag_recorder
+from fiber_align.nodes._common import DIAG_QOS, node_defaults, REALTIME_QOS
 from fiber_align.nodes.alignment_sequencer import STATE_QOS
 from fiber_align.nodes.bringup.checks import dds_environment
 from fiber_align.nodes.bringup.children import _die_with_parent, Child
@@ -98,6 +99,7 @@ class HardwareRun:
         self.power = []             # (monotonic s, W) of optical_power
         self.ctx = self.node = self.executor = None
         self._failed = None         # monotonic s the start-up was first seen failed
+        self._measured = None       # the measured topics the recorder records
 
     # -- processes and observer ---------------------------------------------------------
     def start(self, timeout_s=START_TIMEOUT_S):
@@ -131,7 +133,23 @@ class HardwareRun:
                                                      self.diag.get('actuator_driver')))
         return (self.level('actuator_driver') == 0 and 'active' in self.diag.get(
             'actuator_driver', (0, ''))[1] and self.status.get('state') == 'IDLE'
-            and len(self.power) > 5)
+            and len(self.power) > 5 and self._recording())
+
+    def _recording(self):
+        """Return True when a recorder of the graph (if any) reads the measured topics."""
+        # started late by a loaded machine, it had missed every optical_power reading of
+        # a short run (two CPU hogs, a clean-clone run)
+        if not any(ch.name == 'bag_recorder' for ch in self.children):
+            return True
+        if self._measured is None:
+            rec = node_defaults(bag_recorder.NODE_NAME, bag_recorder.AREA_FILES)
+            rec.update(self.graph.node_params(bag_recorder.NODE_NAME))
+            self._measured = [t for t in rec.get('topics', ()) if t.lstrip('/') in (
+                'optical_power', 'drive_voltage', 'drive_voltage_readback')]
+        n = self.node
+        return all(any(i.node_name == bag_recorder.NODE_NAME for i in
+                       n.get_subscriptions_info_by_topic(n.resolve_topic_name(t)))
+                   for t in self._measured)
 
     def _wire(self):
         from diagnostic_msgs.msg import DiagnosticArray
