@@ -100,6 +100,7 @@ class HardwareRun:
         self.ctx = self.node = self.executor = None
         self._failed = None         # monotonic s the start-up was first seen failed
         self._measured = None       # the measured topics the recorder records
+        self.errors = {}            # node -> the distinct ERROR messages it reported
 
     # -- processes and observer ---------------------------------------------------------
     def start(self, timeout_s=START_TIMEOUT_S):
@@ -177,7 +178,10 @@ class HardwareRun:
     def _on_diag(self, msg):
         for st in msg.status:
             lvl = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
-            self.diag[st.name.rsplit('/', 1)[-1]] = (lvl, st.message)
+            name = st.name.rsplit('/', 1)[-1]
+            self.diag[name] = (lvl, st.message)
+            if lvl >= 2 and st.message not in self.errors.setdefault(name, []):
+                self.errors[name].append(st.message)    # for the summary: why a FAULT
 
     def level(self, node):
         """Return the newest /diagnostics level of ``node`` (None before any)."""
@@ -328,6 +332,7 @@ def run(args):
         code = 2
     finally:
         if hw is not None:
+            summary['errors'] = hw.errors       # every node's distinct ERROR messages
             summary['exit_codes'] = hw.stop()
         if emu is not None:
             stop_process(emu)
