@@ -11,7 +11,7 @@ buffer and a few integers (the 1 kHz loop's budget is tens of microseconds per n
 
 The reports themselves (and other periodic housekeeping) run in the slack of a cycle
 (:class:`Slack`), and the plant's run-wide latency percentiles come from a bounded
-histogram (:class:`LatencyHistogram`), so no report can make a tick late.
+histogram (:class:`LatencyHistogram`), so a report runs where the period has room.
 """
 
 import collections
@@ -131,7 +131,7 @@ class Slack:
 
     A ``/diagnostics`` report costs 0.2-0.7 ms in a running graph (percentiles, message
     building); run from its own timer it ran back to back with another one or just
-    before a tick, and every late tick of a composed 60 s run followed one (the
+    before a tick, and every late tick of a traced 30 s composed run followed one (the
     :class:`~fiber_align.nodes._transport.Pub` of a node's per-sample output calls
     :meth:`after_cycle` once the sample has been answered, with most of the period
     left). Without cycles (lockstep waits, an idle or held graph) a job runs at once.
