@@ -36,7 +36,7 @@ from fiber_align.nodes._transport import LATCHED_QOS, LocalBus, LocalSub  # noqa
 from fiber_align.nodes._transport import LOCKSTEP_QOS, Pub, REALTIME_QOS  # noqa: F401
 from fiber_align.nodes._transport import REFERENCE_LATCHED_QOS, sample_qos  # noqa: F401
 from fiber_align.nodes._transport import SAMPLE_DEPTH, SETPOINT_QOS  # noqa: F401
-from fiber_align.nodes._cycle import Slack  # noqa: F401
+from fiber_align.nodes._transport import slack_of  # noqa: F401
 from fiber_align.nodes._transport import subscription, unsubscribe  # noqa: F401
 # The realtime setpoint trajectory lives in its own module; the nodes use it as c.<name>.
 from fiber_align.nodes._trajectory import MAX_CATCH_UP  # noqa: F401

@@ -202,6 +202,11 @@ class LocalSub:
             cbs.remove(self.callback)
 
 
+def slack_of(bus):
+    """Return the housekeeping of a node's process: its bus's (composed), else a new one."""
+    return bus.slack if bus is not None else Slack()
+
+
 def subscription(node, msg_type, topic, callback, qos, bus=None):
     """
     Subscribe ``callback`` to ``topic`` (relative name) locally or through DDS.

@@ -50,7 +50,7 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
         """
         super().__init__(NODE_NAME, **kwargs)
         self.bus = bus
-        self.slack = bus.slack if bus is not None else c.Slack()
+        self.slack = c.slack_of(bus)
         d = c.node_defaults(NODE_NAME, AREA_FILES)
         do.declare_all(self, d)
         self.backend = self.get_parameter('backend').value

@@ -113,7 +113,7 @@ class FuzzyPidControllerNode(Node):
         self.ctl = self._make(self.mode, self._core_params())
         self.add_on_set_parameters_callback(self._on_set)
 
-        self.slack = bus.slack if bus is not None else c.Slack()
+        self.slack = c.slack_of(bus)
         self.pub_fb = c.Pub(self, Float64, 'feedback_voltage', c.CONTROL_QOS, bus,
                             slack=self.slack)
         self.pub_state = c.Pub(self, Float64MultiArray, 'controller_state', c.CONTROL_QOS,

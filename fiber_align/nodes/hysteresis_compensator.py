@@ -111,7 +111,7 @@ class HysteresisCompensatorNode(Node):
         self.shaping = c.declare_shaping(self, d)
         self.open_loop_gain = c.declare(self, d, 'open_loop_gain_v_per_m',
                                         'linear feedforward gain (V/m)', 0.0, 1e9, True)
-        self.slack = bus.slack if bus is not None else c.Slack()
+        self.slack = c.slack_of(bus)
         self.pub = c.Pub(self, Float64, 'feedforward_voltage', c.CONTROL_QOS, bus,
                          slack=self.slack)
         # the accepted setpoint for the controller (one consumer of ``setpoint``)

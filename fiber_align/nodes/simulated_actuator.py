@@ -121,7 +121,7 @@ class SimulatedActuatorNode(Node):
         self.optics = OpticalLink.from_params(optics_params, seed=int(params['seed'])) \
             if optics_params else None
 
-        self.slack = bus.slack if bus is not None else c.Slack()
+        self.slack = c.slack_of(bus)
         self.pub_disp = c.Pub(self, JointState, 'displacement', c.CONTROL_QOS, bus,
                               slack=self.slack)
         self.pub_power = c.Pub(self, Float64, 'optical_power', c.CONTROL_QOS, bus)
