@@ -41,6 +41,11 @@ TARGET_M = 50e-6
 TOL_M = 0.5e-6
 SETTLE_WITHIN_S = 2.0
 STOP_WITHIN_S = 5.0
+#: ``ros2`` without a daemon waits this long for discovery (s). A new participant is
+#: sometimes found only at the graph's next periodic announcement (every 3 s): with 2 s,
+#: 9 of 15 ``ros2 lifecycle get`` calls missed the node on the launched graph, with 5 s
+#: none of 10 (``ros2 node list``: 5 of 15 and 0 of 10).
+NO_DAEMON = ('--no-daemon', '--spin-time', '5')
 INSTALL_HINT = ('the ros2 command line is not installed: run `make venv` (builds '
                 '../shared/ros2-tools into .venv) or source a ROS 2 Jazzy install')
 
@@ -110,10 +115,21 @@ def _found(out):
     return 'Node not found' not in out
 
 
-def ros2_retry(env, *args, until=_found, tries=10):
-    """Run ``ros2 ARGS`` until ``until(output)`` (discovery may need a second look)."""
+def ros2_retry(env, *args, until=_found, tries=5, timeout=30.0):
+    """
+    Run ``ros2 ARGS`` until ``until(output)`` (discovery may need a second look).
+
+    A call that hangs counts as a failed try: the ``ros2 param`` verbs wait for a
+    service response without a timeout, and a response sent before the caller's
+    reader was matched is lost.
+    """
+    rc, out = None, ''
     for _ in range(tries):
-        rc, out = ros2(env, *args)
+        try:
+            rc, out = ros2(env, *args, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            rc, out = None, 'ros2 %s: no answer within %g s' % (' '.join(args), timeout)
+            continue
         if until(out):
             return rc, out
         time.sleep(0.5)
@@ -183,8 +199,8 @@ def test_ros2_run_starts_a_node_that_stops_on_sigint(ros2_env, tmp_path):
     proc = spawn(ros2_env, ['ros2', 'run', 'fiber_align', 'actuator_driver'],
                  tmp_path / 'run.log')
     try:
-        rc, out = ros2_retry(ros2_env, 'lifecycle', 'get', '/actuator_driver', '--no-daemon',
-                             '--spin-time', '2', until=lambda o: 'unconfigured' in o)
+        rc, out = ros2_retry(ros2_env, 'lifecycle', 'get', '/actuator_driver', *NO_DAEMON,
+                             until=lambda o: 'unconfigured' in o)
         assert 'unconfigured [1]' in out, out
         t0 = time.monotonic()
         os.killpg(proc.pid, signal.SIGINT)           # Ctrl-C: the whole foreground group
@@ -356,10 +372,24 @@ def launched(ros2_env, tmp_path_factory):
                 os.kill(pid, signal.SIGKILL)
 
 
+@pytest.fixture(autouse=True)
+def graph_survived(request):
+    """After each test on the launched graph (SIGINT tests aside): all of it still runs."""
+    yield
+    if 'launched' not in request.fixturenames or request.node.name.startswith('test_sigint'):
+        return
+    g = request.getfixturevalue('launched')
+    dead = [pid for pid in g.get('children', []) if not alive(pid)]
+    # the launch log says which process died and how (exit code, signal, traceback)
+    assert not dead and g['proc'].poll() is None, (
+        'a process of the launched graph died during the test (pids %r, ros2 launch %r):\n%s'
+        % (dead, g['proc'].poll(), g['log'].read_text(errors='replace')[-6000:]))
+
+
 def test_launch_runs_every_node_of_the_graph(launched, ros2_env):
     nodes = ('/simulated_actuator', '/hysteresis_compensator', '/fuzzy_pid_controller',
              '/actuator_driver', '/lifecycle_manager', '/bag_recorder')
-    rc, out = ros2_retry(ros2_env, 'node', 'list', '--no-daemon', '--spin-time', '3',
+    rc, out = ros2_retry(ros2_env, 'node', 'list', *NO_DAEMON,
                          until=lambda o: set(nodes) <= set(o.split()))
     assert set(nodes) <= set(out.split()), out
     assert len(launched['children']) >= 3
@@ -397,7 +427,7 @@ def test_topic_pub_setpoint_is_reached_within_half_a_micrometre_in_2_s(launched,
 def test_param_set_accepted_and_refused(launched, ros2_env):
     def param(verb, *value):
         return ros2_retry(ros2_env, 'param', verb, '/actuator_driver', 'v_max', *value,
-                          '--no-daemon', '--spin-time', '2')[1]
+                          *NO_DAEMON)[1]
     ok = param('set', '95.0')
     assert 'Set parameter successful' in ok, ok
     out_of_range = param('set', '2000.0')
@@ -419,7 +449,7 @@ def test_lifecycle_deactivate_holds_the_safe_voltage_and_activate_resumes(
     ls = launched['listener']
     ls.streams(True)
     safe = _safe_voltage_v()
-    args = ('--no-daemon', '--spin-time', '2')
+    args = NO_DAEMON
     t0 = time.monotonic()
     rc, out = ros2_retry(ros2_env, 'lifecycle', 'set', '/actuator_driver', 'deactivate',
                          *args)
