@@ -88,6 +88,15 @@ def test_launch_arguments_override_the_files(tmp_path):
     assert not bag.exists()                     # describing the graph creates nothing
 
 
+def test_a_recorded_scenario_ends_only_once_the_recorder_holds_it(tmp_path):
+    recorded = graph.build(scenario='step', record=str(tmp_path / 'bag'))
+    runner = recorded.node_params('scenario_runner')
+    assert runner['exit_when_done'] and runner['wait_for_recorder']
+    assert runner['recorder_wait_s'] > 0
+    plain = graph.build(scenario='step').node_params('scenario_runner')
+    assert plain['exit_when_done'] and not plain['wait_for_recorder']
+
+
 @pytest.mark.parametrize('scenario, nodes', [
     ('none', CONTROL),
     ('sine', CONTROL + ('scenario_runner',)),

@@ -21,7 +21,7 @@ closed (finalised). A second signal during the close changes nothing.
 
 Nothing is lost silently: the DDS ``message_lost`` and ``incompatible_qos`` events of
 every subscription are counted, logged and reported on ``/diagnostics`` (``lost``,
-``incompatible_qos``, and ``recorded.<topic>`` per topic, every
+``incompatible_qos``, and ``recorded.<topic>`` per wanted topic, every
 ``diagnostics_period_s``) and in ``recorder_counts.json``.
 
 Crash safety (mcap): every ``flush_period_s`` the pending chunk is closed and written
@@ -198,7 +198,9 @@ class BagRecorder(Node):
                               message=msg, hardware_id='fiber_align')
         vals = {'lost': self.lost, 'incompatible_qos': self.incompatible,
                 'closed': self.closed}
-        vals.update({'recorded.' + t: n for t, n in self.counts.items()})
+        # every wanted topic, 0 until subscribed: a reader of these counts sees a
+        # topic the recorder has not picked up yet as behind, not as absent
+        vals.update({'recorded.' + t: self.counts.get(t, 0) for t in self.wanted})
         st.values = [KeyValue(key=k, value=str(v)) for k, v in vals.items()]
         arr = self._diag_type(status=[st])
         arr.header.stamp = self.get_clock().now().to_msg()

@@ -340,7 +340,7 @@ def build(namespace='', composed=None, sync_mode='', controller='', params_file=
     if scenario:
         # under launch the runner ends the graph when its scenario is over
         over[SCENARIO_RUNNER] = {'scenario': _choice('scenario', scenario, SCENARIOS),
-                                 'exit_when_done': True}
+                                 'exit_when_done': True, 'wait_for_recorder': bool(record)}
     merged = merge_params(files, over, ns)
     if SCENARIO_RUNNER in over:
         over[SCENARIO_RUNNER]['reach_m'] = plant_reach_m(merge_params(files, over))

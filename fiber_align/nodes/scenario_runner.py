@@ -22,11 +22,19 @@ it publishes nothing more, so a lockstep graph holds after exactly ``duration * 
 commands and a realtime graph holds the last setpoint; with ``exit_when_done`` (set by
 the launch file) the process then ends, which ends the launch. ``scenario_state``
 (std_msgs/String, latched) is ``running`` and then ``done``.
+
+With ``wait_for_recorder`` (the launch file sets it when it records) that end waits,
+at most ``recorder_wait_s``, until ``bag_recorder`` holds what the nodes sent
+(:mod:`fiber_align.nodes._recording`, from their ``/diagnostics`` counts): in lockstep
+every message, in realtime (the graph keeps running) every topic sent on. A short run
+can otherwise end the launch before the recorder has found its publishers.
 """
 
 import math
 import sys
+import time
 
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -35,6 +43,7 @@ from std_msgs.msg import Float64, String
 from fiber_align.config import ConfigError
 from fiber_align.simulation import scenarios
 from fiber_align.nodes import _common as c
+from fiber_align.nodes._recording import recorder_missing, recorder_short
 
 NODE_NAME = 'scenario_runner'
 AREA_FILES = ('scenario.yaml',)
@@ -104,6 +113,11 @@ class ScenarioRunnerNode(Node):
                        1e-3, True)
         self.exit_when_done = c.declare(self, d, 'exit_when_done', 'end the process when '
                                         'the scenario is over (ros2 launch)', read_only=True)
+        self.wait_recorder = c.declare(self, d, 'wait_for_recorder', 'at the end, wait for '
+                                       'bag_recorder to hold what was sent (bool)',
+                                       read_only=True)
+        self.recorder_wait_s = c.declare(self, d, 'recorder_wait_s', 'longest such wait (s)',
+                                         0.0, 600.0, True)
         self.lockstep = c.declare(self, d, 'sync_mode', 'sample clock', read_only=True,
                                   choices=c.SYNC_MODES) == 'lockstep'
         self.period_s = 1.0 / c.declare(self, d, 'rate_hz', 'control rate (Hz)', 1.0,
@@ -124,6 +138,11 @@ class ScenarioRunnerNode(Node):
         self.t0_ns = None
         self.n = 0
         self.done = False
+        self.diag = {}                  # node -> newest /diagnostics values, '_t'
+        self._t_done = None
+        if self.exit_when_done and self.wait_recorder:
+            self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag,
+                                     c.DIAG_QOS)
         self.pub_state.publish(String(data='ready'))
         self.get_logger().info('scenario %s, %g s' % (self.name_, self.duration_s))
 
@@ -141,7 +160,10 @@ class ScenarioRunnerNode(Node):
             self.done = True
             self.pub_state.publish(String(data='done'))
             self.get_logger().info('scenario done after %d samples' % self.n)
-            if self.exit_when_done:
+            if self.exit_when_done and self.wait_recorder:
+                self._t_done = time.monotonic()
+                self.create_timer(0.05, self._exit_once_recorded)
+            elif self.exit_when_done:
                 # a short grace for the last messages to reach their readers, then the
                 # process (and a launch that waits on it) ends
                 self.create_timer(0.5, self._exit)
@@ -157,6 +179,29 @@ class ScenarioRunnerNode(Node):
         else:
             self.pub_sp.publish(m)
         self.n += 1
+
+    def _on_diag(self, msg):
+        now = time.monotonic()
+        for st in msg.status:
+            self.diag[st.name.rsplit('/', 1)[-1]] = dict(
+                {kv.key: kv.value for kv in st.values}, _t=now)
+
+    def _exit_once_recorded(self):
+        check = recorder_short if self.lockstep else recorder_missing
+        left = check(self.diag, self._t_done)
+        if left is not None and not left:
+            self.get_logger().info('the recorder holds what the graph sent')
+            self._exit()
+        elif time.monotonic() - self._t_done > self.recorder_wait_s:
+            if left is None:
+                what = 'no fresh /diagnostics reports'
+            elif isinstance(left, dict):
+                what = ', '.join('%s %d of %d' % (k, r, n) for k, (r, n) in sorted(left.items()))
+            else:
+                what = 'nothing of ' + ', '.join(left)
+            self.get_logger().error('after %g s the recorder does not hold what the graph '
+                                    'sent (%s); ending anyway' % (self.recorder_wait_s, what))
+            self._exit()
 
     def _exit(self):
         self.get_logger().info('scenario over: shutting the process down')

@@ -3,6 +3,7 @@
 
 import time
 
+from fiber_align.nodes._recording import recorder_short
 from fiber_align.nodes.graph import dds_environment  # noqa: F401 - bringup's API
 from fiber_align.nodes.bringup.children import cpu_time_s, rss_bytes
 
@@ -44,35 +45,20 @@ def wait_recorder(diag, names, ch, limit_s):
     """
     Wait until the recorder holds every message the nodes sent; return (s waited, short).
 
-    Every node reports ``sent.<topic>`` and the recorder ``recorded.<topic>`` on
-    ``/diagnostics``; only reports made after the plant was held count. Reliable
-    delivery may need a retransmission after a burst, so the wait is on the counts
-    themselves, bounded by ``limit_s`` (s). ``short``: topic -> (recorded, sent) left.
+    The rule is :func:`fiber_align.nodes._recording.recorder_short`; only reports made
+    after the plant was held count. Reliable delivery may need a retransmission after a
+    burst, so the wait is on the counts themselves, bounded by ``limit_s`` (s).
+    ``short``: topic -> (recorded, sent) left.
     """
     t0 = time.monotonic()
     short = None
     while time.monotonic() - t0 < limit_s and ch.alive():
         time.sleep(0.05)
-        rec = diag.get('bag_recorder', {})
-        if rec.get('_t', 0.0) <= t0:
-            continue
-        got = {k.rsplit('/', 1)[-1]: int(v) for k, v in rec.items()
-               if k.startswith('recorded.')}
-        short, fresh = {}, True
-        for node in names:
-            if node == 'scenario_runner':
-                continue        # its setpoints are recorded as the `reference`
-            d = diag.get(node, {})
-            if d.get('_t', 0.0) <= t0:
-                fresh = False
+        now = recorder_short(diag, t0, names)
+        if now is not None:
+            short = now
+            if not short:
                 break
-            for k, v in d.items():
-                topic = k[len('sent.'):] if k.startswith('sent.') else None
-                if topic in got and got[topic] < int(float(v)):
-                    short[topic] = (got[topic], int(float(v)))
-        if fresh and not short:
-            short = None
-            break
     return time.monotonic() - t0, short or {}
 
 

@@ -1,0 +1,60 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+Has the recorder caught up? One rule for ``bringup`` and ``scenario_runner``.
+
+Every node reports ``sent.<topic>`` (messages published) and ``bag_recorder`` reports
+``recorded.<topic>`` for every topic it is asked to record (0 until it has subscribed)
+on ``/diagnostics``. The recorder holds what the nodes sent once, in reports made after
+the graph stopped publishing, every recorded count is at least the matching sent count.
+Pure: the callers keep the newest report of each node, ``{node: {key: value, '_t':
+monotonic s of arrival}}``.
+"""
+
+RECORDER = 'bag_recorder'
+#: Its setpoints are recorded as the compensator's ``reference``, not by name.
+NOT_RECORDED = ('scenario_runner',)
+
+
+def recorder_short(diag, since, names=None):
+    """
+    Return ``None`` until the reports are fresh, then ``{topic: (recorded, sent)}`` left.
+
+    :param diag: node -> its newest ``/diagnostics`` values (with ``_t``, monotonic s).
+    :param since: monotonic s; only reports that arrived after it count.
+    :param names: the nodes whose ``sent.*`` counts must be recorded; ``None``: every
+        node that reports one.
+    :returns: ``None`` while the recorder or a node has not reported since ``since``;
+        else the topics the recorder is short of (empty: caught up).
+    """
+    rec = diag.get(RECORDER, {})
+    if rec.get('_t', 0.0) <= since:
+        return None
+    got = {k.rsplit('/', 1)[-1]: int(v) for k, v in rec.items() if k.startswith('recorded.')}
+    if names is None:
+        names = [n for n, d in diag.items()
+                 if n != RECORDER and any(k.startswith('sent.') for k in d)]
+    short = {}
+    for node in names:
+        if node in NOT_RECORDED:
+            continue
+        d = diag.get(node, {})
+        if d.get('_t', 0.0) <= since:
+            return None
+        for k, v in d.items():
+            topic = k[len('sent.'):].rsplit('/', 1)[-1] if k.startswith('sent.') else None
+            if topic in got and got[topic] < int(float(v)):
+                short[topic] = (got[topic], int(float(v)))
+    return short
+
+
+def recorder_missing(diag, since, names=None):
+    """
+    Return ``None`` until the reports are fresh, then the topics sent but not recorded.
+
+    For a graph that keeps publishing (realtime), where the counts of two reports never
+    agree: every topic a node has sent on must be in the bag, the rest of its messages
+    reach the recorder before it closes (it drains its readers). Arguments as
+    :func:`recorder_short`.
+    """
+    short = recorder_short(diag, since, names)
+    return None if short is None else sorted(t for t, (rec, _) in short.items() if rec == 0)
