@@ -15,6 +15,13 @@ the output then stays at (ramps to) the safe voltage whatever commands arrive, u
 :meth:`DriverCore.rearm` (the driver node's ``~/enable`` or a lifecycle deactivate /
 activate). A loop that keeps losing its input thus stops instead of cycling between
 the safe voltage and an overshooting resume.
+
+Every way back from the safe voltage (the input back after a trip, a re-armed latch, an
+enable, an activate) is a **resume ramp**: the output approaches the command at the
+safe ramp rate, then follows it at the slew limit again. Both ramps advance by at most
+``ramp_period_s`` (one control period) a call, so a caller that stalls continues its
+ramp by one step, never by the whole stall at once: for the plant that would be a step,
+which rings the bending mode by its full height.
 """
 
 import math
@@ -38,7 +45,7 @@ class DriverCore:
 
     def __init__(self, v_min=0.0, v_max=100.0, slew_rate_v_per_s=math.inf,
                  watchdog_timeout_s=0.0, safe_voltage_v=0.0, latch_trips=3,
-                 latch_window_s=10.0, safe_ramp_rate_v_per_s=math.inf):
+                 latch_window_s=10.0, safe_ramp_rate_v_per_s=math.inf, ramp_period_s=0.0):
         """
         Check and store the limits; start at ``safe_voltage_v``.
 
@@ -48,7 +55,9 @@ class DriverCore:
         :param safe_ramp_rate_v_per_s: rate (V/s) of every ramp to the safe voltage
             (watchdog, latch, disable); slow enough not to ring the bending mode, which
             a ramp at the amplifier's slew limit (a step, for the plant) rings by the
-            full height of the step.
+            full height of the step. The resume ramp uses it too.
+        :param ramp_period_s: the longest time (s) one step of those ramps counts: the
+            control period; <= 0: no cap (each step counts the whole time elapsed).
         """
         if not v_max > v_min:
             raise ConfigError('v_max (%g V) must exceed v_min (%g V)' % (v_max, v_min))
@@ -65,19 +74,26 @@ class DriverCore:
             raise ConfigError('latch_trips must be >= 0 and latch_window_s >= 0 s')
         r = float(safe_ramp_rate_v_per_s)
         self.safe_rate = r if r > 0 and math.isfinite(r) else math.inf
+        rp = float(ramp_period_s)
+        self.ramp_dt = rp if rp > 0 and math.isfinite(rp) else math.inf
         self.latch_trips = int(latch_trips)
         self.latch_window_s = float(latch_window_s)
         self.reset()
 
     @classmethod
-    def from_params(cls, p):
-        """Build from the ``actuator_driver`` parameters (see ``config/driver.yaml``)."""
+    def from_params(cls, p, ramp_period_s=0.0):
+        """
+        Build from the ``actuator_driver`` parameters (see ``config/driver.yaml``).
+
+        :param ramp_period_s: the control period (s) of the caller (``1 / rate_hz``),
+            the longest time one ramp step counts; 0: no cap.
+        """
         known = {'v_min', 'v_max', 'slew_rate_v_per_s', 'watchdog_timeout_s',
                  'safe_voltage_v', 'latch_window_s', 'safe_ramp_rate_v_per_s'}
         kw = {k: float(v) for k, v in p.items() if k in known}
         if 'latch_trips' in p:
             kw['latch_trips'] = int(p['latch_trips'])
-        return cls(**kw)
+        return cls(ramp_period_s=ramp_period_s, **kw)
 
     @classmethod
     def from_config(cls, path=CONFIG_FILE):
@@ -97,6 +113,7 @@ class DriverCore:
         self.nan_count = 0
         self.latched = False
         self.trip_times = []
+        self.resuming = False
 
     def start_safe_ramp(self, t):
         """Start a ramp to the safe voltage at ``t`` (s) (a disable or a deactivate)."""
@@ -104,14 +121,19 @@ class DriverCore:
 
     def ramp_safe(self, t):
         """Return the output (V) at ``t`` (s) on the way to the safe voltage (safe rate)."""
-        return self._limit(self.safe, t, min(self.slew, self.safe_rate))
+        self.resuming = True        # the way back is a ramp too
+        return self._limit(self.safe, t, min(self.slew, self.safe_rate), self.ramp_dt)
 
-    def _limit(self, target, t, rate=None):
-        """Limit the move from the present output to ``target`` at ``t`` (s) to ``rate``."""
+    def _limit(self, target, t, rate=None, max_dt=math.inf):
+        """
+        Limit the move from the present output to ``target`` at ``t`` (s) to ``rate``.
+
+        :param max_dt: the longest time (s) the move may count (a ramp: one period).
+        """
         tl = self.t_last_out
         rate = self.slew if rate is None else rate
         if tl is not None and rate != math.inf:
-            dv_max = rate * (t - tl if t > tl else 0.0)
+            dv_max = rate * min(t - tl if t > tl else 0.0, max_dt)
             v = self.v
             if target > v + dv_max:
                 target = v + dv_max
@@ -143,6 +165,10 @@ class DriverCore:
             self.saturation_count += 1
         else:
             self.saturated = False
+        if self.resuming:           # back from the safe voltage: at the safe ramp rate
+            v = self._limit(u, t, min(self.slew, self.safe_rate), self.ramp_dt)
+            self.resuming = v != u
+            return v
         return self._limit(u, t)
 
     def tick(self, t):

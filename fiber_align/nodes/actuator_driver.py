@@ -102,8 +102,8 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
         why = self._check_core(p)
         if why:
             return self._refuse(why)
-        self.core = DriverCore.from_params(p)
         self.period_s = 1.0 / float(self.get_parameter('rate_hz').value)
+        self.core = DriverCore.from_params(p, ramp_period_s=self.period_s)
         self.lockstep = self.get_parameter('sync_mode').value == 'lockstep'
         why = self._open_device(Float64)
         if why:
@@ -300,7 +300,7 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
                 self.health.set_values(watchdog_count=core.watchdog_count)
                 self.get_logger().info(msg)
         else:
-            v = core._limit(core.safe, t)
+            v = core.ramp_safe(t)
         if self.active:
             self._publish(v)
 

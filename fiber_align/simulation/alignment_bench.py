@@ -89,7 +89,7 @@ class CompositeLoop:
         rate = 1.0 / self.period_s
         setup = sim.load_setup() if setup is None else setup
         self.plant = sim.make_plant(plant, rate, seed, noise, setup.plant, setup.design)
-        self.driver = DriverCore.from_params(setup.driver)
+        self.driver = DriverCore.from_params(setup.driver, ramp_period_s=self.period_s)
         self.comp, self.fb = sim.build_loop_parts(controller, rate, setup, model, plant)
         self.loop = ClosedLoop(self.plant, self.driver, self.comp, self.fb, self.period_s)
         self.reach_m = self.plant.reachable_m()

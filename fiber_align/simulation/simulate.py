@@ -297,7 +297,7 @@ def run(scenario, controller, rate_hz=None, duration_s=None, seed=0, noise=False
     period = 1.0 / rate
     p = plant_obj if plant_obj is not None else make_plant(plant, rate, seed, noise,
                                                            setup.plant, setup.design)
-    drv = DriverCore.from_params(setup.driver)
+    drv = DriverCore.from_params(setup.driver, ramp_period_s=period)
     reach = p.reachable_m()
     if sc.open_loop:
         loop = _run_open_loop(sc, n, period, p, drv)
