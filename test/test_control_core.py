@@ -198,33 +198,3 @@ def test_driver_ramp_after_a_stall_of_the_caller_goes_on_by_one_period():
     uncapped.tick(0.06)
     uncapped.tick(0.061)
     assert uncapped.tick(0.081) == pytest.approx(10.0)  # what the cap prevents: a step
-
-
-@pytest.mark.parametrize('leave', ['trip', 'latch'])
-def test_driver_resumes_from_the_safe_voltage_at_the_safe_ramp_rate(leave):
-    """Back from the safe voltage the output ramps at 2 V/ms, then follows at the slew."""
-    d = DriverCore(v_min=0.0, v_max=100.0, slew_rate_v_per_s=5e5, watchdog_timeout_s=0.05,
-                   safe_ramp_rate_v_per_s=2000.0, latch_trips=1 if leave == 'latch' else 3,
-                   ramp_period_s=1e-3)
-    d.command(52.0, 0.0, 0.0)
-    t = 0.06
-    d.tick(t)
-    for _ in range(40):                                 # down to the safe voltage
-        t += 1e-3
-        d.tick(t)
-    assert d.v == 0.0 and d.latched == (leave == 'latch')
-    d.rearm()
-    out = []
-    for _ in range(40):                                 # the input is back
-        t += 1e-3
-        out.append(d.command(52.0, 0.0, t))
-    assert max(np.diff([0.0] + out)) <= 2.0 + 1e-9 and out[0] == pytest.approx(2.0)
-    assert out[25] == 52.0 and not d.resuming
-    assert d.command(60.0, 0.0, t + 1e-3) == 60.0        # then the slew limit again
-
-
-def test_driver_first_command_is_not_ramped():
-    """Leaving the initial safe output is not a resume: the first command passes at once."""
-    d = DriverCore(v_min=0.0, v_max=100.0, slew_rate_v_per_s=5e5,
-                   safe_ramp_rate_v_per_s=2000.0, ramp_period_s=1e-3)
-    assert d.command(52.0, 0.0, 0.0) == 52.0 and not d.resuming

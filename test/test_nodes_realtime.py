@@ -414,4 +414,5 @@ def test_watchdog_ramps_to_zero_and_restart_recovers(graph):
           'since the kill: %d' % (time.monotonic() - t_start, int(
               cl.values[drv]['watchdog_count']) - trips_before))
     ys = cl.ys_since(t_kill)
+    print('displacement since the kill: %.2f..%.2f um' % (1e6 * min(ys), 1e6 * max(ys)))
     assert max(ys) <= 90e-6 + 2e-6 and min(ys) >= -2e-6, (min(ys), max(ys))
