@@ -11,7 +11,8 @@ reason); a compensator stopped for 0.3 s trips the driver's watchdog and the loo
 resumes without a wind-up bump; killing the controller makes the driver's watchdog
 ramp the drive to 0 V and report ERROR, and a restarted controller brings the actuator
 back to the setpoint without a re-send (the latched ``reference``), never beyond the
-setpoint range by more than 2 um.
+setpoint range by more than 2 um; and a driver whose thread stalls 30 ms at a time
+during that ramp still ramps (2 V a step), never steps the bimorph below -2 um.
 """
 
 import contextlib
@@ -416,3 +417,36 @@ def test_watchdog_ramps_to_zero_and_restart_recovers(graph):
     ys = cl.ys_since(t_kill)
     print('displacement since the kill: %.2f..%.2f um' % (1e6 * min(ys), 1e6 * max(ys)))
     assert max(ys) <= 90e-6 + 2e-6 and min(ys) >= -2e-6, (min(ys), max(ys))
+
+
+def test_a_stalled_driver_ramps_to_zero_in_steps_not_in_one_jump(graph):
+    """Kill the controller, then stall the driver 30 ms at a time: the ramp stays a ramp."""
+    from std_srvs.srv import SetBool
+    cl, procs, log_dir = graph
+    res = cl.call(cl.node.create_client(SetBool, 'actuator_driver/enable'),
+                  SetBool.Request(data=True))
+    assert res.success, res.message
+    assert cl.spin_for(5.0, lambda: cl.settled(time.monotonic() - 0.3)), cl.ys_since(0.0)[-5:]
+    drv = procs['actuator_driver']
+    t_kill = time.monotonic()
+    procs['fuzzy_pid_controller'].kill()
+    procs['fuzzy_pid_controller'].wait(timeout=5)
+    try:
+        # the trip comes 50 ms after the kill and its ramp takes 26 ms: stalls of 30 ms
+        # for 0.5 s cover both; a ramp that made up a stall at once would step 52 V down
+        while time.monotonic() - t_kill < 0.5:
+            drv.send_signal(signal.SIGSTOP)
+            cl.spin_for(0.03)
+            drv.send_signal(signal.SIGCONT)
+            cl.spin_for(0.004)
+    finally:
+        drv.send_signal(signal.SIGCONT)
+    assert cl.spin_for(5.0, lambda: any(t > t_kill and v == 0.0 for t, v in cl.drives))
+    cl.spin_for(0.3)
+    after = [v for t, v in cl.drives if t > t_kill]     # a reliable reader: every value
+    drops = [a - b for a, b in zip(after, after[1:])]
+    ys = cl.ys_since(t_kill)
+    print('stalled driver: largest drive step down %.1f V, displacement %.2f..%.2f um'
+          % (max(drops), 1e6 * min(ys), 1e6 * max(ys)))
+    assert min(ys) >= -2e-6, min(ys)
+    assert max(drops) <= 2.0 + 1e-9, max(drops)   # 2000 V/s for one 1 ms period

@@ -19,7 +19,9 @@ the safe voltage and an overshooting resume.
 The ramp to the safe voltage advances by at most ``ramp_period_s`` (one control
 period) a call, so a caller that stalls continues its ramp by one step, never by the
 whole stall at once: for the plant that would be a step down, which rings the bending
-mode by its full height below the safe voltage. The way back follows the command at
+mode by its full height below the safe voltage (a driver stalled 30 ms at a time during
+its ramp stepped 45-49 V at once and rang the bimorph to -17..-19 um before this cap;
+``test_nodes_realtime.py``). The way back follows the command at
 the slew limit: a resume ramped at the safe rate was measured worse, as the loop winds
 up during the ramp (``test_nodes_realtime.py`` with two CPU hogs, 50 um setpoint: peaks
 of 63.5-66.7 um after a 0.3 s stall and up to 83 um after a controller restart, 8 runs;
