@@ -14,7 +14,7 @@ import math
 import os
 import signal
 import sys
-import threading
+import time
 
 from fiber_align.hardware.bench import emulated
 
@@ -87,10 +87,10 @@ def options(args):
 
 def _run(args):
     seed, emu, optics = options(args)
-    stop = threading.Event()
+    stop = []       # a handler only appends: a lock taken there can deadlock the loop
 
     def on_signal(signum, frame):
-        stop.set()
+        stop.append(signum)
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
@@ -102,8 +102,8 @@ def _run(args):
                         slot_drift_m_per_s=bench.coupling.slot_drift_m_per_s,
                         echo=mdt.echo, seed=seed, pid=os.getpid())
             print(json.dumps(info), flush=True)
-            while not stop.wait(0.2):
-                pass
+            while not stop:
+                time.sleep(0.2)
             stats = dict(stopped=True, mdt693b_commands=mdt.commands,
                          voltage_commands=len(mdt.command_log), pm100_readings=pm.readings)
             print(json.dumps(stats), file=sys.stderr, flush=True)

@@ -111,9 +111,35 @@ def lock_memory():
 NODE_ERRORS = (ConfigError, ParameterException, ValueError, TypeError, KeyError)
 
 
+class StopFlag:
+    """
+    Set by a signal handler, read by a loop: a plain attribute, no lock.
+
+    A handler runs in the main thread between two bytecodes of whatever it interrupted.
+    ``threading.Event.set`` takes the event's (non-reentrant) lock, so a second signal
+    arriving while the first handler is inside it deadlocks the process: seen as a
+    ``control_graph`` that outlived a SIGKILLed ``bringup`` (its parent-death SIGTERM
+    comes twice), its main thread blocked in the handler's ``lock.acquire``.
+    """
+
+    __slots__ = ('_set',)
+
+    def __init__(self):
+        """Start unset."""
+        self._set = False
+
+    def set(self):
+        """Set the flag (safe in a signal handler, any number of times, nested)."""
+        self._set = True
+
+    def is_set(self):
+        """Return True once set."""
+        return self._set
+
+
 def init(args=None):
     """
-    Initialise rclpy with this process's own SIGINT and SIGTERM handlers; return the event.
+    Initialise rclpy with this process's own SIGINT and SIGTERM handlers; return the flag.
 
     rclpy's handlers shut the context down at once, while the executor may still run a
     callback that then publishes on a dead context (``[FATAL] Exception in 'timers'
@@ -123,12 +149,11 @@ def init(args=None):
     non-interactive shell inherits SIGINT ignored).
     """
     import signal
-    import threading
 
     import rclpy
     from rclpy.signals import SignalHandlerOptions
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    stop = threading.Event()
+    stop = StopFlag()
 
     def on_signal(signum, frame):
         stop.set()
@@ -167,7 +192,7 @@ def spin(nodes, realtime=False, priority=0, stop=None):
     :param realtime: choose the events executor when available (:func:`make_executor`).
     :param priority: ``SCHED_FIFO`` priority of the executor thread
         (:func:`set_realtime_priority`; 0: normal).
-    :param stop: the event of :func:`init`; set, it ends the spin.
+    :param stop: the :class:`StopFlag` of :func:`init`; set, it ends the spin.
     """
     import gc
     nodes = list(nodes) if isinstance(nodes, (list, tuple)) else [nodes]

@@ -35,7 +35,6 @@ import json
 import os
 import signal
 import sys
-import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -50,6 +49,7 @@ from fiber_align.config import ConfigError
 from fiber_align.nodes import _common as c
 from fiber_align.nodes._common import DIAG_QOS, make_executor, set_realtime_priority
 from fiber_align.nodes._msgtypes import message_class
+from fiber_align.nodes._runtime import StopFlag
 
 NODE_NAME = 'bag_recorder'
 AREA_FILES = ('recorder.yaml',)
@@ -254,7 +254,7 @@ def main(args=None):
     bag is closed.
     """
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    stop = threading.Event()
+    stop = StopFlag()               # no lock in a handler: a nested signal would deadlock
     parent = os.getppid()
 
     def on_signal(signum, frame):
