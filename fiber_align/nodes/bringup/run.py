@@ -40,7 +40,8 @@ def _interrupt(signum, frame):
 
 
 def _already_stopping(signum, frame):
-    print('bringup: already stopping (the stop is bounded by stop_timeout_s)', flush=True)
+    # os.write, not print: a handler that interrupted a print would re-enter its buffer
+    os.write(1, b'bringup: already stopping (the stop is bounded by stop_timeout_s)\n')
 
 
 class Bringup:
