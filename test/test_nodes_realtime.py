@@ -147,6 +147,27 @@ class Client:
              if t > t0 and lv != OK][-8:],
             {n: v for n, v in self.values.items() if 'pid' in n or 'driver' in n}, log_dir))
 
+    def around(self, t_mid, before=0.06, after=0.06, log_dir=None):
+        """
+        Return what the client saw from ``t_mid - before`` to ``t_mid + after`` (s).
+
+        Positions (um) and drives (V) as ``(ms from t_mid, value)``; with ``log_dir`` also
+        the last lines of each node's log: what a failed bound on a peak needs.
+        """
+        def near(seq):
+            return [(round(1e3 * (t - t_mid), 1), round(v, 2)) for t, v in seq
+                    if t_mid - before <= t <= t_mid + after]
+        out = ['y (um) %s' % near([(t, 1e6 * y) for t, y in self.ys]),
+               'drive (V) %s' % near(self.drives),
+               'held %s' % [(round(1e3 * (t - t_mid), 1), h) for t, h in self.held],
+               'statuses %s' % [(round(1e3 * (t - t_mid), 1), n, lv, m)
+                                for t, n, lv, m in self.diags
+                                if abs(t - t_mid) < 3.0 and lv != OK]]
+        for f in sorted(Path(log_dir).glob('*.log')) if log_dir else ():
+            out.append('%s:\n  %s' % (f.name, '\n  '.join(
+                f.read_text(errors='replace').splitlines()[-12:])))
+        return '\n'.join(out)
+
     def ys_since(self, t0):
         """Return the positions (m) received after ``t0`` (monotonic s)."""
         return [y for t, y in self.ys if t > t0]
@@ -361,6 +382,39 @@ def test_stalled_compensator_trips_and_resumes_without_windup(graph):
     assert v_peak < 95.0
 
 
+def test_a_stalled_plant_applies_the_ramp_it_slept_through(graph):
+    """SIGSTOP the plant 0.3 s at 50 um: the driver's ramp to 0 V reaches it as a ramp."""
+    from std_srvs.srv import SetBool
+    cl, procs, log_dir = graph
+    # the earlier tests' trips must not latch this one (3 within 10 s)
+    res = cl.call(cl.node.create_client(SetBool, 'actuator_driver/enable'),
+                  SetBool.Request(data=True))
+    assert res.success, res.message
+    assert cl.spin_for(5.0, lambda: cl.settled(time.monotonic() - 0.3)), cl.ys_since(0.0)[-5:]
+    plant = procs['simulated_actuator']
+    t0 = time.monotonic()
+    plant.send_signal(signal.SIGSTOP)
+    try:
+        # no samples, so neither input of the driver: it trips and ramps to 0 V while
+        # the plant sleeps (the ramp takes 26 ms at 2000 V/s)
+        assert cl.spin_for(5.0, lambda: any(t > t0 and v == 0.0 for t, v in cl.drives))
+        cl.spin_for(0.2)
+    finally:
+        plant.send_signal(signal.SIGCONT)
+    t1 = time.monotonic()
+    assert cl.spin_for(5.0, lambda: len(cl.ys_since(t1)) > 200)
+    ys = cl.ys_since(t1)
+    t_low = min((y, t) for t, y in cl.ys if t > t1)[1]
+    print('stalled plant: displacement after SIGCONT %.2f..%.2f um'
+          % (1e6 * min(ys), 1e6 * max(ys)))
+    # a plant that applied only the newest drive on waking would step 52 V -> 0 V at
+    # once and ring the bending mode to about -20 um
+    assert min(ys) >= -2e-6, 'low %.2f um:\n%s' % (
+        1e6 * min(ys), cl.around(t_low, log_dir=log_dir))
+    assert cl.spin_for(8.0, lambda: cl.settled(t1)), cl.explain(t0, log_dir)
+    assert max(cl.ys_since(t1)) <= 90e-6 + 2e-6
+
+
 def test_watchdog_ramps_to_zero_and_restart_recovers(graph):
     """Kill the controller: 0 V within the timeout and ERROR; a restart recovers."""
     from std_srvs.srv import SetBool
@@ -415,8 +469,15 @@ def test_watchdog_ramps_to_zero_and_restart_recovers(graph):
           'since the kill: %d' % (time.monotonic() - t_start, int(
               cl.values[drv]['watchdog_count']) - trips_before))
     ys = cl.ys_since(t_kill)
-    print('displacement since the kill: %.2f..%.2f um' % (1e6 * min(ys), 1e6 * max(ys)))
-    assert max(ys) <= 90e-6 + 2e-6 and min(ys) >= -2e-6, (min(ys), max(ys))
+    t_peak = max((y, t) for t, y in cl.ys if t > t_kill)[1]
+    t_low = min((y, t) for t, y in cl.ys if t > t_kill)[1]
+    print('displacement since the kill: %.2f..%.2f um, the peak %.3f s and the low %.3f s '
+          'after the restart' % (1e6 * min(ys), 1e6 * max(ys), t_peak - t_start,
+                                 t_low - t_start))
+    assert max(ys) <= 90e-6 + 2e-6, 'peak %.2f um:\n%s' % (
+        1e6 * max(ys), cl.around(t_peak, log_dir=log_dir))
+    assert min(ys) >= -2e-6, 'low %.2f um:\n%s' % (
+        1e6 * min(ys), cl.around(t_low, log_dir=log_dir))
 
 
 def test_a_stalled_driver_ramps_to_zero_in_steps_not_in_one_jump(graph):

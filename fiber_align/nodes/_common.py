@@ -31,7 +31,8 @@ from fiber_align.nodes._runtime import make_executor  # noqa: F401
 from fiber_align.nodes._runtime import NODE_ERRORS, node_priority, refuse  # noqa: F401
 from fiber_align.nodes._runtime import report_sent, run_node, SENT_PREFIX  # noqa: F401
 from fiber_align.nodes._runtime import set_realtime_priority, spin  # noqa: F401
-from fiber_align.nodes._transport import CLOCK_QOS, CONTROL_QOS, DIAG_QOS  # noqa: F401
+from fiber_align.nodes._transport import CLOCK_QOS, CONTROL_QOS, DAC_QOS  # noqa: F401
+from fiber_align.nodes._transport import DIAG_QOS  # noqa: F401
 from fiber_align.nodes._transport import LATCHED_QOS, LocalBus, LocalSub  # noqa: F401
 from fiber_align.nodes._transport import LOCKSTEP_QOS, Pub, REALTIME_QOS  # noqa: F401
 from fiber_align.nodes._transport import REFERENCE_LATCHED_QOS, sample_qos  # noqa: F401

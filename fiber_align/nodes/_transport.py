@@ -49,6 +49,13 @@ DIAG_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
 REALTIME_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                           reliability=ReliabilityPolicy.BEST_EFFORT,
                           durability=DurabilityPolicy.VOLATILE)
+#: The realtime simulated plant's ``drive_voltage`` reader: the DAC it stands for sees
+#: every value the driver wrote, so after a stall of its process it can replay the ones
+#: written meanwhile (:mod:`fiber_align.plant.dac`); best effort and volatile as
+#: :data:`REALTIME_QOS`, but as deep as the per-sample history.
+DAC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAMPLE_DEPTH,
+                     reliability=ReliabilityPolicy.BEST_EFFORT,
+                     durability=DurabilityPolicy.VOLATILE)
 #: State topics published on change only (``drive_held``): a late joiner (e.g. a restarted
 #: controller) gets the present state at once.
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,

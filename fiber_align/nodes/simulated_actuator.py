@@ -6,7 +6,7 @@ Wraps :class:`fiber_align.plant.actuator.SimulatedActuator` (one ``step(v)`` = o
 period). Topics (relative names, SI units):
 
 - sub ``drive_voltage`` (std_msgs/Float64, V): the amplifier input, held for one period
-  (QoS: reliable, deep in lockstep; newest only in realtime).
+  (QoS: reliable in lockstep, best effort in realtime; deep in both).
 - pub ``displacement`` (sensor_msgs/JointState, joint ``bimorph_tip``): position = the
   sensor reading (m), velocity = the model's tip velocity (m/s); header stamp = the sample
   time t_k (sim time in lockstep, wall time in realtime).
@@ -37,7 +37,9 @@ Modes (parameter ``sync_mode``):
   has arrived since the previous tick is a **missed cycle**: the previous drive is held
   again (zero-order hold). A tick that comes more than one period late advances the plant
   by every elapsed period (the simulated plant keeps wall time) and counts the periods
-  it skipped as missed too.
+  it skipped as missed too, replaying the drives written meanwhile over them
+  (:mod:`fiber_align.plant.dac`: why); after a stall of over ``MAX_CATCH_UP`` periods
+  it waits one tick for them (they race the timer when the process wakes).
 
 Realtime: the sample-to-drive latency (publishing y_k to the first drive after it) and
 the missed cycles, per run (:meth:`SimulatedActuatorNode.latency_stats`, ``latency_*``)
@@ -58,6 +60,7 @@ from std_srvs.srv import SetBool
 from fiber_align.nodes import _common as c
 from fiber_align.nodes._cycle import CycleStats, LatencyHistogram, loop_summary
 from fiber_align.plant.actuator import KINDS, SimulatedActuator
+from fiber_align.plant.dac import replay_edges
 from fiber_align.plant.optics import OpticalLink
 
 NODE_NAME = 'simulated_actuator'
@@ -131,7 +134,7 @@ class SimulatedActuatorNode(Node):
         self._js = JointState(name=[JOINT_NAME], position=[0.0], velocity=[0.0])
         self._power = Float64()
         c.subscription(self, Float64, 'drive_voltage', self._on_drive,
-                       c.sample_qos(self.sync_mode == 'lockstep'), bus)
+                       c.LOCKSTEP_QOS if self.sync_mode == 'lockstep' else c.DAC_QOS, bus)
         self.create_service(SetBool, '~/run', self._on_run)
         self.health = c.Health(self, diag_period, slack=self.slack)
         if self.sync_mode == 'realtime':
@@ -158,6 +161,8 @@ class SimulatedActuatorNode(Node):
         self.wall0_ns = 0               # system time (ns) of the nominal tick 0
         self.m0 = None                  # scheduled time (s) of the first tick
         self.drives_in_period = 0
+        self.writes = []                # realtime: drives received since the last tick
+        self.deferred = False           # realtime: a stall's catch-up waits one tick
         self.t_pub = None
         self.drive_seen = True
         self.lat = LatencyHistogram()   # realtime: sample-to-drive latencies (s)
@@ -263,6 +268,8 @@ class SimulatedActuatorNode(Node):
         if self.sync_mode == 'realtime':
             self.v_latest = msg.data
             self.drives_in_period += 1
+            if len(self.writes) < c.SAMPLE_DEPTH:
+                self.writes.append(msg.data)
             if not self.drive_seen:
                 self.drive_seen = True
                 lat = time.perf_counter() - self.t_pub
@@ -316,6 +323,7 @@ class SimulatedActuatorNode(Node):
     def _on_tick(self):
         """Realtime: one tick of the sample clock (see the module docstring)."""
         if not self.running:
+            self.writes.clear()
             return
         period = self.period_s
         until = self.timer.time_until_next_call()
@@ -334,15 +342,21 @@ class SimulatedActuatorNode(Node):
             steps = 0
         else:
             steps = max(1, steps)
+            if steps > c.MAX_CATCH_UP and not self.deferred:
+                self.deferred = True    # a stall: its drives may still be on their way
+                return
+            self.deferred = False
             if self.drives_in_period == 0 and self.n_drive > 0 \
                     and self.k >= self.stats_from:
                 self.missed += 1
             if self.k >= self.stats_from:
                 self.skipped += steps - 1
             self.plant.step(self.u_latched)
-            for _ in range(steps - 1):
-                self.plant.step(self.v_latest)      # periods this late tick skipped
+            edges = replay_edges(self.u_latched, self.writes, steps)
+            for v in edges[:-1]:
+                self.plant.step(v)      # periods this late tick skipped (docstring)
         self.k += steps
+        self.writes.clear()
         # latch first: in a composed process the drive computed from this sample
         # arrives inside _publish_sample (in-process delivery) and is for the next tick
         self.u_latched = self.v_latest
