@@ -198,3 +198,20 @@ def test_driver_ramp_after_a_stall_of_the_caller_goes_on_by_one_period():
     uncapped.tick(0.06)
     uncapped.tick(0.061)
     assert uncapped.tick(0.081) == pytest.approx(10.0)  # what the cap prevents: a step
+
+
+def test_driver_watchdog_counts_from_the_stalest_input_of_a_command():
+    """Commands on fresh feedforward with the last, late feedback still trip on time."""
+    d = DriverCore(v_min=0.0, v_max=100.0, watchdog_timeout_s=0.05)
+    d.command(10.0, 1.0, 0.0)                           # the feedback's last arrival: 0 s
+    for k in range(1, 50):                              # feedforward-clocked, 1 ms apart
+        t = 1e-3 * k
+        assert d.command(10.0 + 0.1 * k, 1.0, t, t_input=0.0) == pytest.approx(11.0 + 0.1 * k)
+        assert d.tick(t) == d.v and not d.tripped
+    d.tick(0.051)
+    assert d.tripped and d.watchdog_count == 1          # 50 ms after the feedback, as before
+    fresh = DriverCore(v_min=0.0, v_max=100.0, watchdog_timeout_s=0.05)
+    fresh.command(10.0, 1.0, 0.0)
+    fresh.command(10.0, 1.0, 0.049)                     # without t_input: counts from t
+    fresh.tick(0.051)
+    assert not fresh.tripped

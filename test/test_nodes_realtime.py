@@ -8,7 +8,9 @@ setpoint and the actuator settles there; NaN, infinite and out-of-range setpoint
 rejected with a reason and a diagnostics WARN while the actuator stays; a controller
 gain is set live in range (accepted, in effect) and out of range (rejected with the
 reason); a compensator stopped for 0.3 s trips the driver's watchdog and the loop
-resumes without a wind-up bump; killing the controller makes the driver's watchdog
+resumes without a wind-up bump; the compensator or the controller stalled 20 ms
+mid-move does not make the drive jump; a plant stalled 0.3 s replays the driver's ramp
+to 0 V instead of stepping to it; killing the controller makes the driver's watchdog
 ramp the drive to 0 V and report ERROR, and a restarted controller brings the actuator
 back to the setpoint without a re-send (the latched ``reference``), never beyond the
 setpoint range by more than 2 um; and a driver whose thread stalls 30 ms at a time
@@ -382,37 +384,36 @@ def test_stalled_compensator_trips_and_resumes_without_windup(graph):
     assert v_peak < 95.0
 
 
-def test_a_stalled_plant_applies_the_ramp_it_slept_through(graph):
-    """SIGSTOP the plant 0.3 s at 50 um: the driver's ramp to 0 V reaches it as a ramp."""
-    from std_srvs.srv import SetBool
+@pytest.mark.parametrize('name,bound_m', [('hysteresis_compensator', 80e-6),
+                                          ('fuzzy_pid_controller', 62e-6)])
+def test_a_node_stalled_mid_move_does_not_make_the_drive_jump(graph, name, bound_m):
+    """
+    SIGSTOP the compensator or the controller 20 ms into a 5 -> 50 um move.
+
+    Before: the compensator caught up the stall's trajectory at once (the feedforward
+    jumped: peaks of 107-111 um) and the driver, clocked by the feedback, held the drive
+    while the controller slept and then jumped (70-74 um). Now the compensator goes on
+    one period later (58-61 um) and the driver follows the feedforward with the last
+    feedback meanwhile (50-53 um).
+    """
     cl, procs, log_dir = graph
-    # the earlier tests' trips must not latch this one (3 within 10 s)
-    res = cl.call(cl.node.create_client(SetBool, 'actuator_driver/enable'),
-                  SetBool.Request(data=True))
-    assert res.success, res.message
-    assert cl.spin_for(5.0, lambda: cl.settled(time.monotonic() - 0.3)), cl.ys_since(0.0)[-5:]
-    plant = procs['simulated_actuator']
+    cl.publish(5e-6)
+    t_low = time.monotonic()
+    assert cl.spin_for(5.0, lambda: len(cl.ys_since(t_low)) > 100 and all(
+        abs(y - 5e-6) < TOL_M for y in cl.ys_since(t_low)[-100:])), cl.ys[-3:]
     t0 = time.monotonic()
-    plant.send_signal(signal.SIGSTOP)
+    cl.publish(TARGET_M)
+    cl.spin_for(0.005)
+    procs[name].send_signal(signal.SIGSTOP)
     try:
-        # no samples, so neither input of the driver: it trips and ramps to 0 V while
-        # the plant sleeps (the ramp takes 26 ms at 2000 V/s)
-        assert cl.spin_for(5.0, lambda: any(t > t0 and v == 0.0 for t, v in cl.drives))
-        cl.spin_for(0.2)
+        time.sleep(0.02)
     finally:
-        plant.send_signal(signal.SIGCONT)
-    t1 = time.monotonic()
-    assert cl.spin_for(5.0, lambda: len(cl.ys_since(t1)) > 200)
-    ys = cl.ys_since(t1)
-    t_low = min((y, t) for t, y in cl.ys if t > t1)[1]
-    print('stalled plant: displacement after SIGCONT %.2f..%.2f um'
-          % (1e6 * min(ys), 1e6 * max(ys)))
-    # a plant that applied only the newest drive on waking would step 52 V -> 0 V at
-    # once and ring the bending mode to about -20 um
-    assert min(ys) >= -2e-6, 'low %.2f um:\n%s' % (
-        1e6 * min(ys), cl.around(t_low, log_dir=log_dir))
-    assert cl.spin_for(8.0, lambda: cl.settled(t1)), cl.explain(t0, log_dir)
-    assert max(cl.ys_since(t1)) <= 90e-6 + 2e-6
+        procs[name].send_signal(signal.SIGCONT)
+    assert cl.spin_for(5.0, lambda: cl.settled(t0)), cl.explain(t0, log_dir)
+    peak, t_peak = max((y, t) for t, y in cl.ys if t > t0)
+    print('%s stalled 20 ms mid-move: peak %.2f um' % (name, 1e6 * peak))
+    assert peak < bound_m, 'peak %.2f um:\n%s' % (
+        1e6 * peak, cl.around(t_peak, log_dir=log_dir))
 
 
 def test_watchdog_ramps_to_zero_and_restart_recovers(graph):
@@ -478,6 +479,39 @@ def test_watchdog_ramps_to_zero_and_restart_recovers(graph):
         1e6 * max(ys), cl.around(t_peak, log_dir=log_dir))
     assert min(ys) >= -2e-6, 'low %.2f um:\n%s' % (
         1e6 * min(ys), cl.around(t_low, log_dir=log_dir))
+
+
+def test_a_stalled_plant_applies_the_ramp_it_slept_through(graph):
+    """SIGSTOP the plant 0.3 s at 50 um: the driver's ramp to 0 V reaches it as a ramp."""
+    from std_srvs.srv import SetBool
+    cl, procs, log_dir = graph
+    # the earlier tests' trips must not latch this one (3 within 10 s)
+    res = cl.call(cl.node.create_client(SetBool, 'actuator_driver/enable'),
+                  SetBool.Request(data=True))
+    assert res.success, res.message
+    assert cl.spin_for(5.0, lambda: cl.settled(time.monotonic() - 0.3)), cl.ys_since(0.0)[-5:]
+    plant = procs['simulated_actuator']
+    t0 = time.monotonic()
+    plant.send_signal(signal.SIGSTOP)
+    try:
+        # no samples, so neither input of the driver: it trips and ramps to 0 V while
+        # the plant sleeps (the ramp takes 26 ms at 2000 V/s)
+        assert cl.spin_for(5.0, lambda: any(t > t0 and v == 0.0 for t, v in cl.drives))
+        cl.spin_for(0.2)
+    finally:
+        plant.send_signal(signal.SIGCONT)
+    t1 = time.monotonic()
+    assert cl.spin_for(5.0, lambda: len(cl.ys_since(t1)) > 200)
+    ys = cl.ys_since(t1)
+    t_low = min((y, t) for t, y in cl.ys if t > t1)[1]
+    print('stalled plant: displacement after SIGCONT %.2f..%.2f um'
+          % (1e6 * min(ys), 1e6 * max(ys)))
+    # a plant that applied only the newest drive on waking would step 52 V -> 0 V at
+    # once and ring the bending mode to about -20 um
+    assert min(ys) >= -2e-6, 'low %.2f um:\n%s' % (
+        1e6 * min(ys), cl.around(t_low, log_dir=log_dir))
+    assert cl.spin_for(8.0, lambda: cl.settled(t1)), cl.explain(t0, log_dir)
+    assert max(cl.ys_since(t1)) <= 90e-6 + 2e-6
 
 
 def test_a_stalled_driver_ramps_to_zero_in_steps_not_in_one_jump(graph):

@@ -147,10 +147,16 @@ class DriverCore:
         self.v = target
         return target
 
-    def command(self, ff, fb, t):
-        """Return the drive (V) for feedforward ``ff`` and feedback ``fb`` (V) at ``t`` (s)."""
+    def command(self, ff, fb, t, t_input=None):
+        """
+        Return the drive (V) for feedforward ``ff`` and feedback ``fb`` (V) at ``t`` (s).
+
+        :param t_input: the time (s) of the stalest input in this command, from which the
+            watchdog counts (a command on a fresh feedforward with the last, late
+            feedback: that feedback's time); default ``t``.
+        """
         u = ff + fb
-        self.t_last_cmd = t
+        self.t_last_cmd = t if t_input is None else t_input
         if self.latched:            # latched safe state: only rearm() ends it
             return self.ramp_safe(t)
         if u - u != 0.0:            # NaN or infinite

@@ -4,7 +4,8 @@
 
 Sums ``feedforward_voltage`` and ``feedback_voltage`` (std_msgs/Float64, V), clamps and
 slew-limits them and publishes ``drive_voltage`` (V) while active (lockstep: the i-th of
-each; realtime: the newest). ``~/enable`` false ramps to the safe voltage. The realtime
+each; realtime: the newest, on each feedback, and on each feedforward while the feedback
+is late). ``~/enable`` false ramps to the safe voltage. The realtime
 watchdog ramps to ``safe_voltage_v`` when the input stops for ``watchdog_timeout_s``,
 resumes after :data:`RECOVERY_S` of fresh input, and latches after ``latch_trips`` trips
 within ``latch_window_s`` (until ``~/enable`` true or a lifecycle cycle); ``drive_held``
@@ -232,6 +233,13 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
             self.t_ff = self._now()
             if self.sensorless:
                 self._realtime(0.0)
+            elif self.t_fb is not None and self.core is not None and not self.core.tripped \
+                    and 1.5 * self.period_s < self.t_ff - self.t_fb < self.core.timeout:
+                # the feedback is late (a stalled controller): follow the feedforward
+                # with the last feedback, the watchdog counting from that feedback's
+                # time; held until it came, the drive jumped by the whole stall's
+                # feedforward (20 ms mid-move: 36 V, a 70-74 um peak for a 50 um target)
+                self._realtime(self.fb_last, self.t_fb)
 
     def _on_fb(self, msg):
         if self.lockstep:
@@ -239,10 +247,15 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
             self._pair()
         else:
             self.t_fb = self._now()
+            self.fb_last = msg.data
             self._realtime(msg.data)
 
-    def _realtime(self, fb):
-        """Realtime: drive the newest feedforward plus ``fb`` (V) unless held."""
+    def _realtime(self, fb, t_input=None):
+        """
+        Realtime: drive the newest feedforward plus ``fb`` (V) unless held.
+
+        :param t_input: the time (s) of the stalest input (see ``DriverCore.command``).
+        """
         now = self._now()
         core = self.core
         if core is not None and core.timeout > 0 and (
@@ -252,7 +265,7 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
             return      # latched: only ~/enable or a lifecycle cycle ends it
         if core is not None and core.tripped and self.enabled and not self._recovered(now):
             return      # hold until the input has been fresh for RECOVERY_S (docstring)
-        self._command(self.ff_latest, fb, now)
+        self._command(self.ff_latest, fb, now, t_input)
         if self.health.cycle is not None and self.t_ff is not None:
             self.health.cycle.record(self._now() - self.t_ff)
 
@@ -286,13 +299,13 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
             self.i += 1
             self._command(ff, fb, t)
 
-    def _command(self, ff, fb, t):
+    def _command(self, ff, fb, t, t_input=None):
         core = self.core
         if core is None or not self.active:
             return      # inactive: the output ramps to, and stays at, the safe voltage
         if self.enabled:
             was_tripped = core.tripped
-            v = core.command(ff, fb, t)
+            v = core.command(ff, fb, t, t_input)
             if was_tripped:
                 msg = 'input is back: watchdog cleared after trip %d' % core.watchdog_count
                 self._set_held(not self.active, 'input is back')
@@ -347,6 +360,7 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
 
     _ticks = 0
     _last_pub = None
+    fb_last = 0.0                       # realtime: the newest feedback (V)
     n_rb = 0
 
     def _publish(self, v):

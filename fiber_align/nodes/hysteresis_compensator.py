@@ -21,8 +21,12 @@ step once per control period):
   valid setpoint along the realtime setpoint trajectory
   (:class:`fiber_align.nodes._common.SetpointTrajectory`: rate limit
   ``realtime_setpoint_rate_m_per_s``, 2 mm/s unless the params files set it), stepped
-  once per sample period, also for periods whose sample this node skipped. The
-  controller runs the same trajectory, so both stay on one time line. A setpoint alone
+  once per sample it answers. The controller runs the same trajectory. After samples
+  this node skipped (it was stalled) it goes on from where it was, one period later,
+  rather than over the skipped periods at once: that was a jump of the feedforward by
+  the whole stall's move (a 20 ms stall in a 45 um move: peaks of 107-111 um for a
+  50 um target; now 58-60 um, the controller's reference having gone on meanwhile;
+  ``test_nodes_realtime.py``). A setpoint alone
   publishes nothing: a single setpoint from an outside client is thus followed over the
   next samples instead of stopping at the shaper's first tap. The delay compensation
   (``delay_compensation``: a lead over the shaper delay plus one period) predicts one
@@ -216,7 +220,7 @@ class HysteresisCompensatorNode(Node):
         cyc.record((time.time_ns() - ns) * 1e-9, cyc.index(ns))
 
     def _step_sample(self, msg):
-        """Step the feedforward through every sample period since the last one."""
+        """Step the feedforward one period (a gap over MAX_CATCH_UP: rest, see below)."""
         if len(msg.position):
             self.y_latest = msg.position[0]
         n = self.traj.periods(msg.header.stamp)
@@ -228,10 +232,8 @@ class HysteresisCompensatorNode(Node):
             self.traj.reset(y)
             self._publish(self.ff.start_at(y))
             return
-        v = 0.0
-        for r in self.traj.advance(self.r, n):
-            v = self.ff.step(r)
-        self._publish(v)
+        # one period whatever the gap (docstring): a stall delays the move, never jumps it
+        self._publish(self.ff.step(self.traj.advance(self.r, 1)[0]))
 
     def _present(self):
         """Return the latest measured position (m), at least 0 m."""
