@@ -136,6 +136,10 @@ class StopFlag:
         """Return True once set."""
         return self._set
 
+    def clear(self):
+        """Unset the flag."""
+        self._set = False
+
 
 def init(args=None):
     """

@@ -42,7 +42,7 @@ import signal
 import sys
 
 from fiber_align.config import ConfigError
-from fiber_align.nodes.bringup import hardware
+from fiber_align.nodes.bringup import hardware, interrupt
 from fiber_align.nodes.bringup.cli import parse_args
 from fiber_align.nodes.bringup.observer import BringupError, Runner, StartStall
 from fiber_align.nodes.bringup.rig import rig_graph, run_rig
@@ -52,10 +52,6 @@ from fiber_align.nodes.bringup.summary import scenario_skip_s
 
 __all__ = ['Bringup', 'BringupError', 'Runner', 'StartStall', 'expected_endpoints',
            'graph_nodes', 'main', 'scenario_skip_s']
-
-
-def _interrupt(signum, frame):
-    raise KeyboardInterrupt
 
 
 class _Rig:
@@ -74,8 +70,8 @@ class _Rig:
 def main(args=None):
     """Bring the graph up, run, stop, summarise; return (and exit with) the exit code."""
     # explicit handlers: a shell script's background job inherits SIGINT ignored
-    signal.signal(signal.SIGINT, _interrupt)
-    signal.signal(signal.SIGTERM, _interrupt)
+    signal.signal(signal.SIGINT, interrupt.handler)
+    signal.signal(signal.SIGTERM, interrupt.handler)
     os.environ.update(dds_environment())
     a = parse_args(args)
     if a.hardware:
@@ -89,6 +85,7 @@ def main(args=None):
         print('bringup: error: %s' % exc, file=sys.stderr, flush=True)
         code = 2
     except KeyboardInterrupt:
+        interrupt.handled()
         code = 130
     else:
         code = b.run()

@@ -31,6 +31,7 @@ from fiber_align.nodes import bag_recorder
 from fiber_align.nodes._common import DIAG_QOS, node_defaults, REALTIME_QOS
 from fiber_align.nodes.alignment_sequencer import STATE_QOS
 from fiber_align.nodes.bringup.checks import dds_environment
+from fiber_align.nodes.bringup import interrupt
 from fiber_align.nodes.bringup.children import _die_with_parent, Child
 from fiber_align.nodes.graph_hardware import build_hardware
 
@@ -188,7 +189,8 @@ class HardwareRun:
         return self.diag.get(node, (None, ''))[0]
 
     def alive(self):
-        """Raise :class:`HardwareError` when a child has exited."""
+        """Raise :class:`HardwareError` when a child has exited (a lost interrupt: it)."""
+        interrupt.check()
         for ch in self.children:
             if not ch.alive():
                 raise HardwareError('%s exited with code %s%s' % (
@@ -322,6 +324,7 @@ def run(args):
         summary['final_state'] = hw.status.get('state')
         code = 0 if ok and summary['final_state'] == 'TRACKING' else 1
     except KeyboardInterrupt:
+        interrupt.handled()
         code = 130 if not summary.get('aligned') else 0
     except HardwareError as exc:
         summary['error'] = str(exc)

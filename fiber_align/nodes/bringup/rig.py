@@ -29,7 +29,7 @@ import numpy as np
 
 from fiber_align.nodes import graph_rig as gr
 from fiber_align.nodes._common import CONTROL_QOS, LATCHED_QOS
-from fiber_align.nodes.bringup import summary as sm
+from fiber_align.nodes.bringup import interrupt, summary as sm
 from fiber_align.nodes.bringup.children import Child
 from fiber_align.nodes.bringup.cli import parse_params
 from fiber_align.nodes.bringup.observer import BringupError, Runner
@@ -211,6 +211,7 @@ def run_rig(a, g):
                                   a.quiet))
 
         def alive():
+            interrupt.check()
             dead = [ch.name for ch in children if not ch.alive()]
             if dead:
                 raise BringupError('process %s exited' % ', '.join(dead))
@@ -262,6 +263,7 @@ def run_rig(a, g):
         summary['error'] = str(exc)
         code = 1
     except KeyboardInterrupt:
+        interrupt.handled()
         summary['error'] = 'interrupted'
         code = 130
     finally:

@@ -13,7 +13,7 @@ import numpy as np
 import yaml
 
 from fiber_align.analysis.report import hysteresis_metrics
-from fiber_align.nodes.bringup import summary as sm
+from fiber_align.nodes.bringup import interrupt, summary as sm
 from fiber_align.nodes.bringup.align import run_align
 from fiber_align.nodes.bringup.checks import (dds_environment, expected_endpoints, usage,
                                               wait_recorder)
@@ -33,10 +33,6 @@ MISSED_SHARE_GOAL = 0.001
 def graph_nodes(scenario):
     """Return the node names the scenario runs (recorder excluded): the graph's own."""
     return control_nodes(scenario)
-
-
-def _interrupt(signum, frame):
-    raise KeyboardInterrupt
 
 
 def _already_stopping(signum, frame):
@@ -123,6 +119,7 @@ class Bringup:
         print('bringup: started %s (pid %d)' % (name, ch.proc.pid), flush=True)
 
     def _alive(self):
+        interrupt.check()
         for ch in self.children:
             if not ch.alive() and ch.proc.returncode == 2:
                 ch.thread.join(timeout=1.0)
@@ -174,6 +171,7 @@ class Bringup:
                     self._reset()
                     self.summary['restarts'] = attempt + 1
         except KeyboardInterrupt:
+            interrupt.handled()
             print('bringup: interrupted, stopping', flush=True)
             code = EXIT_INTERRUPTED
             self.interrupted = True
@@ -206,7 +204,7 @@ class Bringup:
         self.endpoints, self._next_check = {}, 0.0
         self.stopping = False
         for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, _interrupt)
+            signal.signal(sig, interrupt.handler)
         for k in ('sent', 'recorded', 'children', 'stop_s', 'recorder_catch_up_s',
                   'startup_s', 'run_wall_s'):
             self.summary.pop(k, None)
