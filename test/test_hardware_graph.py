@@ -108,3 +108,33 @@ def test_bringup_hardware_emulate_end_to_end(tmp_path):
     assert not os.path.exists('/proc/%d' % s['emulator']['pid']) or open(
         '/proc/%d/stat' % s['emulator']['pid']).read().split()[2] == 'Z'
     assert not os.path.exists(s['emulator']['serial_link'])
+
+
+def test_the_emulator_runs_at_the_graph_priority():
+    """``bringup --hardware --emulate`` starts the emulator under SCHED_FIFO, as its nodes."""
+    import os
+    import subprocess
+
+    from fiber_align.nodes.bringup.hardware import (emulator_priority, start_emulator,
+                                                    stop_process)
+    prio = emulator_priority()
+    assert prio == 50                       # config/fiber_align.yaml realtime_priority
+    probe = subprocess.Popen(['sleep', '10'])
+    try:                                    # may this user set SCHED_FIFO at all?
+        os.sched_setscheduler(probe.pid, os.SCHED_FIFO, os.sched_param(1))
+        allowed = True
+    except PermissionError:
+        allowed = False
+    finally:
+        probe.kill()
+        probe.wait()
+    proc, info = start_emulator(['--seed', '0'], priority=prio)
+    try:
+        assert info['serial_link'] and info['visa_resource']
+        if allowed:
+            assert os.sched_getscheduler(proc.pid) == os.SCHED_FIFO
+            assert os.sched_getparam(proc.pid).sched_priority == prio
+        else:                               # refused: it still runs, at the normal policy
+            assert os.sched_getscheduler(proc.pid) == os.SCHED_OTHER
+    finally:
+        stop_process(proc)

@@ -46,17 +46,40 @@ class HardwareError(RuntimeError):
     """A step of the hardware run failed; the message says which and why (one line)."""
 
 
-def start_emulator(extra=(), quiet=True):
+def emulator_priority():
+    """
+    Return the ``SCHED_FIFO`` priority of the emulators: the power meter node's (its params).
+
+    The emulators stand for devices, which answer on time whatever the host does; at the
+    normal policy, beside two CPU hogs, the emulator was the one process of the bench
+    graph that the hogs could hold up (the graph's nodes run at this priority), and its
+    stalled answers stopped the feedforward long enough to trip the driver's watchdog.
+    """
+    return int(node_defaults('power_meter', ('hardware.yaml',)).get('realtime_priority', 0))
+
+
+def start_emulator(extra=(), quiet=True, priority=0):
     """
     Start ``fiber-align emulate`` as a child bound to this process; return ``(proc, info)``.
 
     :param extra: its options (``--slot``, ``--seed``, ...).
+    :param priority: run it under ``SCHED_FIFO`` at this priority (1..99; 0: the normal
+        policy; refused without the right to: then the normal policy).
     :returns: the Popen and the JSON line it printed (``serial_link``, ``visa_resource``).
     """
+    die = _die_with_parent(os.getpid())
+
+    def preexec():
+        die()
+        if priority > 0:
+            try:        # before exec: every thread of the emulator inherits it
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+            except (AttributeError, OSError):
+                pass
     proc = subprocess.Popen([sys.executable, '-m', 'fiber_align.cli', 'emulate'] + list(extra),
                             stdout=subprocess.PIPE, stderr=None if not quiet else
                             subprocess.DEVNULL, text=True, start_new_session=True,
-                            preexec_fn=_die_with_parent(os.getpid()))
+                            preexec_fn=preexec)
     ready, _, _ = select.select([proc.stdout], [], [], EMULATE_TIMEOUT_S)
     line = proc.stdout.readline() if ready else ''
     try:
@@ -298,7 +321,7 @@ def run(args):
             extra = ['--seed', str(args.seed if args.seed is not None else 0)]
             if args.slot is not None:
                 extra += ['--slot', repr(float(args.slot))]
-            emu, info = start_emulator(extra, quiet=args.quiet)
+            emu, info = start_emulator(extra, quiet=args.quiet, priority=emulator_priority())
             port, resource = info['serial_link'], info['visa_resource']
             summary['emulator'] = info
         g = build_hardware(port=port, visa_resource=resource, namespace=args.namespace,
