@@ -51,9 +51,9 @@ def emulator_priority():
     Return the ``SCHED_FIFO`` priority of the emulators: the power meter node's (its params).
 
     The emulators stand for devices, which answer on time whatever the host does; at the
-    normal policy, beside two CPU hogs, the emulator was the one process of the bench
-    graph that the hogs could hold up (the graph's nodes run at this priority), and its
-    stalled answers stopped the feedforward long enough to trip the driver's watchdog.
+    normal policy, beside two CPU hogs, the emulator was the one process in the
+    feedforward's chain that the hogs could hold up (the graph's nodes run at this
+    priority); a 0.34 s stall of that chain tripped the driver's watchdog (docs/hardware.md).
     """
     return int(node_defaults('power_meter', ('hardware.yaml',)).get('realtime_priority', 0))
 
