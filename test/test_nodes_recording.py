@@ -1,7 +1,9 @@
 # SPDX-License-Identifier: Apache-2.0
 """The recorder catch-up rule (``nodes._recording``) on hand-made /diagnostics reports."""
 
-from fiber_align.nodes._recording import recorder_missing, recorder_short
+from types import SimpleNamespace
+
+from fiber_align.nodes._recording import diag_entry, recorder_missing, recorder_short
 
 
 def _report(t, **values):
@@ -46,3 +48,19 @@ def test_without_a_recorder_report_nothing_is_known():
     d = _diag()
     del d['bag_recorder']
     assert recorder_short(d, since=1.0) is None
+
+
+def test_a_status_is_kept_by_its_node_base_name_with_level_message_and_arrival():
+    """Both readers (bringup, scenario_runner) keep a status the same way."""
+    kv = [SimpleNamespace(key='sent.displacement', value='50'),
+          SimpleNamespace(key='recorded./displacement', value='49')]
+    for level in (b'\x02', 2):             # rclpy gives bytes; a hand-made status an int
+        st = SimpleNamespace(name='/ns/bag_recorder', level=level, message='lost 1',
+                             values=kv)
+        node, values = diag_entry(st, 7.5)
+        assert node == 'bag_recorder'
+        assert values == {'level': 2, 'message': 'lost 1', '_t': 7.5,
+                          'sent.displacement': '50', 'recorded./displacement': '49'}
+    diag = {'bag_recorder': diag_entry(st, 3.0)[1], 'simulated_actuator': _report(
+        3.0, sent__displacement=50)}
+    assert recorder_short(diag, 2.0) == {'displacement': (49, 50)}

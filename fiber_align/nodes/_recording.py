@@ -15,6 +15,23 @@ RECORDER = 'bag_recorder'
 NOT_RECORDED = ('scenario_runner',)
 
 
+def diag_entry(status, now):
+    """
+    Return ``(node, values)`` of one ``diagnostic_msgs/DiagnosticStatus`` as kept here.
+
+    :param status: the status (``name``, ``level`` as bytes or int, ``message``,
+        ``values``).
+    :param now: its arrival (monotonic s), kept as ``_t``.
+    :returns: the node's base name and ``{key: value, 'level': int, 'message': str,
+        '_t': now}``.
+    """
+    lvl = status.level
+    lvl = lvl[0] if isinstance(lvl, (bytes, bytearray)) else int(lvl)
+    vals = {kv.key: kv.value for kv in status.values}
+    return status.name.rsplit('/', 1)[-1], {'level': lvl, 'message': status.message,
+                                            '_t': now, **vals}
+
+
 def recorder_short(diag, since, names=None):
     """
     Return ``None`` until the reports are fresh, then ``{topic: (recorded, sent)}`` left.

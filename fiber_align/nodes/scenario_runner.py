@@ -43,7 +43,7 @@ from std_msgs.msg import Float64, String
 from fiber_align.config import ConfigError
 from fiber_align.simulation import scenarios
 from fiber_align.nodes import _common as c
-from fiber_align.nodes._recording import recorder_missing, recorder_short
+from fiber_align.nodes._recording import diag_entry, recorder_missing, recorder_short
 
 NODE_NAME = 'scenario_runner'
 AREA_FILES = ('scenario.yaml',)
@@ -183,8 +183,8 @@ class ScenarioRunnerNode(Node):
     def _on_diag(self, msg):
         now = time.monotonic()
         for st in msg.status:
-            self.diag[st.name.rsplit('/', 1)[-1]] = dict(
-                {kv.key: kv.value for kv in st.values}, _t=now)
+            node, values = diag_entry(st, now)
+            self.diag[node] = values
 
     def _exit_once_recorded(self):
         check = recorder_short if self.lockstep else recorder_missing

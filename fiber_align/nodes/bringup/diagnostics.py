@@ -9,6 +9,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from fiber_align.nodes._common import DIAG_QOS
+from fiber_align.nodes._recording import diag_entry
 from fiber_align.nodes.bringup.summary import worst_cycles
 
 
@@ -57,11 +58,9 @@ class DiagnosticsWatch:
 
     def _on_diag(self, msg):
         for st in msg.status:
-            lvl = st.level[0] if isinstance(st.level, (bytes, bytearray)) else int(st.level)
-            node = st.name.rsplit('/', 1)[-1]
-            vals = {kv.key: kv.value for kv in st.values}
             now = time.monotonic()
-            self.latest[node] = {'level': lvl, 'message': st.message, '_t': now, **vals}
+            node, values = diag_entry(st, now)
+            self.latest[node] = values
             if self.in_run(now):
                 worst_cycles(self.worst, node, self.latest[node])
 
