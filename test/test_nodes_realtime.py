@@ -170,6 +170,20 @@ class Client:
                 f.read_text(errors='replace').splitlines()[-12:])))
         return '\n'.join(out)
 
+    def rearm_and_settle(self):
+        """
+        ``actuator_driver/enable`` true, then wait until settled at the target.
+
+        The enable clears the trip history, so the earlier tests' trips do not latch
+        the next one (3 within 10 s).
+        """
+        from std_srvs.srv import SetBool
+        res = self.call(self.node.create_client(SetBool, 'actuator_driver/enable'),
+                        SetBool.Request(data=True))
+        assert res.success, res.message
+        assert self.spin_for(5.0, lambda: self.settled(time.monotonic() - 0.3)), \
+            self.ys_since(0.0)[-5:]
+
     def ys_since(self, t0):
         """Return the positions (m) received after ``t0`` (monotonic s)."""
         return [y for t, y in self.ys if t > t0]
@@ -483,13 +497,8 @@ def test_watchdog_ramps_to_zero_and_restart_recovers(graph):
 
 def test_a_stalled_plant_applies_the_ramp_it_slept_through(graph):
     """SIGSTOP the plant 0.3 s at 50 um: the driver's ramp to 0 V reaches it as a ramp."""
-    from std_srvs.srv import SetBool
     cl, procs, log_dir = graph
-    # the earlier tests' trips must not latch this one (3 within 10 s)
-    res = cl.call(cl.node.create_client(SetBool, 'actuator_driver/enable'),
-                  SetBool.Request(data=True))
-    assert res.success, res.message
-    assert cl.spin_for(5.0, lambda: cl.settled(time.monotonic() - 0.3)), cl.ys_since(0.0)[-5:]
+    cl.rearm_and_settle()
     plant = procs['simulated_actuator']
     t0 = time.monotonic()
     plant.send_signal(signal.SIGSTOP)
@@ -516,12 +525,8 @@ def test_a_stalled_plant_applies_the_ramp_it_slept_through(graph):
 
 def test_a_stalled_driver_ramps_to_zero_in_steps_not_in_one_jump(graph):
     """Kill the controller, then stall the driver 30 ms at a time: the ramp stays a ramp."""
-    from std_srvs.srv import SetBool
     cl, procs, log_dir = graph
-    res = cl.call(cl.node.create_client(SetBool, 'actuator_driver/enable'),
-                  SetBool.Request(data=True))
-    assert res.success, res.message
-    assert cl.spin_for(5.0, lambda: cl.settled(time.monotonic() - 0.3)), cl.ys_since(0.0)[-5:]
+    cl.rearm_and_settle()
     drv = procs['actuator_driver']
     t_kill = time.monotonic()
     procs['fuzzy_pid_controller'].kill()
