@@ -32,10 +32,11 @@ class SetpointTrajectory:
     A rate-limited path from the present value to the latest setpoint: each sample it
     moves at most ``rate_m_per_s * period_s`` towards the target (a step becomes a ramp;
     ``rate_m_per_s`` <= 0: no limit). The compensator and the controller run the same
-    trajectory and advance it by the number of sample periods between the stamps of the
-    displacement samples they process (:meth:`periods`), so a node that skipped a sample
-    catches up instead of falling behind the other: their feedforward and reference
-    model stay on one time line. A ramp also keeps each missed cycle of a non-realtime OS
+    trajectory. The controller advances it by the number of sample periods between the
+    stamps of the displacement samples it processes (:meth:`periods`), so its reference
+    model stays on the time line; the compensator advances it one period per sample
+    it answers: catching a stall up at once made its feedforward jump (the
+    ``hysteresis_compensator`` docstring). A ramp also keeps each missed cycle of a non-realtime OS
     a small disturbance; a step through the resonance shaper is a 2-3 sample burst that
     a missed cycle turns into an unshaped jump (the bending mode has 3 % damping).
     """
