@@ -8,13 +8,14 @@ setpoint and the actuator settles there; NaN, infinite and out-of-range setpoint
 rejected with a reason and a diagnostics WARN while the actuator stays; a controller
 gain is set live in range (accepted, in effect) and out of range (rejected with the
 reason); a compensator stopped for 0.3 s trips the driver's watchdog and the loop
-resumes without a wind-up bump; the compensator or the controller stalled 20 ms
-mid-move does not make the drive jump; a plant stalled 0.3 s replays the driver's ramp
-to 0 V instead of stepping to it; killing the controller makes the driver's watchdog
+resumes without a wind-up bump; the compensator, the controller or the driver
+stalled 20 ms mid-move does not make the drive jump; killing the controller makes the
+driver's watchdog
 ramp the drive to 0 V and report ERROR, and a restarted controller brings the actuator
 back to the setpoint without a re-send (the latched ``reference``), never beyond the
-setpoint range by more than 2 um; and a driver whose thread stalls 30 ms at a time
-during that ramp still ramps (2 V a step), never steps the bimorph below -2 um.
+setpoint range by more than 2 um; a plant stalled 0.3 s replays the driver's ramp to
+0 V instead of stepping to it; and a driver whose thread stalls 30 ms at a time during
+that ramp still ramps (2 V a step), never steps the bimorph below -2 um.
 """
 
 import contextlib
@@ -399,16 +400,18 @@ def test_stalled_compensator_trips_and_resumes_without_windup(graph):
 
 
 @pytest.mark.parametrize('name,bound_m', [('hysteresis_compensator', 80e-6),
-                                          ('fuzzy_pid_controller', 62e-6)])
+                                          ('fuzzy_pid_controller', 62e-6),
+                                          ('actuator_driver', 62e-6)])
 def test_a_node_stalled_mid_move_does_not_make_the_drive_jump(graph, name, bound_m):
     """
-    SIGSTOP the compensator or the controller 20 ms into a 5 -> 50 um move.
+    SIGSTOP the compensator, the controller or the driver 20 ms into a 5 -> 50 um move.
 
     Before: the compensator caught up the stall's trajectory at once (the feedforward
-    jumped: peaks of 107-111 um) and the driver, clocked by the feedback, held the drive
-    while the controller slept and then jumped (70-74 um). Now the compensator goes on
-    one period later (58-61 um) and the driver follows the feedforward with the last
-    feedback meanwhile (50-53 um).
+    jumped: peaks of 107-116 um); the driver, clocked by the feedback, held the drive
+    while the controller slept and then jumped (70-74 um); a stalled driver woke to a
+    feedforward 20 ms further on (71-85 um). Now the compensator goes on one period
+    later (58-62 um), the driver follows the feedforward with the last feedback
+    meanwhile (50-53 um), and the trajectory waits while the drive is stale (50-55 um).
     """
     cl, procs, log_dir = graph
     cl.publish(5e-6)

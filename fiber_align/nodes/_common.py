@@ -40,7 +40,7 @@ from fiber_align.nodes._transport import SAMPLE_DEPTH, SETPOINT_QOS  # noqa: F40
 from fiber_align.nodes._transport import slack_of  # noqa: F401
 from fiber_align.nodes._transport import subscription, unsubscribe  # noqa: F401
 # The realtime setpoint trajectory lives in its own module; the nodes use it as c.<name>.
-from fiber_align.nodes._trajectory import MAX_CATCH_UP  # noqa: F401
+from fiber_align.nodes._trajectory import DRIVE_STALE_PERIODS, MAX_CATCH_UP  # noqa: F401
 from fiber_align.nodes._trajectory import REALTIME_SETPOINT_RATE_M_PER_S  # noqa: F401
 from fiber_align.nodes._trajectory import SetpointTrajectory, stamp_ns  # noqa: F401
 

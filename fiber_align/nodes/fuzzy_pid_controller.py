@@ -40,8 +40,9 @@ NODE_NAME = 'fuzzy_pid_controller'
 AREA_FILES = ('controller.yaml',)
 MODES = CONTROLLERS
 #: Realtime: the controller holds its output while the newest ``drive_voltage`` is older
-#: than this many periods (the loop is open: nothing may wind up).
-DRIVE_STALE_PERIODS = 3
+#: than this many periods (the loop is open: nothing may wind up); one value with the
+#: compensator's.
+DRIVE_STALE_PERIODS = c.DRIVE_STALE_PERIODS
 STATE_LABELS = ('error_m', 'error_rate_m_per_s', 'kp_v_per_m', 'ki_v_per_m_s',
                 'kd_v_s_per_m', 'output_v')
 GRAPH_KEYS = ('controller', 'sync_mode', 'rate_hz', 'diagnostics_period_s', 'setpoint_min_m',
@@ -308,22 +309,21 @@ class FuzzyPidControllerNode(Node):
                 self._park()
             self._publish(0.0, math.nan, 0.0, (0.0, 0.0, 0.0))
             return
+        t_drive = self.t_drive
+        if t_drive is None or time.monotonic() - t_drive > DRIVE_STALE_PERIODS / self.rate_hz:
+            # no fresh drive: the loop is open (driver stalled or not publishing): hold
+            # the output and integrate nothing; the trajectory and the reference model
+            # wait, as the compensator's trajectory does, so that the drive goes on
+            # from where it stopped instead of jumping by the stall's move
+            u = self.ctl.u if self.ctl is not None else 0.0
+            self._publish(u, math.nan, 0.0, getattr(self.ctl, 'gains', (0.0, 0.0, 0.0)))
+            return
         # realtime: the trajectory's value one sample old for each period since the last
         # sample (one period of delay, see the docstring); periods whose sample this node
         # skipped advance the reference model only
         seq = [self.r_prev] + self.traj.advance(self.r, n)
         self.r_prev = seq[-1]
         rf = getattr(self.ctl, 'reference_filter', None)
-        t_drive = self.t_drive
-        if t_drive is None or time.monotonic() - t_drive > DRIVE_STALE_PERIODS / self.rate_hz:
-            # no fresh drive: the loop is open (driver stalled or not publishing): hold
-            # the output, keep the reference model on the time line, integrate nothing
-            if rf is not None:
-                for r in seq[:-1]:
-                    rf.step(r)
-            u = self.ctl.u if self.ctl is not None else 0.0
-            self._publish(u, math.nan, 0.0, getattr(self.ctl, 'gains', (0.0, 0.0, 0.0)))
-            return
         if rf is not None:
             for r in seq[:-2]:
                 rf.step(r)

@@ -133,6 +133,10 @@ class HysteresisCompensatorNode(Node):
             c.subscription(self, JointState, 'displacement', self._on_sample,
                            c.REALTIME_QOS, bus)
             c.subscription(self, Bool, 'drive_held', self._on_held, c.LATCHED_QOS, bus)
+            c.subscription(self, Float64, 'drive_voltage', self._on_drive, c.REALTIME_QOS,
+                           bus)
+        self.t_drive = None             # realtime: wall time (s) of the newest drive
+        self.ff_last = 0.0              # realtime: the feedforward last published (V)
         self.create_service(Trigger, '~/reload_model', self._on_reload)
         self.create_service(Trigger, '~/reset', self._on_reset)
         self.health = c.Health(self, diag, slack=self.slack)
@@ -232,6 +236,13 @@ class HysteresisCompensatorNode(Node):
             self.traj.reset(y)
             self._publish(self.ff.start_at(y))
             return
+        t_drive = self.t_drive
+        if t_drive is not None and \
+                time.monotonic() - t_drive > c.DRIVE_STALE_PERIODS / self.rate_hz:
+            # the driver is stalled (the loop is open): the trajectory waits, so that
+            # the drive goes on from here when the driver does, not by the stall's move
+            self._publish(self.ff_last)
+            return
         # one period whatever the gap (docstring): a stall delays the move, never jumps it
         self._publish(self.ff.step(self.traj.advance(self.r, 1)[0]))
 
@@ -243,6 +254,10 @@ class HysteresisCompensatorNode(Node):
     def _on_held(self, msg):
         """Realtime: the driver holds (true) or passes (false) its output."""
         self.held = bool(msg.data)
+
+    def _on_drive(self, msg):
+        """Realtime: note when the newest drive command arrived (wall time)."""
+        self.t_drive = time.monotonic()
 
     def _on_reset(self, request, response):
         """Restart the feedforward at rest at the present position (m)."""
@@ -256,6 +271,7 @@ class HysteresisCompensatorNode(Node):
 
     def _publish(self, v):
         """Publish the feedforward voltage ``v`` (V)."""
+        self.ff_last = v
         msg = self._msg
         msg.data = float(v)
         self.pub.publish(msg)
