@@ -137,6 +137,8 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
             self.get_logger().info('watchdog latch re-armed by activate')
         self.active = True
         self._set_held(not self.enabled or self.core.tripped, 'activated')
+        if self.lockstep:
+            self._pair()        # the pairs that came between configure and activate
         self.health.status(c.OK, 'active')
         self.get_logger().info('active: %s pairing, %g..%g V'
                                % ('lockstep' if self.lockstep else 'latest',
@@ -198,6 +200,7 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
             self.pub = None
         self.core = None
         self.active = False
+        self.ff_q, self.fb_q = [], []
         self._set_held(True, 'unconfigured')
 
     # -- control --------------------------------------------------------------------
@@ -292,7 +295,9 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
         self.get_logger().info('drive_held %s (%s)' % (str(held).lower(), reason))
 
     def _pair(self):
-        while self.ff_q and self.fb_q:
+        # inactive: keep the pairs (a plant that started at configure, when this
+        # publisher appeared, had its first sample's drive dropped and waited forever)
+        while self.active and self.ff_q and self.fb_q:
             ff = self.ff_q.pop(0)
             fb = self.fb_q.pop(0)
             t = self.i * self.period_s
