@@ -24,9 +24,12 @@ step once per control period):
   once per sample it answers. The controller runs the same trajectory. After samples
   this node skipped (it was stalled) it goes on from where it was, one period later,
   rather than over the skipped periods at once: that was a jump of the feedforward by
-  the whole stall's move (a 20 ms stall in a 45 um move: peaks of 107-111 um for a
-  50 um target; now 58-60 um, the controller's reference having gone on meanwhile;
-  ``test_nodes_realtime.py``). A setpoint alone
+  the whole stall's move (a 20 ms stall in a 45 um move: peaks of 107-116 um for a
+  50 um target; now 58-62 um, the controller's reference having gone on meanwhile;
+  ``test_nodes_realtime.py``). While the newest ``drive_voltage`` (newest only) is more
+  than ``DRIVE_STALE_PERIODS`` periods old (a stalled driver) the trajectory waits and
+  the last feedforward is published again, so that the drive goes on from there (a
+  20 ms driver stall mid-move: 50-55 um, 67-85 um before). A setpoint alone
   publishes nothing: a single setpoint from an outside client is thus followed over the
   next samples instead of stopping at the shaper's first tap. The delay compensation
   (``delay_compensation``: a lead over the shaper delay plus one period) predicts one
