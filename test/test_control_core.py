@@ -215,3 +215,14 @@ def test_driver_watchdog_counts_from_the_stalest_input_of_a_command():
     fresh.command(10.0, 1.0, 0.049)                     # without t_input: counts from t
     fresh.tick(0.051)
     assert not fresh.tripped
+
+
+def test_driver_watchdog_restarts_at_activation():
+    """The time without commands while inactive does not trip the watchdog afterwards."""
+    d = DriverCore(v_min=0.0, v_max=100.0, watchdog_timeout_s=0.05)
+    d.command(10.0, 0.0, 0.0)
+    d.restart_watchdog()                    # an activation 1 s later
+    assert d.tick(1.0) == 10.0 and not d.tripped and d.watchdog_count == 0
+    d.command(12.0, 0.0, 1.001)
+    d.tick(1.06)
+    assert d.tripped and d.watchdog_count == 1      # from the next command on, as ever

@@ -199,6 +199,17 @@ class DriverCore:
             return self.ramp_safe(t)
         return self.v
 
+    def restart_watchdog(self):
+        """
+        Forget the last command time: the watchdog counts again from the next command.
+
+        For an activation: the silence while the output was inactive (at the safe
+        voltage) is no loss of input, and counted it tripped the watchdog at once when
+        the timer ran before the first new command (an ERROR and a trip towards the
+        latch for nothing, and a resume that waited for fresh input).
+        """
+        self.t_last_cmd = None
+
     def rearm(self):
         """End a latched safe state and forget the trip history (output unchanged)."""
         self.latched = False

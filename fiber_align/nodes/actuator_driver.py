@@ -135,6 +135,7 @@ class ActuatorDriverNode(do.DriverParameters, do.DeviceBackend, LifecycleNode):
         if self.core.latched:
             self.core.rearm()
             self.get_logger().info('watchdog latch re-armed by activate')
+        self.core.restart_watchdog()    # the inactive time is no loss of input
         self.active = True
         self._set_held(not self.enabled or self.core.tripped, 'activated')
         if self.lockstep:

@@ -1,5 +1,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """
+``actuator_driver`` in this process, without a graph: its activation.
+
 The lockstep driver keeps the pairs that come before it is active.
 
 Under ``ros2 launch`` the plant starts its sample clock once a ``drive_voltage``
@@ -7,7 +9,13 @@ publisher exists, which the driver creates at configure, not at activate. The fi
 sample's feedforward and feedback could then reach a configured, inactive driver, which
 dropped them, and the lockstep plant waited for that drive forever (a clean-clone run of
 ``test_ros2_cli.py::test_lockstep_launch_equals_simulate_sample_for_sample``, 2026-11-30).
+
+A realtime driver activated again does not count its inactive time as a loss of input
+(its watchdog tripped at once when its timer ran before the first new command: a
+clean-clone run of ``test_hardware_driver_node.py`` with two CPU hogs, 2026-11-30).
 """
+
+import time
 
 from std_msgs.msg import Float64
 
@@ -31,3 +39,22 @@ def test_pairs_before_activate_are_driven_at_activate_in_order(ctx):  # noqa: F8
     drv._on_ff(Float64(data=13.0))
     drv._on_fb(Float64(data=0.25))
     assert sent == [11.0, 11.5, 13.25]  # active: each pair at once
+
+
+def test_a_reactivated_driver_does_not_trip_on_its_inactive_time(ctx):  # noqa: F811
+    """Deactivate, wait beyond the watchdog timeout, activate: the first tick is no trip."""
+    drv = make(ctx, ActuatorDriverNode)
+    assert drv.get_parameter('sync_mode').value == 'realtime'
+    drv.trigger_configure()
+    drv.trigger_activate()
+    drv._on_ff(Float64(data=10.0))
+    drv._on_fb(Float64(data=0.5))
+    assert drv.core.v == 10.5
+    drv.trigger_deactivate()
+    time.sleep(2 * drv.core.timeout)
+    drv.trigger_activate()
+    drv._on_tick()                          # the timer before the first new command
+    assert drv.core.watchdog_count == 0 and not drv.core.tripped
+    drv._on_ff(Float64(data=11.0))
+    drv._on_fb(Float64(data=0.5))
+    assert drv.core.v == 11.5               # driven at once, no recovery hold
