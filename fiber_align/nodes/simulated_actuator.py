@@ -352,9 +352,9 @@ class SimulatedActuatorNode(Node):
             if self.k >= self.stats_from:
                 self.skipped += steps - 1
             self.plant.step(self.u_latched)
-            edges = replay_edges(self.u_latched, self.writes, steps)
-            for v in edges[:-1]:
-                self.plant.step(v)      # periods this late tick skipped (docstring)
+            if steps > 1:               # periods this late tick skipped (docstring)
+                for v in replay_edges(self.u_latched, self.writes, steps)[:-1]:
+                    self.plant.step(v)
         self.k += steps
         self.writes.clear()
         # latch first: in a composed process the drive computed from this sample
