@@ -4,7 +4,10 @@
 
 Each area registers its own sub-commands, so this file only lists where they live.
 A sub-command module provides ``register(subparsers)`` which adds its parser and sets
-``func`` (called with the parsed namespace, returning an exit code).
+``func`` (called with the parsed namespace, returning an exit code) and ``paths`` (its
+path arguments and their kinds, checked before ``func`` runs: :mod:`fiber_align.tools.paths`).
+A bad path, a usage or config error and any OSError a command meets end in one line on
+stderr and exit code 2.
 """
 
 import argparse
@@ -16,6 +19,7 @@ from fiber_align.design import cli as design_cli
 from fiber_align.hardware import cli as hardware_cli
 from fiber_align.tools import identify_cli, simulate_cli
 from fiber_align.tools.common import UsageError
+from fiber_align.tools.paths import check_args, os_error_line
 
 # The sub-command modules, in the order of the help text; none of them imports ROS.
 COMMAND_MODULES = (
@@ -47,12 +51,17 @@ def main(argv=None):
         parser.print_help()
         return 2
     try:
+        check_args(args)
         return int(args.func(args) or 0)
     except (UsageError, ConfigError, ValueError) as exc:
         print('fiber-align %s: error: %s' % (args.command, exc), file=sys.stderr)
         return 2
     except BrokenPipeError:
         return 0
+    except OSError as exc:
+        print('fiber-align %s: error: %s' % (args.command, os_error_line(exc)),
+              file=sys.stderr)
+        return 2
 
 
 if __name__ == '__main__':

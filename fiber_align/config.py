@@ -121,6 +121,27 @@ def flatten(params, prefix=''):
     return out
 
 
+class _ParamsDumper(yaml.SafeDumper):
+    """A SafeDumper that quotes the strings ROS's params parser would read as booleans."""
+
+
+#: Strings rcl's YAML parser reads as booleans (YAML 1.1) that PyYAML leaves bare.
+RCL_BOOLEAN_WORDS = frozenset(('y', 'Y', 'n', 'N'))
+
+
+def _str(dumper, value):
+    style = "'" if value in RCL_BOOLEAN_WORDS else None
+    return dumper.represent_scalar('tag:yaml.org,2002:str', value, style=style)
+
+
+_ParamsDumper.add_representer(str, _str)
+
+
+def dump_params(data, stream):
+    """Write ``data`` (a params mapping) as YAML that ROS reads back as written."""
+    yaml.dump(data, stream, Dumper=_ParamsDumper, sort_keys=False)
+
+
 def write_params(path, node, params, header=''):
     """
     Write ``params`` as a ROS params file with one ``node`` section.
@@ -130,7 +151,7 @@ def write_params(path, node, params, header=''):
     with open(path, 'w', encoding='utf-8') as f:
         for line in header.splitlines():
             f.write(('# ' + line).rstrip() + '\n')
-        yaml.safe_dump({node: {'ros__parameters': params}}, f, sort_keys=False)
+        dump_params({node: {'ros__parameters': params}}, f)
 
 
 def unflatten(flat):

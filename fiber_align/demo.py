@@ -16,10 +16,15 @@ asynchronous). At 1 kHz in real time every node must answer within the 1 ms peri
 shared 2-core machine; missed periods would make every run different. ``--sync
 realtime`` runs the same demo on the wall clock.
 
-Layout: ``bringup``'s default, one process per node in lockstep (a composed
-``control_graph`` runs lockstep samples faster than ``bringup`` observes them, and the
-align scenario's switch cycles are timed in observed samples) and one ``control_graph``
-process in realtime; ``--multi-process`` asks for one process per node in both.
+One graph per scenario: each run starts from the virgin plant (the hysteresis memory
+empty) and a reset controller, as ``fiber-align simulate`` and the paper's runs do; on
+one graph the tip's hysteresis state and the integrator of a scenario would carry into
+the next, and its numbers would depend on the order. The cost is the graph's start and
+stop, about 6 s a scenario (``startup_s`` and ``stop_s`` in each ``bringup.json``).
+
+Layout: the graph description's default (:mod:`fiber_align.graph.description`, the
+same as ``ros2 launch``): the control nodes in one ``control_graph`` process;
+``--multi-process`` asks for one process per node. The demo prints the layout it runs.
 
 Durations (sample time): step 50 ms, sine (0.75 Hz) and triangle (1 Hz) 2 s each, the
 paper's 82 um references spanning 0..82 um; tracking errors after the first period, as
@@ -53,8 +58,9 @@ import sys
 import time
 
 from fiber_align import cli
+from fiber_align.graph.description import build
 from fiber_align.jsonout import json_restore
-from fiber_align.nodes.bringup import scenario_skip_s
+from fiber_align.analysis.run_summary import scenario_skip_s
 from fiber_align.simulation.metrics import run_scores
 
 SCENARIOS = ('step', 'sine', 'triangle', 'align')
@@ -63,9 +69,10 @@ QUICK_DURATION_S = {'step': None, 'sine': 0.3, 'triangle': 0.3, 'align': None}
 CYCLES, QUICK_CYCLES = 5, 1
 #: wall-time limit (s) of one bringup run
 RUN_LIMIT_S = 240.0
-#: ROS_DOMAIN_ID = 1 + pid % 100 when none is set (as test/conftest.py; 1..100 are safe
-#: with Fast DDS port mapping on Linux)
-DOMAINS = 100
+#: why the demo starts a graph per scenario, as it prints it
+WHY_ONE_GRAPH_EACH = ('each starts from the virgin plant and a reset controller, as '
+                      '`fiber-align simulate` and the paper do; one graph would carry the '
+                      'hysteresis memory and the integrator of a scenario into the next')
 
 
 def parse_args(argv=None):
@@ -78,8 +85,8 @@ def parse_args(argv=None):
                     help='output directory (default runs/demo-<YYYYmmdd-HHMMSS>)')
     ap.add_argument('--sync', choices=('lockstep', 'realtime'), default='lockstep')
     ap.add_argument('--multi-process', action='store_true',
-                    help='every node its own process (default: all nodes in the bringup '
-                         'process; the recorder is always separate)')
+                    help='every node its own process (default: the control nodes in one '
+                         'control_graph process; the recorder is always separate)')
     ap.add_argument('--scenarios', default=','.join(SCENARIOS),
                     help='comma-separated subset of %s' % ', '.join(SCENARIOS))
     args = ap.parse_args(argv)
@@ -200,17 +207,19 @@ def main(argv=None):
     """Run the demo; return the exit code."""
     args = parse_args(argv)
     t_start = time.monotonic()
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    # A private ROS domain unless one is set: a second graph on the same domain would
-    # break lockstep pairing (bringup refuses to run then).
-    os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % DOMAINS))
+    # the user's ROS domain as it is (never changed here): bringup refuses to start when
+    # another graph's nodes are already on it, which would break lockstep pairing
     out = Path(args.out or os.path.join(
         'runs', 'demo-' + datetime.now().strftime('%Y%m%d-%H%M%S')))
     out.mkdir(parents=True, exist_ok=False)
+    # the layout bringup runs: the description's, as bringup builds it
+    composed = build(composed=False if args.multi_process else None).composed
+    domain = os.environ.get('ROS_DOMAIN_ID', '0 (ROS default)')
     print('fiber_align demo: %s, %s, 1 kHz, ROS_DOMAIN_ID=%s; output in %s'
-          % (args.sync, 'one process per node' if args.multi_process or args.sync == 'lockstep'
-             else 'composed',
-             os.environ['ROS_DOMAIN_ID'], out), flush=True)
+          % (args.sync, 'composed (the control nodes in one control_graph process)'
+             if composed else 'one process per node', domain, out), flush=True)
+    print('  each scenario on a graph of its own (%s): %s' % (WHY_ONE_GRAPH_EACH, ', '.join(
+        args.scenarios)), flush=True)
     rows, failed = [], []
     for name in args.scenarios:
         d = out / name
@@ -250,7 +259,7 @@ def main(argv=None):
     (out / 'summary.md').write_text(md + '\n', encoding='utf-8')
     (out / 'summary.json').write_text(json.dumps(
         {'rows': rows, 'total_wall_s': total, 'sync': args.sync, 'quick': args.quick,
-         'composed': not args.multi_process and args.sync == 'realtime'}, indent=1),
+         'composed': composed}, indent=1),
         encoding='utf-8')
     print('\n' + text + '\n')
     print('total wall time %.1f s' % total)

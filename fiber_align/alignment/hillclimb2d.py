@@ -31,13 +31,14 @@ UNIT = (np.array([1.0, 0.0]), np.array([0.0, 1.0]))
 class HillClimb2D(s2d.Sequencer2D):
     """Coordinate hill climb with the sequencer's search and API (see the module docstring)."""
 
-    def __init__(self, params=None, hill_params=None, **overrides):
+    def __init__(self, params=None, hill_params=None, period_s=None, **overrides):
         """
         Build from the two parameter mappings (``None``: ``config/sequencer2d.yaml``).
 
         :param params: ``alignment_sequencer_2d`` parameters (shared part).
         :param hill_params: ``hill_climb_2d`` parameters; ``overrides`` may name keys of
             either mapping.
+        :param period_s: control period (s), as :class:`~s2d.Sequencer2D`.
         """
         base = load_params(s2d.CONFIG_FILE, CONFIG_NODE)
         hp = dict(base if hill_params is None else hill_params)
@@ -49,7 +50,7 @@ class HillClimb2D(s2d.Sequencer2D):
             raise ValueError('hill_climb_2d parameters: missing %s, unknown %s'
                              % (missing or 'none', unknown or 'none'))
         self.hp = hp
-        super().__init__(params, **overrides)
+        super().__init__(params, period_s, **overrides)
 
     def switch(self, on):
         """Switch on: back to the last point and perturb-and-observe from there; off: park."""

@@ -64,6 +64,7 @@ class Peaking:
         self._sweep_speed = self.p['peak_speed_m_per_s']
         self._samples = []
         self._refits = 0
+        self._first_sweep = True
         self._setpoint = max(self._setpoint, y)
 
     def _start_local(self, center):
@@ -73,6 +74,7 @@ class Peaking:
         self._sweep_end = min(center + p['repeak_span_m'], p['range_max_m'])
         self._sweep_speed = p['repeak_speed_m_per_s']
         self._samples = []
+        self._first_sweep, self._local_center = False, center
         self._goal = lo
         self._phase = 'goto_sweep'
 

@@ -12,6 +12,7 @@ import numpy as np
 STATE_COLOURS = {
     'IDLE': '#eeeeee', 'SEARCHING': '#fde2b8', 'PEAKING': '#c9e4ff',
     'TRACKING': '#d4f4d2', 'RELEASING': '#e6d9f7', 'FAULT': '#f9c0c0',
+    'HELD': '#fff3a8',
 }
 
 

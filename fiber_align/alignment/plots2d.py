@@ -17,6 +17,7 @@ from fiber_align.plant import optics2d as o2
 STATE_COLOURS = {
     'IDLE': '#999999', 'SEARCHING': '#e08a00', 'PEAKING': '#1f77b4',
     'TRACKING': '#2ca02c', 'RELEASING': '#9467bd', 'FAULT': '#d62728',
+    'HELD': '#bcbd22',
 }
 
 

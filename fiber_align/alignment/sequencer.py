@@ -11,6 +11,8 @@ States::
     IDLE -> SEARCHING -> PEAKING -> TRACKING      (align)
     any  -> RELEASING -> IDLE                     (release, switch(False))
     IDLE -> PEAKING (re-peak) -> TRACKING         (switch(True): to the last aligned spot)
+    SEARCHING, PEAKING, TRACKING -> HELD          (the driver holds its output)
+    HELD -> PEAKING (re-peak) or SEARCHING        (the driver drives again)
     any active state -> FAULT (reason)
 
 SEARCHING
@@ -26,6 +28,12 @@ PEAKING
     docs/alignment.md for the sample counts of the alternatives). It moves to the vertex,
     waits for the loop to settle, and checks the power against the fitted peak; a miss
     triggers a short local re-sweep. ``switch(True)`` uses the same local re-sweep.
+HELD
+    The driver holds its output (``driver_active`` false: a trip, disabled, inactive):
+    the last setpoint is held and the sequencer waits; once the driver drives again and
+    the actuator is back at the held setpoint it re-peaks from there (a local sweep; the
+    search again when there was no light); FAULT after ``driver_down_timeout_s``
+    (:mod:`fiber_align.alignment.hold`).
 TRACKING
     Dither extremum seeking: the setpoint is ``x_hat + a sin(2 pi f t)``; the gradient of
     ``ln P`` is the exponentially weighted regression of ``ln P`` on the measured
@@ -40,9 +48,11 @@ import math
 
 import numpy as np
 
+from fiber_align.alignment.driver_state import DriverState
+from fiber_align.alignment.hold import Hold
 from fiber_align.alignment.machine import Machine
 from fiber_align.alignment.peaking import Peaking
-from fiber_align.alignment.states import (ACTIVE, FAULT, IDLE, PEAKING,  # noqa: F401
+from fiber_align.alignment.states import (ACTIVE, FAULT, HELD, IDLE, PEAKING,  # noqa: F401
                                           RELEASING, SEARCHING, TRACKING)
 from fiber_align.config import ConfigError, load_params
 
@@ -63,27 +73,24 @@ KEYS = (
     'dither_amplitude_m', 'dither_frequency_hz', 'tracking_bandwidth_rad_s',
     'gradient_time_s', 'track_loss_db', 'track_loss_timeout_s',
     'sensor_timeout_s', 'follow_error_m', 'follow_timeout_s',
-    'release_tolerance_m', 'release_timeout_s',
+    'release_tolerance_m', 'release_timeout_s', 'driver_down_timeout_s',
 )
-# Read by the node only (the expected period of its input samples, s).
-NODE_KEYS = ('control_period_s',)
 
 
-class Sequencer(Machine, Peaking):
+class Sequencer(Machine, Peaking, Hold):
     """Find, peak, track and switch the light on one axis (see the module docstring)."""
 
     def __init__(self, params=None, **overrides):
         """
         Build a sequencer from a parameter mapping (``None``: config/sequencer.yaml).
 
-        :param params: every key of :data:`KEYS` (SI units); :data:`NODE_KEYS` are
-            allowed and ignored.
+        :param params: every key of :data:`KEYS` (SI units).
         :param overrides: keys of :data:`KEYS` that win over ``params``.
         :raises ValueError: an unknown key; ConfigError: a missing one.
         """
         if params is None:
             params = load_params(CONFIG_FILE, CONFIG_NODE)
-        unknown = sorted(set(params) - set(KEYS) - set(NODE_KEYS))
+        unknown = sorted(set(params) - set(KEYS))
         if unknown:
             raise ValueError('unknown sequencer parameter(s): %s' % ', '.join(unknown))
         bad = sorted(set(overrides) - set(KEYS))
@@ -115,6 +122,7 @@ class Sequencer(Machine, Peaking):
         self._follow_since = None
         self._idle_buf = []
         self._phase = ''
+        self.drivers = DriverState()
         self._enter(IDLE)
 
     # ---- commands (Machine: align, release, switch) ----------------------------------
@@ -126,6 +134,10 @@ class Sequencer(Machine, Peaking):
 
     def _aligned_point(self):
         return self.aligned_position_m
+
+    def _driver_down(self, reason):
+        self._driver_up = False
+        self._hold(self._t, None, reason)
 
     def _start_repeak(self):
         self._phase = 'goto'
@@ -147,7 +159,9 @@ class Sequencer(Machine, Peaking):
         :param t_s: time of the samples (s).
         :param displacement_m: measured displacement (m), or ``None`` if none arrived.
         :param power_w: optical power reading (W), or ``None`` if none arrived.
-        :param driver_active: ``False`` when the driver reports it is not driving.
+        :param driver_active: ``False`` while the driver holds its output (HELD: the
+            setpoint is held until it drives again); ``True`` when it drives; ``None``:
+            as :attr:`drivers` says (what the driver published, ``driver_held`` ...).
         """
         t = float(t_s)
         dt = 0.0 if self._t is None else max(0.0, t - self._t)
@@ -163,7 +177,12 @@ class Sequencer(Machine, Peaking):
             self._last_y_t = t
         if pw is not None:
             self._last_power_t = t
-        if self.state in ACTIVE and self._check_health(t, y, pw, driver_active):
+        if driver_active is None:
+            driver_active = self.drivers.active
+        self._driver_up = driver_active is not False
+        if self.state in ACTIVE and not self._driver_up:
+            self._hold(t, y, self.drivers.reason)
+        if self.state in ACTIVE and self._check_health(t, y, pw):
             return self._setpoint
         if y is None:
             y = self._y_last if hasattr(self, '_y_last') else self._setpoint
@@ -177,14 +196,10 @@ class Sequencer(Machine, Peaking):
         return self._setpoint
 
     # ---- internals ------------------------------------------------------------------
-    def _check_health(self, t, y, pw, driver_active):
-        """Return True (and fault) when a sensor is silent or the driver is not driving."""
+    def _check_health(self, t, y, pw):
+        """Return True (and fault) when a sensor is silent or the actuator does not follow."""
         p = self.p
         t0 = self._state_t if self._state_t is not None else t
-        if driver_active is False:
-            self._fault('driver inactive: the driver reports it is not driving the '
-                        'actuator')
-            return True
         last_p = self._last_power_t if self._last_power_t is not None else t0
         if t - max(last_p, t0) > p['sensor_timeout_s']:
             self._fault('sensor silent: no optical power reading for %.0f ms'
@@ -331,7 +346,8 @@ class Sequencer(Machine, Peaking):
         """Return a dict describing the state (for topics, diagnostics and reports)."""
         return dict(state=self.state, phase=self._phase, fault_reason=self.fault_reason,
                     setpoint_m=self._setpoint, aligned_position_m=self.aligned_position_m,
-                    threshold_w=self.threshold_w, peak_samples=self.peak_samples)
+                    threshold_w=self.threshold_w, peak_samples=self.peak_samples,
+                    hold_reason=self.hold_reason if self.state == HELD else '')
 
 
 def _dbm(p_w):

@@ -36,7 +36,9 @@ import math
 import numpy as np
 
 from fiber_align.alignment import search2d as s2
+from fiber_align.alignment.driver_state import DriverState
 from fiber_align.alignment.machine import Machine
+from fiber_align.alignment.multiaxis import MultiAxis
 from fiber_align.alignment.peak2d import AXES, dbm as _dbm, PeakFitMixin
 from fiber_align.alignment.states import (ACTIVE, FAULT, IDLE, PEAKING,  # noqa: F401
                                           RELEASING, SEARCHING, STATES, TRACKING)
@@ -44,6 +46,10 @@ from fiber_align.config import load_params
 
 CONFIG_FILE = 'sequencer2d.yaml'
 CONFIG_NODE = 'alignment_sequencer_2d'
+#: Where the graph's control rate is set (``rate_hz``, Hz): the period is 1 / rate_hz.
+RATE_FILE, RATE_NODE = 'plant.yaml', 'simulated_actuator'
+#: The drivers of the two axes, as :attr:`Sequencer2D.drivers` names them.
+DRIVERS = tuple('%s/actuator_driver' % a for a in AXES)
 
 
 def load_sequencer2d_params(path=CONFIG_FILE, node=CONFIG_NODE, **overrides):
@@ -53,12 +59,22 @@ def load_sequencer2d_params(path=CONFIG_FILE, node=CONFIG_NODE, **overrides):
     return p
 
 
-class Sequencer2D(Machine, PeakFitMixin):
+def default_period_s():
+    """Return the graph's control period (s): 1 / ``rate_hz`` of the shipped config."""
+    return 1.0 / float(load_params(RATE_FILE, RATE_NODE)['rate_hz'])
+
+
+class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
     """Find, peak, track and switch the light in x and y (see the module docstring)."""
 
-    def __init__(self, params=None, **overrides):
+    AXIS_NAMES = AXES
+
+    def __init__(self, params=None, period_s=None, **overrides):
         """
         Build from a parameter mapping (``None``: ``config/sequencer2d.yaml``).
+
+        :param period_s: period of the :meth:`update` calls (s); ``None``: 1 / the
+            graph's ``rate_hz``.
 
         Every key of the file's ``alignment_sequencer_2d`` node is required (the file is
         the one source of defaults); ``overrides`` replace keys.
@@ -78,8 +94,8 @@ class Sequencer2D(Machine, PeakFitMixin):
         self.lo = np.array([p['range_x_min_m'], p['range_y_min_m']], dtype=float)
         self.hi = np.array([p['range_x_max_m'], p['range_y_max_m']], dtype=float)
         self.park = np.array([p['park_x_m'], p['park_y_m']], dtype=float)
-        chord = (int(p['confirm_samples']) + 1) * p['search_speed_m_per_s'] * \
-            p['control_period_s']
+        self.period_s = default_period_s() if period_s is None else float(period_s)
+        chord = (int(p['confirm_samples']) + 1) * p['search_speed_m_per_s'] * self.period_s
         self.capture_radius_m = s2.capture_radius(p['mode_radius_m'], p['spiral_capture_db'])
         self.pitch_m = s2.spiral_pitch(p['mode_radius_m'], p['spiral_capture_db'], chord)
         self.curvature_prior = 1.0 / p['mode_radius_m'] ** 2
@@ -102,6 +118,7 @@ class Sequencer2D(Machine, PeakFitMixin):
         self._prev_pos = None
         self._idle_buf = []
         self._phase = ''
+        self.drivers = DriverState(DRIVERS)
         self._enter(IDLE)
 
     # ---- commands (Machine: align, release, switch) ----------------------------------
@@ -114,6 +131,9 @@ class Sequencer2D(Machine, PeakFitMixin):
 
     def _aligned_point(self):
         return self.aligned
+
+    def _driver_down(self, reason):
+        self._fault('driver inactive: %s' % reason)
 
     def _start_repeak(self):
         self._start_pattern(self.aligned, self.p['repeak_pattern_radius_m'])
@@ -145,7 +165,8 @@ class Sequencer2D(Machine, PeakFitMixin):
         :param x_m: measured x displacement (m), or ``None`` if none arrived.
         :param y_m: measured y displacement (m), or ``None`` if none arrived.
         :param power_w: optical power reading (W), or ``None`` if none arrived.
-        :param driver_active: ``False`` when either axis' driver is not driving.
+        :param driver_active: ``False`` when either axis' driver is not driving; ``None``:
+            as :attr:`drivers` says (what the drivers published).
         """
         t = float(t_s)
         self.dt = 0.0 if self._t is None else max(0.0, t - self._t)
@@ -157,6 +178,10 @@ class Sequencer2D(Machine, PeakFitMixin):
         pw = None if power_w is None or not math.isfinite(power_w) else float(power_w)
         if pw is not None:
             self._last['p'] = t
+        if driver_active is None and not self.drivers.pending:
+            # pending: a re-activated driver whose drive_held false is still on its way
+            # is no fault (a driver that stays held is caught by the follow check)
+            driver_active = self.drivers.active
         if self.state in ACTIVE and self._unhealthy(t, pos, pw, driver_active):
             return self.setpoint
         if pos is None:
@@ -184,48 +209,12 @@ class Sequencer2D(Machine, PeakFitMixin):
 
     # ---- internals ------------------------------------------------------------------
     def _unhealthy(self, t, pos, pw, driver_active):
-        """Return True (and fault) when a reading is missing or an axis does not follow."""
-        p = self.p
-        t0 = self._state_t if self._state_t is not None else t
+        """Return True (and fault) when a driver is down, a reading missing, an axis stuck."""
         if driver_active is False:
-            self._fault('driver inactive: a driver reports it is not driving its axis')
+            self._fault('driver inactive: %s' % (self.drivers.reason or 'a driver reports '
+                                                 'it is not driving its axis'))
             return True
-        for key, what in (('p', 'optical power'), ('y', 'displacement')):
-            last = max(self._last[key] if self._last[key] is not None else t0, t0)
-            if t - last > p['sensor_timeout_s']:
-                self._fault('sensor silent: no %s reading for %.0f ms'
-                            % (what, (t - last) * 1e3))
-                return True
-        if pos is None:
-            return False
-        err = np.abs(pos - self.sp)
-        if np.any(err > p['follow_error_m']):
-            if self._follow_since is None:
-                self._follow_since = t
-            elif t - self._follow_since > p['follow_timeout_s']:
-                a = int(np.argmax(err))
-                self._fault('driver inactive or actuator stuck: %s at %.1f um does not '
-                            'follow its setpoint %.1f um for %.0f ms'
-                            % (AXES[a], pos[a] * 1e6, self.sp[a] * 1e6,
-                               (t - self._follow_since) * 1e3))
-                return True
-        else:
-            self._follow_since = None
-        return False
-
-    def _do_idle(self, t, pos, pw):
-        self.sp = self.park.copy()
-        if not self._rest:
-            self._idle_buf = []
-        elif pw is not None:
-            self._idle_buf.append(pw)
-            del self._idle_buf[:-int(self.p['floor_samples'])]
-
-    def _do_releasing(self, t, pos, pw):
-        self.sp = self.park.copy()
-        if np.all(np.abs(pos - self.park) < self.p['release_tolerance_m']) or \
-                self._elapsed(t) > self.p['release_timeout_s']:
-            self._enter(IDLE)
+        return self._silent_or_stuck(t, pos)
 
     # SEARCHING ------------------------------------------------------------------------
     def _do_searching(self, t, pos, pw):

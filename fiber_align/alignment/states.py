@@ -7,5 +7,8 @@ PEAKING = 'PEAKING'
 TRACKING = 'TRACKING'
 RELEASING = 'RELEASING'
 FAULT = 'FAULT'
-STATES = (IDLE, SEARCHING, PEAKING, TRACKING, RELEASING, FAULT)
+#: The driver holds its output (a trip, disabled, inactive): the setpoint is held until
+#: the re-arm, then the sequencer re-peaks (``fiber_align.alignment.hold``).
+HELD = 'HELD'
+STATES = (IDLE, SEARCHING, PEAKING, TRACKING, RELEASING, FAULT, HELD)
 ACTIVE = (SEARCHING, PEAKING, TRACKING)

@@ -175,7 +175,8 @@ def register(sub):
                        'readable one', description=__doc__.strip().split('\n')[0])
     p.add_argument('bag', help='bag directory (or .mcap file)')
     p.add_argument('--out', default=None, help='new bag directory (default BAG_repaired)')
-    p.set_defaults(func=run_cli)
+    # checked by fiber-align before run_cli (fiber_align.tools.paths)
+    p.set_defaults(func=run_cli, paths={'BAG': 'in-any', '--out': 'new-dir'})
 
 
 def run_cli(args):

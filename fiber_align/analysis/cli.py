@@ -7,7 +7,7 @@ import sys
 
 import numpy as np
 
-from fiber_align.analysis import bag as bagio, plots, report as rp
+from fiber_align.analysis import bag as bagio, plots, report as rp, run_kind as rk
 from fiber_align.config import ConfigError, load_params
 from fiber_align.simulation.metrics import loop_metrics, saturation_metrics
 
@@ -15,6 +15,10 @@ NEEDS = {
     'displacement': 'the time base and every loop, step, tracking, timing and hysteresis metric',
     'setpoint': 'step and tracking metrics and the error plot',
     'drive_voltage': 'saturation, latency and the voltage-displacement loop',
+}
+#: what an alignment run needs beyond :data:`NEEDS`
+ALIGN_NEEDS = {
+    'optical_power': 'the alignment figures (first light, losses, switch cycles)',
 }
 
 
@@ -35,7 +39,9 @@ def register(subparsers):
                    help='seconds left out at the start of the tracking metrics')
     p.add_argument('--v-min', type=float, default=None, help='lower drive limit (V)')
     p.add_argument('--v-max', type=float, default=None, help='upper drive limit (V)')
-    p.set_defaults(func=run)
+    # checked by fiber-align before run (fiber_align.tools.paths)
+    p.set_defaults(func=run, paths={'BAG': 'in-any', '--plots': 'out-dir',
+                                    '--report': 'out-file'})
 
 
 def run(args):
@@ -107,8 +113,11 @@ def analyze_bag(path, params=None, v_limits=None, keep_arrays=False):
     """
     Analyse the bag at ``path``; return (result dict, arrays for the figures).
 
-    The result holds ``bag``, ``lockstep``, ``alignment``, ``topics`` (found streams),
-    ``notes`` (what is missing and what was analysed anyway) and ``metrics`` (SI units).
+    The result holds ``bag``, ``lockstep``, ``alignment``, ``kind`` (``alignment``,
+    ``tracking`` or ``open-loop``, see :mod:`fiber_align.analysis.run_kind`), ``topics``
+    (found streams), ``notes`` (what is missing and what was analysed anyway) and
+    ``metrics`` (SI units). An alignment run gets ``metrics.align`` and no step or
+    tracking metrics (the setpoint is the sequencer's search).
 
     :raises fiber_align.analysis.bag.BagError: unreadable, truncated or corrupt bag, or
         a bag with none of the graph's topics.
@@ -125,25 +134,42 @@ def analyze_bag(path, params=None, v_limits=None, keep_arrays=False):
             raise bagio.BagError('bag %s holds none of the graph topics (%s); it has: %s'
                                  % (path, ', '.join(bagio.GRAPH_TOPICS),
                                     ', '.join(sorted(bag.all_topics)) or 'no topics'))
-        missing = [k for k in NEEDS if k not in bag.topics or not bag.topics[k].msgcount]
+        states = bag.read('alignment_state')
+        if states is not None and len(states) == 0:
+            states = None
+        statuses = rk.parse_states(states.fields.get('msgs', [])) if states else []
+        has_sp = 'setpoint' in bag.topics and bool(bag.topics['setpoint'].msgcount)
+        res['kind'] = data['kind'] = rk.run_kind(statuses, has_sp)
+        needs = dict(NEEDS, **(ALIGN_NEEDS if res['kind'] == rk.ALIGNMENT else {}))
+        missing = [k for k in needs if k not in bag.topics or not bag.topics[k].msgcount]
         for k in missing:
-            res['notes'].append('bag has no %s topic, needed for %s' % (k, NEEDS[k]))
+            res['notes'].append('bag has no %s topic, needed for %s' % (k, needs[k]))
+        run = {'kind': res['kind'], 'states': states, 'statuses': statuses}
         disp = bag.read('displacement', keep=('stamp_ns', 'position'))
         if disp is not None and len(disp) == 0:
             disp = None
         if disp is not None:
-            _analyze_loop(bag, disp, lock, params, v_limits, res, data, keep_arrays)
+            _analyze_loop(bag, disp, lock, params, v_limits, res, data, keep_arrays, run)
         else:
             res['alignment'] = 'none (no time base)'
-            _analyze_without_base(bag, params, res, data, keep_arrays)
-        _analyze_extras(bag, disp, lock, params, res, data, keep_arrays)
+            _analyze_without_base(bag, params, res, data, keep_arrays, run)
+        _analyze_extras(bag, disp, lock, params, res, data, keep_arrays, states)
     analysed = sorted(k for k, v in res['metrics'].items() if v)
     if missing:
         res['notes'].append('analysed anyway: %s' % (', '.join(analysed) or 'nothing'))
     return res, data
 
 
-def _analyze_loop(bag, disp, lock, params, v_limits, res, data, keep):
+def _align_run(run, t, p, recv_ns, stamp_ns, params, res):
+    """Add ``metrics.align`` of an alignment run on a time base (s) with its power (W)."""
+    if run['kind'] != rk.ALIGNMENT or p is None:
+        return
+    idx = rk.state_indices(run['statuses'], run['states'].t_ns, recv_ns, stamp_ns)
+    res['metrics']['align'] = rk.alignment_metrics(
+        t, p, list(zip(idx, run['statuses'])), float(params.get('light_threshold_w', 1e-6)))
+
+
+def _analyze_loop(bag, disp, lock, params, v_limits, res, data, keep, run):
     """Compute loop, timing and hysteresis metrics on the displacement time base."""
     stamp = disp.fields['stamp_ns']
     t = (stamp - stamp[0]) / 1e9
@@ -167,7 +193,12 @@ def _analyze_loop(bag, disp, lock, params, v_limits, res, data, keep):
     r = al.get('setpoint')
     v = al.get('drive_voltage')
     loop = {}
-    if r is not None:
+    if r is not None and run['kind'] == rk.ALIGNMENT:
+        # the setpoint is the sequencer's search: its jumps are no steps to score
+        loop = {'samples': int(n)}
+        if v is not None:
+            loop['saturation'] = saturation_metrics(t, v, v_limits)
+    elif r is not None:
         loop = loop_metrics(t, r, y, v, v_limits, skip_s=float(params.get('skip_s', 0.0)),
                             step_min_m=float(params.get('step_min_m', 1e-6)),
                             band=float(params.get('settling_band', 0.02)))
@@ -180,14 +211,20 @@ def _analyze_loop(bag, disp, lock, params, v_limits, res, data, keep):
     if 'optical_power' in al:
         res['metrics']['optical'] = rp.optical_metrics(
             t, al['optical_power'], float(params.get('light_threshold_w', 1e-6)))
+        _align_run(run, t, al['optical_power'], disp.t_ns, stamp, params, res)
         if keep:
             data['power_t'], data['power'] = t, al['optical_power']
     if keep:
         data.update({k: al[k] for k in ('t', 'y') + rp.FLOAT_STREAMS if k in al})
 
 
-def _analyze_without_base(bag, params, res, data, keep):
-    """Analyse what needs no displacement: drive range and optical power on receive time."""
+def _analyze_without_base(bag, params, res, data, keep, run):
+    """
+    Analyse what needs no displacement: drive range and optical power on receive time.
+
+    An alignment run (e.g. the sensorless hardware graph) is analysed on the power
+    stream's receive times.
+    """
     t0 = None
     for key in ('drive_voltage', 'optical_power'):
         s = bag.read(key)
@@ -201,6 +238,7 @@ def _analyze_without_base(bag, params, res, data, keep):
         else:
             res['metrics']['optical'] = rp.optical_metrics(
                 tt, s.fields['data'], float(params.get('light_threshold_w', 1e-6)))
+            _align_run(run, tt, s.fields['data'], s.t_ns, None, params, res)
             if keep:
                 data['power_t'], data['power'] = tt, s.fields['data']
 
@@ -215,7 +253,7 @@ def _time_of(disp, lock, t_ns, n_fallback_t0=None):
     return t[i]
 
 
-def _analyze_extras(bag, disp, lock, params, res, data, keep):
+def _analyze_extras(bag, disp, lock, params, res, data, keep, s):
     """Add gains, alignment states and diagnostics summaries."""
     c = bag.topics.get('controller_state')
     if c is not None and c.msgcount:
@@ -238,7 +276,6 @@ def _analyze_extras(bag, disp, lock, params, res, data, keep):
             res['metrics']['gains']['sampled_every'] = stride
             if keep and gains:
                 data['gains'], data['gains_t'] = gains, gt
-    s = bag.read('alignment_state')
     if s is not None and len(s):
         tt = _time_of(disp, lock, s.t_ns)
         ev, last = [], None

@@ -136,7 +136,8 @@ def make_figures(out_dir, data, max_points=4000):
     """
     Write every figure the data allows into ``out_dir``; return [(title, path)].
 
-    :param data: dict from :func:`fiber_align.analysis.cli.analyze_bag` (``arrays``).
+    :param data: dict from :func:`fiber_align.analysis.cli.analyze_bag` (``arrays``; its
+        ``kind`` ``alignment`` leaves out the tracking error).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -148,7 +149,8 @@ def make_figures(out_dir, data, max_points=4000):
         figs.append(('Setpoint, displacement and voltages',
                      plot_time(out / 'time.png', t, y, data.get('setpoint'), volts,
                                max_points)))
-        if 'setpoint' in data:
+        if 'setpoint' in data and data.get('kind') != 'alignment':
+            # an alignment's setpoint is the sequencer's search: no error to follow
             figs.append(('Tracking error', plot_error(out / 'error.png', t, data['setpoint'],
                                                       y, max_points)))
         if 'drive_voltage' in data:

@@ -207,10 +207,50 @@ def _fmt(v, scale=1.0, unit='', nd=4):
     return ('%.*g %s' % (nd, v * scale, unit)).strip()
 
 
+def _db(v):
+    return 'n/a' if v is None else '%.4f dB' % v
+
+
+def _dbm(w):
+    return _fmt(10 * math.log10(w / 1e-3) if w and w > 0 else None, 1, 'dBm')
+
+
+def align_rows(al):
+    """Return the alignment table: (section, name, value) rows of ``metrics.align``."""
+    state = al.get('state') or 'n/a'
+    if al.get('fault_reason'):
+        state += ' (%s)' % al['fault_reason']
+    rows = [('alignment', 'final state', state),
+            ('alignment', 'time to first light',
+             _fmt(al.get('time_to_first_light_s'), 1e3, 'ms')),
+            ('alignment', 'time to peak', _fmt(al.get('time_to_peak_s'), 1e3, 'ms')),
+            ('alignment', 'peak samples', 'n/a' if al.get('peak_samples') is None
+             else str(al['peak_samples'])),
+            ('alignment', 'final loss', _db(al.get('final_loss_db'))),
+            ('alignment', 'switch cycles', str(al.get('switch_cycles', 0)))]
+    if al.get('cycles'):
+        rows += [('alignment', 'switch cycle loss (max)', _db(al.get('cycle_loss_max_db'))),
+                 ('alignment', 'switch rise time (max)',
+                  _fmt(al.get('switch_rise_time_max_s'), 1e3, 'ms'))]
+    rows += [('alignment', 'tracking loss (max)', _db(al.get('tracking_max_loss_db'))),
+             ('alignment', 'loss reference', '%s (highest mean power over %s)'
+              % (_dbm(al.get('reference_power_w')),
+                 _fmt(al.get('reference_window_s'), 1e3, 'ms')))]
+    return rows
+
+
 def metrics_rows(res):
-    """Return (section, name, value for people) rows of a metrics result (um, V, ms)."""
+    """
+    Return (section, name, value for people) rows of a metrics result (um, V, ms, dB).
+
+    An alignment run (``kind`` ``alignment``) starts with its alignment table and has no
+    step or tracking rows; a tracking run starts with its tracking and step rows.
+    """
     rows = []
     m = res.get('metrics', {})
+    aligning = res.get('kind') == 'alignment'
+    if aligning:
+        rows += align_rows(m.get('align') or {})
     tr = m.get('loop', {}).get('tracking')
     if tr:
         rows += [('tracking', 'RMS error', _fmt(tr['rms_error_m'], 1e6, 'um')),
@@ -242,12 +282,12 @@ def metrics_rows(res):
                  ('timing', 'sensor-to-command latency p99', _fmt(lat['p99'], 1e3, 'ms'))]
     op = m.get('optical')
     if op and 'peak_w' in op:
-        rows += [('alignment', 'time to first light', _fmt(op.get('time_to_first_light_s'),
-                                                           1e3, 'ms')),
-                 ('alignment', 'time to peak', _fmt(op.get('time_to_peak_s'), 1e3, 'ms')),
-                 ('alignment', 'peak power', _fmt(10 * math.log10(op['peak_w'] / 1e-3)
-                                                  if op['peak_w'] > 0 else None, 1, 'dBm')),
-                 ('alignment', 'losses after first light', str(op.get('losses', 0)))]
+        if not aligning:   # the alignment table has the run's own first light and peak
+            rows += [('optical', 'time to first light',
+                      _fmt(op.get('time_to_first_light_s'), 1e3, 'ms')),
+                     ('optical', 'time to peak', _fmt(op.get('time_to_peak_s'), 1e3, 'ms'))]
+        rows += [('optical', 'peak power', _dbm(op['peak_w'])),
+                 ('optical', 'losses of light after first light', str(op.get('losses', 0)))]
     hy = m.get('hysteresis')
     if hy and 'max_loop_width_m' in hy:
         rows += [('hysteresis', 'max loop width', _fmt(hy['max_loop_width_m'], 1e6, 'um')),
@@ -258,8 +298,9 @@ def metrics_rows(res):
 
 def to_text(res):
     """Return a plain-text summary of an analysis result."""
-    lines = ['bag: %s (%s, aligned by %s)' % (res['bag'], 'lockstep' if res['lockstep']
-                                              else 'real time', res.get('alignment', 'n/a'))]
+    lines = ['bag: %s (%s run, %s, aligned by %s)' % (
+        res['bag'], res.get('kind', 'unknown'), 'lockstep' if res['lockstep'] else 'real time',
+        res.get('alignment', 'n/a'))]
     for note in res.get('notes', []):
         lines.append('note: ' + note)
     for sec, name, val in metrics_rows(res):
@@ -285,8 +326,9 @@ def write_report(path, res, figures):
         e = html.escape
         parts = ['<!DOCTYPE html><html><head><meta charset="utf-8"><title>fiber_align run '
                  'report</title></head><body>', '<h1>Run report</h1>',
-                 '<p>Bag: <code>%s</code> (%s, streams aligned by %s)</p>'
-                 % (e(str(res['bag'])), 'lockstep' if res['lockstep'] else 'real time',
+                 '<p>Bag: <code>%s</code> (%s run, %s, streams aligned by %s)</p>'
+                 % (e(str(res['bag'])), e(res.get('kind', 'unknown')),
+                    'lockstep' if res['lockstep'] else 'real time',
                     e(res.get('alignment', 'n/a')))]
         for note in res.get('notes', []):
             parts.append('<p><b>Note:</b> %s</p>' % e(note))
@@ -304,9 +346,10 @@ def write_report(path, res, figures):
         text = '\n'.join(parts)
     else:
         parts = ['# Run report', '',
-                 'Bag: `%s` (%s, streams aligned by %s)' % (res['bag'], 'lockstep'
-                                                            if res['lockstep'] else 'real time',
-                                                            res.get('alignment', 'n/a')), '']
+                 'Bag: `%s` (%s run, %s, streams aligned by %s)' % (
+                     res['bag'], res.get('kind', 'unknown'),
+                     'lockstep' if res['lockstep'] else 'real time',
+                     res.get('alignment', 'n/a')), '']
         parts += ['> Note: %s' % n for n in res.get('notes', [])]
         parts += ['', '| section | metric | value |', '|---|---|---|']
         parts += ['| %s | %s | %s |' % r for r in rows]

@@ -175,6 +175,20 @@ class DriverCore:
             self.saturated = False
         return self._limit(u, t)
 
+    def hold(self, t, t_input=None):
+        """
+        Take a fresh input at ``t`` (s) without following it; return the drive (V).
+
+        For an axis held because another axis of its device tripped: its own input is
+        back (its watchdog counts from ``t_input``, default ``t``; it is no longer
+        tripped), but it ramps on to the safe voltage. Were it still counted as tripped,
+        two axes tripped by one upstream stall would each wait for the other for ever.
+        """
+        self.t_last_cmd = t if t_input is None else t_input
+        if not self.latched:
+            self.tripped = False
+        return self.ramp_safe(t)
+
     def tick(self, t):
         """
         Run the watchdog at time ``t`` (s); return the drive (V) to hold or ramp to.
@@ -209,6 +223,32 @@ class DriverCore:
         latch for nothing, and a resume that waited for fresh input).
         """
         self.t_last_cmd = None
+
+    def start_at(self, v):
+        """Take the output to be ``v`` (V, clamped to the limits; a device's read-back)."""
+        self.v = min(max(float(v), self.v_min), self.v_max)
+        return self.v
+
+    def set_limits(self, new):
+        """
+        Apply live limit changes, keeping the running state (output, trips, watchdog).
+
+        :param new: ``{name: value}`` of the ``actuator_driver`` parameters (SI):
+            ``v_min``, ``v_max``, ``slew_rate_v_per_s``, ``watchdog_timeout_s``,
+            ``safe_voltage_v``, ``latch_trips``, ``latch_window_s``,
+            ``safe_ramp_rate_v_per_s``; absent names keep their value.
+        """
+        self.v_min = float(new.get('v_min', self.v_min))
+        self.v_max = float(new.get('v_max', self.v_max))
+        self.timeout = float(new.get('watchdog_timeout_s', self.timeout))
+        self.safe = float(new.get('safe_voltage_v', self.safe))
+        self.latch_trips = int(new.get('latch_trips', self.latch_trips))
+        self.latch_window_s = float(new.get('latch_window_s', self.latch_window_s))
+        for key, attr in (('safe_ramp_rate_v_per_s', 'safe_rate'),
+                          ('slew_rate_v_per_s', 'slew')):
+            if key in new:
+                r = float(new[key])
+                setattr(self, attr, r if r > 0 and math.isfinite(r) else math.inf)
 
     def rearm(self):
         """End a latched safe state and forget the trip history (output unchanged)."""

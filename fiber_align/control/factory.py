@@ -144,6 +144,7 @@ PARAM_RANGES = {
     'e_scale_per_m': (1e-3, 1e12), 'ec_scale_s_per_m': (1e-6, 1e9),
     'output_scale': (0.0, 10.0), 'derivative_filter_hz': (0.0, 1e6),
     'u_min': (-1000.0, 1000.0), 'u_max': (-1000.0, 1000.0), 'tracking_time_s': (0.0, 10.0),
+    'gain_rates_hz': (1.0, 1e6),
 }
 
 

@@ -233,6 +233,22 @@ class FuzzyPid:
         return u
 
 
+def carry_state(old, new):
+    """
+    Give the feedback law ``new`` the running state of ``old`` (a live retune); return it.
+
+    The PID's integral, filtered derivative, last error and output, the law's output and
+    its reference model carry over, so a change of gains or limits is bumpless. Both
+    are :class:`FuzzyPid` or :class:`PlainPid`.
+    """
+    o, n = old.pid, new.pid
+    n.integral, n.deriv, n.e_prev, n.u = o.integral, o.deriv, o.e_prev, o.u
+    new.u = old.u
+    if old.reference_filter is not None:
+        new.reference_filter = old.reference_filter
+    return new
+
+
 class PlainPid:
     """A :class:`Pid` behind the same ``step(r, y)`` interface as :class:`FuzzyPid`."""
 

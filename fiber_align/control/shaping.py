@@ -150,6 +150,15 @@ class ReferenceModel:
         self.x = 0.0
         self.xd = 0.0
 
+    def reset_to(self, y):
+        """Rest at ``y`` (m): shaper, lead and mode settled there, nothing moving."""
+        self.reset()
+        if self.shaper is not None:
+            self.shaper.reset(y)
+        if self.lead is not None:
+            self.lead.reset(y)
+        self.x, self.xd = y, 0.0
+
     def step(self, r):
         """Return the predicted displacement (m) now, then advance with reference ``r`` (m)."""
         y = self.x

@@ -33,7 +33,8 @@ def register(subparsers):
     p.add_argument('--json', action='store_true', help='print one JSON object (SI units)')
     p.add_argument('--plots', metavar='DIR', default=None,
                    help='write deflection, blocked-force and Figure 7-10 sweep PNGs to DIR')
-    p.set_defaults(func=run)
+    # checked by fiber-align before run (fiber_align.tools.paths)
+    p.set_defaults(func=run, paths={'--config': 'in-config', '--plots': 'out-dir'})
     return p
 
 

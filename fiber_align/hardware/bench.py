@@ -30,7 +30,7 @@ from fiber_align.control.driver import DriverCore
 from fiber_align.control.feedforward import Feedforward
 from fiber_align.hardware import errors as er
 from fiber_align.hardware.emulators.mdt693b import MDT693BEmulator
-from fiber_align.hardware.emulators.physics import Bench
+from fiber_align.hardware.emulators.physics import Bench, RigBench
 from fiber_align.hardware.emulators.pm100 import PM100Emulator
 from fiber_align.hardware.mdt693b import MDT693BOutput
 from fiber_align.hardware.pm100 import PM100
@@ -48,22 +48,30 @@ def load_hardware(node, path=CONFIG_FILE, **overrides):
 
 
 @contextlib.contextmanager
-def emulated(seed=0, emulator_params=None, **optics):
+def emulated(seed=0, emulator_params=None, rig=False, **optics):
     """
     Start an MDT693B and a PM100 emulator on one bench; yield ``(bench, mdt, pm)``.
 
     :param seed: detector noise seed.
     :param emulator_params: overrides of the ``emulator`` section of hardware.yaml.
-    :param optics: optics overrides (``slot_position_m``, ``slot_drift_m_per_s``, ...).
+    :param rig: the two-axis rig (:class:`RigBench`: the fiber on channels
+        ``rig_x_channel`` and ``rig_y_channel``, the 2-D optics) instead of one axis.
+    :param optics: optics overrides (1-D: ``slot_position_m``, ``slot_drift_m_per_s``,
+        ...; rig: ``position_x_m``, ``position_y_m``, ``drift_x_m_per_s``, ...).
     """
     e = load_hardware('emulator', **(emulator_params or {}))
-    bench = Bench(v_limit=float(e['v_limit']), fiber_channel=e['fiber_channel'], seed=seed,
-                  step_s=float(e['step_s']), **optics)
+    if rig:
+        bench = RigBench(v_limit=float(e['v_limit']), seed=seed, step_s=float(e['step_s']),
+                         axes={'x': e['rig_x_channel'], 'y': e['rig_y_channel']}, **optics)
+    else:
+        bench = Bench(v_limit=float(e['v_limit']), fiber_channel=e['fiber_channel'],
+                      seed=seed, step_s=float(e['step_s']), **optics)
     mdt = pm = None
     try:
         mdt = MDT693BEmulator(bench, model=e['model'], echo=bool(e['echo']),
                               link_dir=e.get('serial_link_dir') or None,
-                              response_delay_s=float(e['response_delay_s']))
+                              response_delay_s=float(e['response_delay_s']),
+                              baud=int(e['baud']), turnaround_s=float(e['turnaround_s']))
         pm = PM100Emulator(bench, port=int(e['pm100_port']),
                            sample_time_s=float(e['sample_time_s']))
         yield bench, mdt, pm
@@ -91,7 +99,8 @@ class SensorlessBench:
     def __init__(self, serial_port, visa_resource, hw=None, driver=None, meter=None,
                  sequencer=None, truth=None):
         """Build the parts; nothing is opened until :meth:`connect`."""
-        self.hw = load_hardware('hardware_bench', **(hw or {}))
+        self.hw = dict(load_params(CONFIG_FILE, '/**'),     # rate_hz: the hardware graph's
+                       **load_hardware('hardware_bench', **(hw or {})))
         d = load_hardware('actuator_driver', port=serial_port, **(driver or {}))
         m = load_hardware('power_meter', resource=visa_resource, **(meter or {}))
         self.period_s = 1.0 / float(self.hw['rate_hz'])

@@ -4,9 +4,9 @@
 
 Prints one JSON line (``serial_port``: the pty, ``serial_link``: a stable symlink to it,
 ``visa_resource``, ``slot_position_m``, ``seed``, ``pid``, ...) and serves until SIGINT
-or SIGTERM, then stops both emulators and exits 0. Defaults: ``config/hardware.yaml``
-(section ``emulator``) and ``config/plant.yaml`` / ``config/optics.yaml``. Bad options
-exit 2 with one line.
+or SIGTERM (or until the process that started it is gone), then stops both emulators and
+exits 0. Defaults: ``config/hardware.yaml`` (section ``emulator``) and
+``config/plant.yaml`` / ``config/optics.yaml``. Bad options exit 2 with one line.
 """
 
 import json
@@ -16,6 +16,7 @@ import signal
 import sys
 import time
 
+from fiber_align import lifeline
 from fiber_align.hardware.bench import emulated
 
 
@@ -38,7 +39,17 @@ def register(subparsers):
     p.add_argument('--pm100-port', metavar='PORT', help='TCP port, 0 = free one')
     p.add_argument('--link-dir', metavar='DIR', help='directory of the serial symlink')
     p.add_argument('--fiber-broken', action='store_true', help='no light anywhere')
-    p.set_defaults(func=_run)
+    p.add_argument('--rig', action='store_true', help='the two-axis rig: bimorphs on '
+                   'channels x and y (--x-channel, --y-channel), 2-D optics')
+    p.add_argument('--target-x', metavar='M', help='rig: output core x (m), default '
+                   'config/optics2d.yaml')
+    p.add_argument('--target-y', metavar='M', help='rig: output core y (m)')
+    p.add_argument('--drift-y', metavar='M_PER_S', help='rig: target drift along y (m/s); '
+                   '--drift is along x')
+    p.add_argument('--x-channel', metavar='x|y|z', help='rig: channel of the x bimorph')
+    p.add_argument('--y-channel', metavar='x|y|z', help='rig: channel of the y bimorph')
+    # checked by fiber-align before _run (fiber_align.tools.paths)
+    p.set_defaults(func=_run, paths={'--link-dir': 'in-dir'})
 
 
 def _number(name, text, lo=-math.inf, hi=math.inf, integer=False):
@@ -56,16 +67,39 @@ def options(args):
     """Check the options; return ``(seed, emulator overrides, optics overrides)``."""
     seed = _number('--seed', args.seed, 0, 2 ** 31 - 1, integer=True)
     emu, optics = {}, {}
+    rig_only = [o for o, v in (('--target-x', args.target_x), ('--target-y', args.target_y),
+                               ('--drift-y', args.drift_y), ('--x-channel', args.x_channel),
+                               ('--y-channel', args.y_channel)) if v is not None]
+    if rig_only and not args.rig:
+        raise ValueError('%s: only with --rig' % ', '.join(rig_only))
+    if args.rig and args.slot is not None:
+        raise ValueError('--slot is 1-D; the rig takes --target-x and --target-y')
     if args.slot is not None:
         optics['slot_position_m'] = _number('--slot', args.slot, -1e-3, 1e-3)
-    if args.drift is not None:
-        optics['slot_drift_m_per_s'] = _number('--drift', args.drift, -1e-3, 1e-3)
+    keys = {'--target-x': 'position_x_m', '--target-y': 'position_y_m',
+            '--drift': 'drift_x_m_per_s' if args.rig else 'slot_drift_m_per_s',
+            '--drift-y': 'drift_y_m_per_s'}
+    for opt, text in (('--target-x', args.target_x), ('--target-y', args.target_y),
+                      ('--drift', args.drift), ('--drift-y', args.drift_y)):
+        if text is not None:
+            optics[keys[opt]] = _number(opt, text, -1e-3, 1e-3)
+    for opt, key, text in (('--x-channel', 'rig_x_channel', args.x_channel),
+                           ('--y-channel', 'rig_y_channel', args.y_channel)):
+        if text is not None:
+            if text not in ('x', 'y', 'z'):
+                raise ValueError('%s must be x, y or z, got %r' % (opt, text))
+            emu[key] = text
+    if args.rig and args.x_channel is not None and args.x_channel == args.y_channel:
+        raise ValueError('--x-channel and --y-channel name the same channel %r'
+                         % args.x_channel)
     if args.fiber_broken:
         optics['fiber_broken'] = True
     if args.model is not None:
         if args.model not in ('MDT693B', 'MDT694B'):
             raise ValueError('--model must be MDT693B or MDT694B, got %r' % args.model)
         emu['model'] = args.model
+        if args.rig and args.model == 'MDT694B':
+            raise ValueError('--rig needs two channels; the MDT694B has x only')
     if args.v_limit is not None:
         v = _number('--v-limit', args.v_limit)
         if v not in (75.0, 100.0, 150.0):
@@ -93,14 +127,21 @@ def _run(args):
         stop.append(signum)
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    lifeline.watch_parent(lifeline.PARENT_PID, signal.SIGTERM)   # as on SIGTERM
     try:
-        with emulated(seed=seed, emulator_params=emu, **optics) as (bench, mdt, pm):
+        with emulated(seed=seed, emulator_params=emu, rig=args.rig, **optics) as (
+                bench, mdt, pm):
             info = dict(serial_port=mdt.slave_path, serial_link=mdt.port,
                         visa_resource=pm.resource, model=mdt.model,
-                        v_limit_v=bench.v_limit, fiber_channel=bench.fiber_channel,
-                        slot_position_m=bench.coupling.slot_position_m,
-                        slot_drift_m_per_s=bench.coupling.slot_drift_m_per_s,
-                        echo=mdt.echo, seed=seed, pid=os.getpid())
+                        v_limit_v=bench.v_limit, echo=mdt.echo, seed=seed, pid=os.getpid())
+            if args.rig:
+                t = bench.coupling2d.target
+                info.update(rig=True, axes=bench.axes, target_x_m=t.x0, target_y_m=t.y0,
+                            drift_x_m_per_s=t.vx, drift_y_m_per_s=t.vy)
+            else:
+                info.update(fiber_channel=bench.fiber_channel,
+                            slot_position_m=bench.coupling.slot_position_m,
+                            slot_drift_m_per_s=bench.coupling.slot_drift_m_per_s)
             print(json.dumps(info), flush=True)
             while not stop:
                 time.sleep(0.2)

@@ -39,3 +39,86 @@ def replay_edges(prev, writes, n):
         i = j * m // n
         out.append(writes[i - 1] if i else prev)
     return out
+
+
+class DacClock:
+    """
+    The realtime simulated plant's sample clock: latch, late ticks, catch-up and replay.
+
+    At tick k the plant advances over [t_k-1, t_k] with the drive latched at tick k-1,
+    then latches the newest drive written since (zero-order hold: a tick without a new
+    drive is a missed cycle). A tick that comes late advances the plant by every elapsed
+    period (the plant keeps wall time), counts the skipped periods as missed and replays
+    the drives written meanwhile over them (:func:`replay_edges`); after a stall of over
+    ``max_catch_up`` periods it waits one tick for them (they race the timer when the
+    process wakes). Pure: the node passes the clock readings (s, ns).
+
+    :param plant: the :class:`~fiber_align.plant.actuator.SimulatedActuator`.
+    :param period_s: sample period (s).
+    :param max_catch_up: the longest stall (periods) caught up at once.
+    :param depth: most writes kept between two ticks.
+    """
+
+    def __init__(self, plant, period_s, max_catch_up, depth):
+        """Start held at sample 0 with 0 V latched."""
+        self.plant = plant
+        self.period_s = float(period_s)
+        self.period_ns = int(round(self.period_s * 1e9))
+        self.max_catch_up = int(max_catch_up)
+        self.depth = int(depth)
+        self.u_latched = 0.0            # drive held over the present period (V)
+        self.v_latest = 0.0             # newest drive written (V)
+        self.writes = []                # drives written since the last tick (V)
+        self.drives_in_period = 0
+        self.n_drive = 0
+        self.deferred = False           # a stall's catch-up waits one tick
+        self.m0 = None                  # scheduled time (s) of tick 0; None: restart
+        self.wall0_ns = 0               # system time (ns) of the nominal tick 0
+        self.stats_from = 0             # first sample counted in the statistics
+        self.missed = 0                 # ticks without a new drive
+        self.skipped = 0                # periods skipped by late ticks
+
+    def write(self, v):
+        """Take a drive (V) written to the DAC."""
+        self.v_latest = v
+        self.n_drive += 1
+        self.drives_in_period += 1
+        if len(self.writes) < self.depth:
+            self.writes.append(v)
+
+    def tick(self, k, now, sched, wall_ns, fresh):
+        """
+        Run one tick; return the periods the clock advanced, or ``None`` (wait a tick).
+
+        :param k: index of the last published sample.
+        :param now: the monotonic time (s) of this call; :param sched: this tick's
+            scheduled time on that clock (s); :param wall_ns: the system time now (ns).
+        :param fresh: no sample published yet (sample 0 is the plant at rest).
+        """
+        period = self.period_s
+        if self.m0 is None:             # first tick after a start: sample 0 or the next
+            k_next = k + (0 if fresh else 1)
+            self.m0 = sched - k_next * period
+            self.wall0_ns = wall_ns - int(round((now - sched) * 1e9)) \
+                - k_next * self.period_ns
+        steps = 0
+        if not fresh:
+            steps = max(1, int(round((sched - self.m0) / period)) - k)
+            if steps > self.max_catch_up and not self.deferred:
+                self.deferred = True    # a stall: its drives may still be on their way
+                return None
+            self.deferred = False
+            if k >= self.stats_from:
+                if self.drives_in_period == 0 and self.n_drive > 0:
+                    self.missed += 1
+                self.skipped += steps - 1
+            self.plant.step(self.u_latched)
+            if steps > 1:
+                for v in replay_edges(self.u_latched, self.writes, steps)[:-1]:
+                    self.plant.step(v)
+        self.writes.clear()
+        # latch last: in a composed process the drive computed from the sample about to
+        # be published arrives inside its publish (in-process delivery), for the next tick
+        self.u_latched = self.v_latest
+        self.drives_in_period = 0
+        return steps

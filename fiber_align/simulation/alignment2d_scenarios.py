@@ -35,9 +35,9 @@ from fiber_align.alignment import hillclimb2d as hc
 from fiber_align.alignment.plots2d import plot_run2d
 from fiber_align.simulation import alignment_bench as sc1
 from fiber_align.alignment import sequencer2d as s2d
-from fiber_align.config import load_params
 from fiber_align.jsonout import json_clean
 from fiber_align.plant import optics2d as o2
+from fiber_align.simulation.seeds2d import random_target, run_seeds
 
 SCENARIOS = ('align2d', 'track2d', 'switch2d')
 METHODS = ('sequencer', 'hillclimb')
@@ -137,15 +137,6 @@ class Bench2D(sc1.Stepping):
         return out
 
 
-def run_seeds(seed):
-    """
-    Return the noise seeds of run ``seed``: ``plant_x``, ``plant_y``, ``detector``.
-
-    One description for the offline rig and the ROS rig (``nodes/graph_rig.py``).
-    """
-    return dict(plant_x=2 * int(seed), plant_y=2 * int(seed) + 1, detector=int(seed) + 1000)
-
-
 def make_sequencer(method, **overrides):
     """Return a fresh ``sequencer`` (:class:`Sequencer2D`) or ``hillclimb`` baseline."""
     if method == 'sequencer':
@@ -153,13 +144,6 @@ def make_sequencer(method, **overrides):
     if method == 'hillclimb':
         return hc.HillClimb2D(**overrides)
     raise ValueError('unknown method %r (allowed: %s)' % (method, ', '.join(METHODS)))
-
-
-def random_target(seed, seq=None):
-    """Return a target ``(x, y)`` (m) drawn uniformly in the reachable square."""
-    seq = seq or s2d.Sequencer2D()
-    rng = np.random.default_rng([seed, 14])
-    return tuple(float(v) for v in rng.uniform(seq.lo, seq.hi))
 
 
 def build(seed=0, method='sequencer', target=None, rig=None, record=False, seq_overrides=None,
@@ -178,7 +162,7 @@ def build(seed=0, method='sequencer', target=None, rig=None, record=False, seq_o
     ov['position_x_m'], ov['position_y_m'] = float(target[0]), float(target[1])
     seeds = run_seeds(seed)
     if rig is None or isinstance(rig, str):
-        rig = Rig2D(rig or 'composite', seq.p['control_period_s'], seeds['plant_x'])
+        rig = Rig2D(rig or 'composite', seq.period_s, seeds['plant_x'])
     rig.reset(seeds['plant_x'])
     ov.setdefault('sample_period_s', rig.period_s)
     link = o2.OpticalLink2D.from_params(None, None, seed=seeds['detector'], **ov)
@@ -307,7 +291,7 @@ def run(name, seed=0, loop='composite', record=False, rig=None, **kw):
     Returns the sequencer's metrics with the hill climb's under ``baseline`` and the ratios
     ``samples_ratio`` / ``time_ratio`` (hill climb / sequencer, peak samples and time to
     peak). Keyword arguments: ``target`` ``(x, y)`` (m), ``period_s`` (s; default the
-    config's ``control_period_s``), ``cycles``, ``duration_s`` (s),
+    graph's 1 / ``rate_hz``), ``cycles``, ``duration_s`` (s),
     ``drift_m_per_s`` (m/s), ``vibration_m`` (m), ``vibration_hz`` (Hz), keys of the
     optics files.
     """
@@ -315,9 +299,8 @@ def run(name, seed=0, loop='composite', record=False, rig=None, **kw):
         raise ValueError('unknown scenario %r (allowed: %s)' % (name, ', '.join(SCENARIOS)))
     period_s = kw.pop('period_s', None)
     if period_s is not None:
-        kw['seq_overrides'] = dict(control_period_s=float(period_s))
-    rig = rig or Rig2D(loop, period_s or load_params(s2d.CONFIG_FILE, s2d.CONFIG_NODE)[
-        'control_period_s'], 2 * seed)
+        kw['seq_overrides'] = dict(period_s=float(period_s))
+    rig = rig or Rig2D(loop, period_s or s2d.default_period_s(), 2 * seed)
     out = run_method(name, 'sequencer', seed, rig, record, **kw)
     base = run_method(name, 'hillclimb', seed, rig, record, **kw)
     out.update(scenario=name, seed=seed, loop=loop, control_rate_hz=1.0 / rig.period_s,

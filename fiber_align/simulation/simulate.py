@@ -287,7 +287,7 @@ def run(scenario, controller, rate_hz=None, duration_s=None, seed=0, noise=False
             if v is not None}
     if over:
         setup = Setup(**dict(setup.__dict__, **over))
-    rate = float(setup.controller['rate_hz'] if rate_hz is None else rate_hz)
+    rate = float(setup.plant['rate_hz'] if rate_hz is None else rate_hz)
     if not rate > 0:
         raise ValueError('rate must be > 0 Hz, got %g' % rate)
     dur = sc.duration_s if duration_s is None else float(duration_s)

@@ -50,7 +50,8 @@ def register(subparsers):
     p.add_argument('--json', action='store_true', help='print the fit report as JSON')
     p.add_argument('--plot', metavar='FILE', default=None,
                    help='draw measured vs model loop and the error against voltage')
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, paths={'DATA': 'in-any', '--config': 'in-config',
+                                    '--out': 'out-file', '--plot': 'out-file'})
 
 
 def read_data(path):

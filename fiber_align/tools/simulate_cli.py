@@ -9,7 +9,8 @@ from fiber_align.control.factory import CONTROLLERS
 from fiber_align.jsonout import json_clean
 from fiber_align.control.fuzzy import FuzzyInference
 from fiber_align.plant.actuator import KINDS as PLANTS
-from fiber_align.simulation import alignment2d_scenarios, alignment_scenarios, scenarios, simulate
+from fiber_align.simulation import (alignment2d_scenarios, alignment_scenarios, scenarios,
+                                    simulate, station_scenarios)
 from fiber_align.tools.common import UsageError
 
 
@@ -21,7 +22,9 @@ def register(sub):
                         'align | switch | track run the alignment sequencer '
                         '(fiber_align.simulation.alignment_scenarios); align2d | track2d | '
                         'switch2d the two-axis sequencer and its hill-climb baseline '
-                        '(fiber_align.simulation.alignment2d_scenarios)')
+                        '(fiber_align.simulation.alignment2d_scenarios); station | cure the '
+                        'coupled input/output station and its serial baseline '
+                        '(fiber_align.simulation.station_scenarios)')
     p.add_argument('--controller', default='composite',
                    help='open-loop | feedforward | pid | fuzzy | composite | composite-pid')
     p.add_argument('--rate', type=float, default=None, help='control rate, Hz')
@@ -48,16 +51,18 @@ def register(sub):
                     help='slot (output core) position, m (default: random in the range)')
     al.add_argument('--drift', type=float, default=None, metavar='M_PER_S',
                     help='track: slot drift, m/s (default 1e-6)')
-    p.set_defaults(func=cmd_simulate)
+    p.set_defaults(func=cmd_simulate, paths={'--model': 'in-config', '--plot': 'out-file',
+                                             '--csv': 'out-file'})
     q = sub.add_parser('fuzzy-surface', help='the three fuzzy rule surfaces')
     q.add_argument('--points', type=int, default=41, help='grid points per axis')
     q.add_argument('--json', action='store_true', help='print JSON rows')
     q.add_argument('--plot', default=None, help='write a plot (PNG/PDF/SVG)')
-    q.set_defaults(func=cmd_fuzzy_surface)
+    q.set_defaults(func=cmd_fuzzy_surface, paths={'--plot': 'out-file'})
 
 
 ALIGN_SCENARIOS = ('align', 'switch', 'track')
 ALIGN2D_SCENARIOS = ('align2d', 'track2d', 'switch2d')
+STATION_SCENARIOS = station_scenarios.SCENARIOS
 
 
 def _check_alignment_args(args):
@@ -89,6 +94,15 @@ def _fmt(v, scale=1.0, digits=3):
 
 def cmd_simulate(args):
     """Run ``simulate``; return an exit code."""
+    if args.scenario in STATION_SCENARIOS:      # the coupled input/output station
+        _check_alignment_args(args)
+        extra = [o for o, v in (('--cycles', args.cycles), ('--slot', args.slot),
+                                ('--drift', args.drift), ('--duration', args.duration))
+                 if v is not None]
+        if extra:
+            raise UsageError('%s do not apply to --scenario %s'
+                             % (', '.join(extra), args.scenario))
+        return station_scenarios.run_cli(args)
     if args.scenario in ALIGN2D_SCENARIOS:      # two-axis alignment
         _check_alignment_args(args)
         return alignment2d_scenarios.run_cli(args)

@@ -23,6 +23,12 @@ to :attr:`MDT693BEmulator.command_log`, which the safety tests inspect.
 
 :meth:`unplug` closes the pty (clients see their port vanish); :meth:`plug` makes a new
 pty and points the symlink at it, as a USB re-enumeration does.
+
+Link timing (a pty moves bytes at once; the real link does not): with ``baud`` > 0 a
+command takes effect ``10 * bytes / baud`` s after its first byte (8N1: 10 bits a byte,
+the CR counted) and its reply (prompt included) is written ``turnaround_s`` later plus
+the reply's own ``10 * bytes / baud``; one command at a time, as the firmware answers
+them. The echo is not timed (it travels back while the command comes in).
 """
 
 import os
@@ -50,10 +56,12 @@ class MDT693BEmulator:
     :param compat: start in the compatibility command set.
     :param link_dir: directory of the stable symlink (default: a new temporary one).
     :param response_delay_s: extra delay (s) before each reply, to emulate a slow unit.
+    :param baud: the link's rate (baud) whose byte times are modelled; 0: none.
+    :param turnaround_s: the firmware's time (s) from a command's CR to its reply.
     """
 
     def __init__(self, bench, model='MDT693B', echo=True, compat=False, link_dir=None,
-                 response_delay_s=0.0):
+                 response_delay_s=0.0, baud=0, turnaround_s=0.0):
         """Open the pty and start serving."""
         if model not in ('MDT693B', 'MDT694B'):
             raise ValueError('model must be MDT693B or MDT694B, got %r' % model)
@@ -63,10 +71,13 @@ class MDT693BEmulator:
         self.echo = bool(echo)
         self.compat = bool(compat)
         self.response_delay_s = float(response_delay_s)
+        self.byte_s = 10.0 / float(baud) if baud and float(baud) > 0 else 0.0
+        self.turnaround_s = float(turnaround_s)
         self.vmin = {c: 0.0 for c in self.channels}
         self.vmax = {c: bench.v_limit for c in self.channels}
         self.command_log = []           # (monotonic s, channel, raw text, parsed float)
         self.commands = 0
+        self._t_cmd = 0.0
         self._own_dir = link_dir is None
         self._dir = tempfile.mkdtemp(prefix='mdt693b-') if link_dir is None else link_dir
         self.port = os.path.join(self._dir, 'ttyMDT693B')
@@ -74,6 +85,7 @@ class MDT693BEmulator:
         self._lock = threading.Lock()
         self.master = self._slave_keep = None
         self.slave_path = None
+        self._gen = 0
         self.plug()
         self._thread = threading.Thread(target=self._serve, name='mdt693b-emulator',
                                         daemon=True)
@@ -97,6 +109,7 @@ class MDT693BEmulator:
             # keep a slave descriptor open so a client closing its port does not
             # hang the master up (EIO) between two clients
             self.master, self._slave_keep, self._buf = master, slave, bytearray()
+            self._gen += 1          # a new pty (its fd number may be the old one's)
 
     def unplug(self):
         """Close the pty: every client's port is gone (reads fail, writes fail)."""
@@ -147,25 +160,40 @@ class MDT693BEmulator:
                 continue
             if not data:
                 continue
-            out = bytearray()
-            if self.echo:
-                out += data
+            gen = self._gen         # the pty these bytes came from (plug() makes a new one)
+            out = bytearray(data) if self.echo else bytearray()
             for b in data:
                 if b == 0x0D:            # CR ends a command
                     line = self._buf.decode('ascii', 'replace')
                     self._buf = bytearray()
-                    out += self._handle(line)
+                    self._sleep(self.byte_s * (len(line) + 1))
+                    reply = self._handle(line)
+                    self._sleep(self.turnaround_s + self.response_delay_s
+                                + self.byte_s * len(reply))
+                    out += reply
+                    self._send(fd, out, gen)
+                    out = bytearray()
                 elif b == 0x0A:          # LF ignored
                     continue
                 else:
                     self._buf.append(b)
             if out:
-                if self.response_delay_s > 0:
-                    time.sleep(self.response_delay_s)
-                try:
-                    os.write(fd, bytes(out))
-                except OSError:
-                    pass
+                self._send(fd, out, gen)
+
+    @staticmethod
+    def _sleep(seconds):
+        if seconds > 0:
+            time.sleep(seconds)
+
+    def _send(self, fd, data, gen):
+        """Write ``data`` to the pty it answers, never to a pty plugged in since."""
+        with self._lock:
+            if gen != self._gen or self.master is None:
+                return
+        try:
+            os.write(fd, bytes(data))
+        except OSError:
+            pass
 
     def _prompt(self):
         return COMPAT_PROMPT if self.compat else PROMPT
@@ -173,6 +201,7 @@ class MDT693BEmulator:
     def _handle(self, line):
         """Return the reply bytes (prompt included) to one command line."""
         self.commands += 1
+        self._t_cmd = time.monotonic()      # one time for every channel of one command
         prompt = self._prompt()
         cmd = line.strip()
         try:
@@ -185,7 +214,7 @@ class MDT693BEmulator:
 
     def _set(self, ch, text, value):
         with self._lock:
-            self.command_log.append((time.monotonic(), ch, text, value))
+            self.command_log.append((self._t_cmd, ch, text, value))
         v = min(max(value, self.vmin[ch]), self.vmax[ch])
         if v != v:                                   # NaN: the device ignores it
             return

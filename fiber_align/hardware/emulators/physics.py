@@ -12,6 +12,9 @@ displacement sensor on the bench); :attr:`position_m` is the true tip position (
 :class:`Bench` holds the three amplifier channels and the optical link
 (:class:`fiber_align.plant.optics.FiberCoupling` + ``Detector``) whose input fiber
 rides on one channel; the MDT693B and PM100 emulators share one Bench.
+:class:`RigBench` is the two-axis rig: the input fiber rides on two bimorphs, on two
+amplifier channels (``x`` and ``y`` by default), and the PM100 reads the 2-D coupling of
+:mod:`fiber_align.plant.optics2d` (the simulated rig's).
 """
 
 import threading
@@ -20,6 +23,7 @@ import time
 from fiber_align.config import load_params
 from fiber_align.plant.actuator import SimulatedActuator
 from fiber_align.plant.optics import OpticalLink
+from fiber_align.plant.optics2d import OpticalLink2D
 
 MAX_CATCH_UP_STEPS = 20000
 
@@ -155,3 +159,53 @@ class Bench:
         """Take one raw detector sample (W) of the present power, ``dt_s`` after the last."""
         with self.lock:
             return self.detector.measure(self.true_power_w(), dt_s)
+
+
+class RigBench(Bench):
+    """
+    The emulated two-axis rig: three amplifier channels, the fiber on two (V, m, s, W).
+
+    :param axes: ``{'x': channel, 'y': channel}``: the amplifier channel of each bimorph.
+    :param seed: detector noise seed.
+    :param optics: keys of ``optics.yaml`` and of the ``target`` of ``optics2d.yaml``
+        (``position_x_m``, ``position_y_m``, ``drift_x_m_per_s``, ...).
+    """
+
+    def __init__(self, plant_params=None, optics_params=None, v_limit=100.0,
+                 axes=None, seed=0, step_s=1e-4, clock=time.monotonic, **optics):
+        """Build the channels at rest and the 2-D link."""
+        axes = dict(axes or {'x': 'x', 'y': 'y'})
+        if sorted(axes) != ['x', 'y'] or len(set(axes.values())) != 2 or not set(
+                axes.values()) <= {'x', 'y', 'z'}:
+            raise ValueError('axes must map x and y to two distinct channels of x, y, z, '
+                             'got %r' % (axes,))
+        super().__init__(plant_params, optics_params, v_limit, axes['x'], seed, step_s,
+                         clock)
+        self.axes = axes
+        link = OpticalLink2D.from_params(optics_params, seed=seed, **optics)
+        self.coupling2d = link.coupling
+        self.detector = link.detector
+
+    def advance(self):
+        """Bring every channel up to now; return the fiber's ``(x, y)`` (m)."""
+        with self.lock:
+            now = self.clock()
+            for ch in self.channels.values():
+                ch.advance(now)
+            return tuple(self.channels[self.axes[a]].position_m for a in ('x', 'y'))
+
+    def true_power_w(self, now=None):
+        """Return the noise-free coupled power (W) now (target at bench time)."""
+        with self.lock:
+            x, y = self.advance()
+            return self.coupling2d.power_w(self.elapsed(now), x, y)
+
+    def true_loss_db(self):
+        """Return the true loss (dB) against the (moving) maximum now."""
+        with self.lock:
+            x, y = self.advance()
+            return self.coupling2d.loss_db(self.elapsed(), x, y)
+
+    def slot_position_m(self):
+        """Return the target (output core) ``(x, y)`` (m) now."""
+        return self.coupling2d.target.position(self.elapsed())

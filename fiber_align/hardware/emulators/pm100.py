@@ -19,7 +19,8 @@ The wavelength does not change the emulated coupling (the link's ``wavelength_m`
 it is stored and read back.
 
 :meth:`PM100Emulator.unplug` drops every connection and refuses new ones until
-:meth:`plug`.
+:meth:`plug`; :attr:`PM100Emulator.silent` true keeps the connections but answers nothing
+(a meter that hangs: every query times out).
 """
 
 import socket
@@ -75,6 +76,7 @@ class PM100Emulator:
         self.errors = []
         self.readings = 0
         self.plugged = True
+        self.silent = False             # connected but answering nothing
         self._stop = threading.Event()
         self._conns = set()
         self._lock = threading.Lock()
@@ -147,6 +149,9 @@ class PM100Emulator:
                 if not data:
                     return
                 buf += data
+                if self.silent:
+                    buf = b''
+                    continue
                 while b'\n' in buf:
                     line, buf = buf.split(b'\n', 1)
                     for cmd in line.decode('ascii', 'replace').split(';'):

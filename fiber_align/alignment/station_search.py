@@ -1,0 +1,206 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+Geometry and estimators of the coupled station (four axes; pure numpy, SI units).
+
+- :func:`search_design`: how many input-side grid points and output-side raster lines the
+  first-light search needs so that it cannot pass the joint peak by.
+- :func:`search_vertices` and :class:`Polyline`: the search path in the four coordinates
+  ``(x_in, y_in, x_out, y_out)`` (m), walked at a constant speed.
+- :func:`fit_log_paraboloid_sides`: weighted least squares of ``ln P`` on the separable
+  paraboloid of the two facets' Gaussian overlaps.
+- :class:`JointDemodulator`: the gradient of ``ln P`` in the four coordinates from two
+  circular dithers, one regression.
+"""
+
+import math
+
+import numpy as np
+
+from fiber_align.alignment import search2d as s2
+
+SQRT2 = math.sqrt(2.0)
+
+
+def search_design(radius_m, capture_db, slow_share, chord_m, half_width_m):
+    """
+    Return ``(n_grid, n_lines)``: input grid points per axis, output raster lines.
+
+    Light reaches the detector when ``(d_in^2 + d_out^2) / radius^2 <= D ln(10) / 10``,
+    ``D = capture_db``. The input side holds still at the points of an ``n_grid`` square
+    grid over ``+-half_width_m``, at most ``pitch / sqrt(2)`` from its peak; that share
+    (``slow_share`` of ``D``) is :func:`~fiber_align.alignment.search2d.capture_radius`.
+    The output side rasters its square with lines no further apart than
+    :func:`~fiber_align.alignment.search2d.spiral_pitch` allows for the rest of ``D`` and
+    the confirm chord ``chord_m`` (m).
+    """
+    if not 0.0 < slow_share < 1.0:
+        raise ValueError('search_slow_share must be in (0, 1), got %r' % slow_share)
+    d_slow = s2.capture_radius(radius_m, slow_share * capture_db)
+    n = max(1, int(math.ceil(2.0 * half_width_m / (SQRT2 * d_slow))))
+    pitch = s2.spiral_pitch(radius_m, (1.0 - slow_share) * capture_db, chord_m)
+    m = max(1, int(math.ceil(2.0 * half_width_m / pitch)))
+    return n, m
+
+
+def grid_points(center, half_width_m, n):
+    """Return the ``n`` by ``n`` cell centres of a square (m), rows in serpentine order."""
+    c = (np.arange(n) + 0.5) * (2.0 * half_width_m / n) - half_width_m
+    out = []
+    for j in range(n):
+        xs = c if j % 2 == 0 else c[::-1]
+        out += [(center[0] + x, center[1] + c[j]) for x in xs]
+    return np.asarray(out)
+
+
+def raster_vertices(center, half_width_m, m):
+    """Return the corners (m) of an ``m``-line serpentine raster of a square, lines along x."""
+    ys = (np.arange(m) + 0.5) * (2.0 * half_width_m / m) - half_width_m
+    out = []
+    for j, y in enumerate(ys):
+        xs = (-half_width_m, half_width_m) if j % 2 == 0 else (half_width_m, -half_width_m)
+        out += [(center[0] + xs[0], center[1] + y), (center[0] + xs[1], center[1] + y)]
+    return np.asarray(out)
+
+
+def search_vertices(start, center_in, center_out, half_width_m, n, m, lo, hi):
+    """
+    Return the search path's vertices ``(k, 4)`` (m), clipped to ``lo..hi`` (m).
+
+    From ``start`` to the first grid point and the raster's first corner; then at each
+    input grid point one raster pass of the output side, the next pass backwards, the
+    input side stepping to its next point while the output side waits at the pass's end.
+    """
+    grid = grid_points(center_in, half_width_m, n)
+    ras = raster_vertices(center_out, half_width_m, m)
+    rows = [np.asarray(start, dtype=float)]
+    for i, g in enumerate(grid):
+        path = ras if i % 2 == 0 else ras[::-1]
+        for q in path:
+            rows.append(np.array([g[0], g[1], q[0], q[1]]))
+    return np.clip(np.asarray(rows), lo, hi)
+
+
+class Polyline:
+    """A path through ``vertices`` ``(k, d)`` (m), walked by arc length."""
+
+    def __init__(self, vertices):
+        """Start at the first vertex."""
+        self.v = np.asarray(vertices, dtype=float)
+        seg = np.linalg.norm(np.diff(self.v, axis=0), axis=1)
+        self.cum = np.concatenate([[0.0], np.cumsum(seg)])
+        self.length_m = float(self.cum[-1])
+        self.s = 0.0
+        self.done = self.length_m <= 0.0
+
+    def advance(self, ds_m):
+        """Walk ``ds_m`` (m) further; return the point (m)."""
+        self.s = min(self.s + float(ds_m), self.length_m)
+        self.done = self.s >= self.length_m
+        i = int(np.searchsorted(self.cum, self.s, side='right')) - 1
+        i = min(max(i, 0), len(self.v) - 2) if len(self.v) > 1 else 0
+        if len(self.v) == 1:
+            return self.v[0].copy()
+        span = self.cum[i + 1] - self.cum[i]
+        f = 0.0 if span <= 0 else (self.s - self.cum[i]) / span
+        return self.v[i] + f * (self.v[i + 1] - self.v[i])
+
+
+def fit_log_paraboloid_sides(pos_m, p_w, weights=None, curvature=None):
+    """
+    Fit ``ln P = ln P0 - k_in |r_in - a|^2 - k_out |r_out - b|^2``.
+
+    :param pos_m: ``(n, 4)`` positions ``(x_in, y_in, x_out, y_out)`` (m).
+    :param p_w: powers (W), > 0.
+    :param weights: ``1 / variance`` of each ``ln P`` (None: equal).
+    :param curvature: a known ``k`` (1/m^2) for both sides, or None to fit one per side.
+    :returns: ``(vertex (4,) m, k_in, k_out (1/m^2), ln P0)``, or None when the readings
+        do not define a peak (too few, degenerate, a curvature <= 0).
+    """
+    x = np.asarray(pos_m, dtype=float)
+    lp = np.log(np.asarray(p_w, dtype=float))
+    w = np.ones(len(x)) if weights is None else np.asarray(weights, dtype=float)
+    if len(x) < (5 if curvature else 7):
+        return None
+    mean = x.mean(axis=0)
+    xs = (x - mean) * 1e6                                     # um, for conditioning
+    r_in = xs[:, 0] ** 2 + xs[:, 1] ** 2
+    r_out = xs[:, 2] ** 2 + xs[:, 3] ** 2
+    ones = np.ones(len(x))
+    if curvature:
+        k = float(curvature) * 1e-12
+        a = np.column_stack([ones, xs])
+        rhs = lp + k * (r_in + r_out)
+    else:
+        a = np.column_stack([ones, xs, -r_in, -r_out])
+        rhs = lp
+    sw = np.sqrt(w)
+    coef, _, rank, _ = np.linalg.lstsq(a * sw[:, None], rhs * sw, rcond=None)
+    if rank < a.shape[1]:
+        return None
+    k_in, k_out = (k, k) if curvature else (float(coef[5]), float(coef[6]))
+    if not (k_in > 0 and k_out > 0):
+        return None
+    ks = np.array([k_in, k_in, k_out, k_out])
+    v = coef[1:5] / (2.0 * ks)
+    lp0 = coef[0] + float(np.sum(ks * v * v))
+    return mean + v * 1e-6, k_in * 1e12, k_out * 1e12, float(lp0)
+
+
+class JointDemodulator:
+    """
+    Gradient of ``ln P`` (1/m) in ``n`` coordinates, dithered at distinct frequencies.
+
+    :class:`~fiber_align.alignment.search2d.CircleDemodulator` in ``n`` dimensions: the
+    readings are regressed on the measured displacements about their running means (an
+    exponential window of ``time_s``), all ``n`` at once, so each side's gradient comes
+    from its own circle and the other side's circle, at another frequency, does not leak
+    into it. Each reading is paired with the positions ``lag_s`` earlier (the detector's
+    averaging delay).
+    """
+
+    def __init__(self, n, time_s, lag_s=0.0):
+        """Start empty."""
+        self.n = int(n)
+        self.time_s = float(time_s)
+        self.lag_s = float(lag_s)
+        self.reset()
+
+    def reset(self):
+        """Forget the statistics."""
+        self.count = 0
+        self.m = np.zeros(self.n + 1)
+        self.cov = np.zeros((self.n, self.n))
+        self.cross = np.zeros(self.n)
+        self.prev = None
+
+    def update(self, dt_s, pos_m, ln_p):
+        """Add one reading: positions (m) and ``ln P`` (power in W)."""
+        pos = np.asarray(pos_m, dtype=float)
+        if self.prev is not None and dt_s > 0 and self.lag_s > 0:
+            lagged = pos - min(1.0, self.lag_s / dt_s) * (pos - self.prev)
+        else:
+            lagged = pos
+        self.prev = pos
+        v = np.append(lagged, ln_p)
+        if self.count == 0:
+            self.m = v
+            self.count = 1
+            return
+        a = min(1.0, dt_s / self.time_s) if dt_s > 0 else 1.0
+        d = v - self.m
+        self.m = self.m + a * d
+        self.cov = (1.0 - a) * (self.cov + a * np.outer(d[:-1], d[:-1]))
+        self.cross = (1.0 - a) * (self.cross + a * d[:-1] * d[-1])
+        self.count += 1
+
+    def gradient(self, min_var_m2):
+        """Return ``d ln P / d pos`` (1/m); None while a variance < ``min_var_m2`` (m^2)."""
+        var = np.diag(self.cov)
+        if np.any(var < min_var_m2):
+            return None
+        # the correlation matrix's determinant is 1 for separable dithers, 0 for dependent
+        # ones (the n-D form of the 2-D demodulator's check)
+        s = np.sqrt(var)
+        if not np.linalg.det(self.cov / np.outer(s, s)) > 0.25:
+            return None
+        return np.linalg.solve(self.cov, self.cross)

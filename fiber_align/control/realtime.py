@@ -1,0 +1,294 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The realtime step rules of the control loop's nodes, beside the laws they drive.
+
+Pure: the nodes pass the clock readings (s, monotonic) and the messages' values (m, V);
+these classes decide what one step does. SI units throughout.
+"""
+
+import math
+
+from fiber_align.control.trajectory import DRIVE_STALE_PERIODS, MAX_CATCH_UP
+from fiber_align.control.trajectory import SetpointTrajectory
+
+#: Periods of delay the realtime loop adds to the lockstep loop: the plant latches the
+#: drive at its next tick (``simulated_actuator``), so the command computed from y_k
+#: first acts over [t_k+1, t_k+2] instead of [t_k, t_k+1].
+REALTIME_EXTRA_DELAY_PERIODS = 1
+
+
+def extend_lead(obj, period_s, periods=REALTIME_EXTRA_DELAY_PERIODS):
+    """
+    Lengthen the delay compensation of ``obj`` by the realtime loop's extra delay.
+
+    ``obj`` is a :class:`~fiber_align.control.feedforward.Feedforward` or a
+    :class:`~fiber_align.control.shaping.ReferenceModel`; its ``lead``
+    (:class:`~fiber_align.control.shaping.Lead`, if any) predicts smooth references over
+    the shaper delay plus one period; in realtime the drive acts ``periods`` periods
+    later still, so the horizon grows by ``periods * period_s`` (s). Returns ``obj``.
+    """
+    lead = getattr(obj, 'lead', None) if obj is not None else None
+    if lead is not None:
+        lead.lead_s += periods * float(period_s)
+    return obj
+
+
+def present(y):
+    """Return a measured position ``y`` (m) usable as a rest position: finite, >= 0 m."""
+    return max(0.0, float(y)) if math.isfinite(y) else 0.0
+
+
+class LoopClock:
+    """
+    The realtime inputs every loop node tracks: held drive, drive age, latest position.
+
+    :param period_s: control period (s).
+    :param rate_m_per_s: rate limit of the setpoint trajectory (m/s; <= 0: none).
+    """
+
+    def __init__(self, period_s, rate_m_per_s):
+        """Start at rest at 0 m, the drive passed and never heard."""
+        self.period_s = float(period_s)
+        self.traj = SetpointTrajectory(period_s, rate_m_per_s)
+        self.held = False           # the driver holds its output (``drive_held``)
+        self.t_drive = None         # monotonic s of the newest ``drive_voltage``
+        self.y_latest = 0.0         # newest measured position (m)
+
+    def drive(self, now):
+        """Note a ``drive_voltage`` arriving at ``now`` (monotonic s)."""
+        self.t_drive = now
+
+    def drive_stale(self, now, never=True):
+        """
+        Return True when the newest drive is older than :data:`DRIVE_STALE_PERIODS`.
+
+        :param never: the answer while no drive has been heard yet.
+        """
+        t = self.t_drive
+        if t is None:
+            return never
+        return now - t > DRIVE_STALE_PERIODS * self.period_s
+
+    def present(self):
+        """Return the latest measured position (m), finite and at least 0 m."""
+        return present(self.y_latest)
+
+
+class CompensatorStep(LoopClock):
+    """
+    The compensator's realtime step: one feedforward (V) per answered sample.
+
+    The drive held, or a gap of more than :data:`MAX_CATCH_UP` periods (this node was
+    stalled and may have missed ``drive_held``): rest at the present position. The drive
+    stale for :data:`DRIVE_STALE_PERIODS` (a stalled driver): the last feedforward again
+    and the trajectory waits. Else one trajectory period per answered sample, whatever
+    the gap: a stall delays the move, never jumps it.
+
+    :param ff: the :class:`~fiber_align.control.feedforward.Feedforward` (``step(r)``,
+        ``start_at(y)``: V from m); :attr:`ff` may be replaced (a model reload).
+    """
+
+    def __init__(self, ff, period_s, rate_m_per_s):
+        """Wrap ``ff``; start at rest at 0 m with 0 V published."""
+        super().__init__(period_s, rate_m_per_s)
+        self.ff = ff
+        self.ff_last = 0.0
+
+    def sample(self, stamp, y, target, now):
+        """
+        Answer one ``displacement`` sample; return the feedforward (V).
+
+        :param stamp: its header stamp (counts the sample periods).
+        :param y: its position (m) or ``None``.
+        :param target: the latest valid setpoint (m).
+        :param now: monotonic s.
+        """
+        if y is not None:
+            self.y_latest = y
+        n = self.traj.periods(stamp)
+        if self.held or n > MAX_CATCH_UP:
+            v = self.rest(self.present())
+        elif self.drive_stale(now, never=False):
+            v = self.ff_last
+        else:
+            v = self.ff.step(self.traj.advance(target, 1)[0])
+        self.ff_last = v
+        return v
+
+    def rest(self, y):
+        """Rest at ``y`` (m): feedforward and trajectory; return the feedforward (V)."""
+        self.traj.reset(y)
+        return self.ff.start_at(y)
+
+
+#: What a parked controller publishes: (feedback V, error m, error rate m/s, gains).
+PARKED = (0.0, math.nan, 0.0, (0.0, 0.0, 0.0))
+
+
+class ControllerStep(LoopClock):
+    """
+    The controller's realtime step: one feedback (V) per answered sample.
+
+    Parked (0 V, integral cleared, reference model and trajectory at the measured
+    position) while the drive is held or before the first setpoint, so every resume is
+    bumpless; a gap of more than :data:`MAX_CATCH_UP` periods clears the stale integral
+    and parks. The drive stale: the output held, nothing integrated, the trajectory and
+    reference model wait. Else the reference model gets the trajectory's value one
+    sample old for each period since the last sample (the realtime loop's extra delay).
+
+    :param ctl: the feedback law (``step(r, y)``, ``reset()``, ``u``, ``gains``,
+        ``pid``, ``reference_filter``) or ``None``; :attr:`ctl` may be replaced.
+    """
+
+    def __init__(self, ctl, period_s, rate_m_per_s):
+        """Wrap ``ctl``; start parked, without a setpoint."""
+        super().__init__(period_s, rate_m_per_s)
+        self.ctl = ctl
+        self.r_prev = 0.0           # the trajectory's value one sample old (m)
+        self.has_setpoint = False
+
+    def park(self):
+        """Rest at the latest measured position (trajectory and reference model)."""
+        y = self.present()
+        self.traj.reset(y)
+        self.r_prev = y
+        rf = getattr(self.ctl, 'reference_filter', None)
+        if rf is not None:
+            rf.reset_to(y)
+
+    def reset(self):
+        """Clear the law's integral and filters and park."""
+        if self.ctl is not None:
+            self.ctl.reset()
+        self.park()
+
+    def set_held(self, held):
+        """Note that the driver holds (True) or passes its output (clear the law on a hold)."""
+        if held and not self.held and self.ctl is not None:
+            self.ctl.reset()
+        self.held = bool(held)
+
+    def setpoint(self):
+        """Note a valid setpoint; return True for the first (the law then starts parked)."""
+        if self.has_setpoint:
+            return False
+        self.has_setpoint = True
+        self.reset()
+        return True
+
+    def sample(self, stamp, y, target, now):
+        """
+        Answer one ``displacement`` sample; return ``(fb V, e m, de m/s, gains)``.
+
+        :param stamp: its header stamp; :param y: its position (m);
+        :param target: the latest valid setpoint (m); :param now: monotonic s.
+        """
+        self.y_latest = y
+        n = self.traj.periods(stamp)
+        if n > MAX_CATCH_UP and self.ctl is not None:
+            self.reset()
+            n = 1
+        if self.held or not self.has_setpoint:
+            if self.held:
+                self.park()
+            return PARKED
+        if self.drive_stale(now):
+            ctl = self.ctl
+            return (ctl.u if ctl is not None else 0.0, math.nan, 0.0,
+                    getattr(ctl, 'gains', (0.0, 0.0, 0.0)))
+        seq = [self.r_prev] + self.traj.advance(target, n)
+        self.r_prev = seq[-1]
+        rf = getattr(self.ctl, 'reference_filter', None)
+        if rf is not None:
+            for r in seq[:-2]:
+                rf.step(r)
+        return self.step(seq[-2], y)
+
+    def step(self, r, y):
+        """One period of the law: ``(fb V, e m, de m/s, gains)`` (lockstep too)."""
+        ctl = self.ctl
+        if ctl is None:
+            return 0.0, r - y, 0.0, (0.0, 0.0, 0.0)
+        fb = ctl.step(r, y)
+        return fb, r - y, ctl.pid.deriv, ctl.gains
+
+
+#: Uninterrupted fresh input (s, wall) the driver waits for before it ends a trip.
+RECOVERY_S = 0.02
+
+
+class DriverStep:
+    """
+    The driver's realtime input rules: which input makes a drive command, and with what.
+
+    A feedback makes one (with the newest feedforward). A feedforward makes one only
+    while the feedback is late (a stalled controller: more than 1.5 periods, less than
+    the watchdog timeout): then the drive follows the feedforward with the last feedback,
+    the watchdog counting from that feedback's time. No command while the feedforward is
+    older than the watchdog timeout (left to the watchdog), while the watchdog is latched,
+    or after a trip until the input has been fresh for :data:`RECOVERY_S`.
+
+    :param core: the :class:`~fiber_align.control.driver.DriverCore` (``timeout``,
+        ``tripped``, ``latched``).
+    :param period_s: control period (s).
+    :param note: called with a line for the log when the input is back after a trip.
+    """
+
+    def __init__(self, core, period_s, note=None):
+        """Start with no input heard."""
+        self.core = core
+        self.period_s = float(period_s)
+        self.note = note
+        self.t_ff = self.t_fb = None    # monotonic s of the newest feedforward, feedback
+        self.ff_latest = 0.0            # newest feedforward (V)
+        self.fb_last = 0.0              # newest feedback (V)
+        self.t_fresh = None             # start (s) of fresh input after a trip
+        self.t_fresh_last = 0.0
+
+    def feedforward(self, v, now, enabled, sensorless=False):
+        """
+        Take a feedforward voltage (V) at ``now`` (s); return the command or None.
+
+        :param enabled: the output is enabled (``~/enable``).
+        :param sensorless: no feedback exists: every feedforward is a command (fb 0 V).
+        """
+        self.ff_latest, self.t_ff = v, now
+        if sensorless:
+            return self.gate(0.0, None, now, enabled)
+        core, t_fb = self.core, self.t_fb
+        if t_fb is not None and not core.tripped \
+                and 1.5 * self.period_s < now - t_fb < core.timeout:
+            return self.gate(self.fb_last, t_fb, now, enabled)
+        return None
+
+    def feedback(self, v, now, enabled):
+        """Take a feedback voltage (V) at ``now`` (s); return the command or None."""
+        self.t_fb, self.fb_last = now, v
+        return self.gate(v, None, now, enabled)
+
+    def gate(self, fb, t_input, now, enabled):
+        """Return the command ``(ff, fb, t_input)`` unless a rule holds it (``None``)."""
+        core = self.core
+        if core.timeout > 0 and (self.t_ff is None or now - self.t_ff > core.timeout):
+            return None
+        if core.latched:
+            return None
+        if core.tripped and enabled and not self.recovered(now):
+            return None
+        return self.ff_latest, fb, t_input
+
+    def recovered(self, now):
+        """Return True once fresh input has flowed for :data:`RECOVERY_S` after a trip."""
+        if self.t_fresh is None or now - self.t_fresh_last > 5.0 * self.period_s:
+            if self.t_fresh is None and self.note is not None:
+                self.note('input is back: holding %g s before resuming' % RECOVERY_S)
+            self.t_fresh = now
+        self.t_fresh_last = now
+        if now - self.t_fresh < RECOVERY_S:
+            return False
+        self.t_fresh = None
+        return True
+
+    def tripped(self):
+        """Note a watchdog trip: the recovery wait starts again with the next input."""
+        self.t_fresh = None

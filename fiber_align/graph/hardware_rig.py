@@ -1,0 +1,155 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The two-axis rig on hardware: one MDT693B drives x and y, a PM100 reads the power (pure).
+
+The rig of :mod:`fiber_align.graph.rig` with the simulated plants and optics replaced by
+the bench, sensorless as the 1-D hardware graph (:mod:`fiber_align.graph.hardware`).
+Under the rig namespace (``rig`` unless told):
+
+- ``/rig/x/hysteresis_compensator``, ``/rig/y/hysteresis_compensator``: each axis's
+  inverse PI feedforward (``controller: feedforward``) of its own model file, from
+  ``x/setpoint`` to ``x/feedforward_voltage`` and ``x/reference`` (y alike);
+- ``/rig/mdt693b_driver`` (lifecycle): the amplifier's one owner, both axes' limits,
+  slew and watchdogs, both channels over one serial link;
+- ``/rig/power_meter``: ``optical_power`` from the PM100;
+- ``/rig/alignment_sequencer_2d``: the 2-D sequencer on that power against the
+  commanded positions (``x/reference``, ``y/reference``), one update per reading;
+- ``/rig/lifecycle_manager``: configures and activates ``mdt693b_driver``.
+
+Composed (default): a ``control_graph`` process per axis (its compensator; a composed
+process has one namespace), one for the sequencer and the driver, and the meter and
+the manager alone. Params: the rig's files, then :data:`HARDWARE_RIG_FILES`
+(``hardware.yaml``'s ``/**``: sensorless, 100 Hz; ``hardware_rig.yaml``: the wiring and
+each axis's limits and model, the file a user edits; ``sequencer2d_hardware.yaml``), the
+user's ``params_file``, then ``port`` and ``visa_resource``. Used by the launch file
+(``rig:=true hardware:=true``) and ``bringup --rig --hardware``.
+"""
+
+import copy
+from dataclasses import dataclass
+import os
+
+from fiber_align.config import config_dir
+from fiber_align.graph import description as g
+from fiber_align.graph.hardware import POWER_METER
+from fiber_align.graph.params import (check_user, COMPENSATOR, effective, GraphError,
+                                      LIFECYCLE_MANAGER, merge, merge_params,
+                                      wildcard_first)
+from fiber_align.graph.rig import (_axis_ns, AXES, RIG_FILES, RIG_NAMESPACE, RigGraph,
+                                   SEQUENCER_2D)
+
+AMPLIFIER = 'mdt693b_driver'
+#: Params files of the hardware rig, merged after the rig's own (names in ``config/``).
+HARDWARE_RIG_FILES = ('hardware.yaml', 'hardware_rig.yaml', 'sequencer2d_hardware.yaml')
+#: Nodes at the rig namespace (not per axis): name -> executable.
+ROOT_NODES = {SEQUENCER_2D: g.NODES[SEQUENCER_2D].executable, AMPLIFIER: AMPLIFIER}
+CHANNELS = ('x', 'y', 'z')
+
+
+@dataclass(frozen=True)
+class HardwareRigGraph(RigGraph):
+    """The hardware rig (a :class:`~fiber_align.graph.rig.RigGraph`; node names relative)."""
+
+    def params(self):
+        """Return the merged params mapping, node sections keyed ``/<ns>[/<axis>]/<node>``."""
+        base = merge_params(self.params_files, self.overrides)
+        root = '/' + self.namespace if self.namespace else ''
+        out = {'/**': base.get('/**', {'ros__parameters': {}})}
+        for a in AXES:
+            n = COMPENSATOR
+            sec = merge(base.get(n, {}), base.get('%s/%s' % (a, n), {}))
+            if sec:
+                out['%s/%s/%s' % (root, a, n)] = sec
+        for n in tuple(ROOT_NODES) + (POWER_METER, LIFECYCLE_MANAGER):
+            if n in base:
+                out['%s/%s' % (root, n)] = base[n]
+        return wildcard_first({k: copy.deepcopy(v) for k, v in out.items()})
+
+
+def hardware_rig_processes(ns, composed):
+    """Return the processes (each with its namespace), the manager last."""
+    if composed:
+        procs = [g.Process(a, g.COMPOSED_EXECUTABLE, (COMPENSATOR,), ('--nodes', COMPENSATOR),
+                           namespace=_axis_ns(ns, a)) for a in AXES]
+        procs.append(g.Process('rig', g.COMPOSED_EXECUTABLE, tuple(ROOT_NODES),
+                               ('--nodes', ','.join(ROOT_NODES)), namespace=ns))
+    else:
+        procs = [g.Process('%s/%s' % (a, COMPENSATOR), COMPENSATOR, (COMPENSATOR,),
+                           node_name=COMPENSATOR, namespace=_axis_ns(ns, a)) for a in AXES]
+        procs += [g.Process(n, exe, (n,), node_name=n, namespace=ns)
+                  for n, exe in ROOT_NODES.items()]
+    procs.append(g.Process(POWER_METER, POWER_METER, (POWER_METER,), node_name=POWER_METER,
+                           namespace=ns))
+    procs.append(g.Process(LIFECYCLE_MANAGER, LIFECYCLE_MANAGER, (LIFECYCLE_MANAGER,),
+                           node_name=LIFECYCLE_MANAGER, namespace=ns))
+    return tuple(procs)
+
+
+def check_wiring(p):
+    """
+    Return None or why the amplifier's axis parameters cannot drive the rig (one line).
+
+    :param p: the effective parameters of ``mdt693b_driver`` (nested ``x``, ``y``).
+    """
+    axes = list(p.get('axes') or [])
+    if sorted(axes) != sorted(AXES):
+        return 'mdt693b_driver.axes must be [x, y], got %r' % (axes,)
+    seen = {}
+    for a in axes:
+        sec = p.get(a) or {}
+        ch = sec.get('channel')
+        if ch not in CHANNELS:
+            return 'mdt693b_driver.%s.channel %r is not one of x, y, z' % (a, ch)
+        if ch in seen:
+            return ('channel %s is named twice (mdt693b_driver.%s.channel and %s.channel)'
+                    % (ch, seen[ch], a))
+        seen[ch] = a
+    return None
+
+
+def build_hardware_rig(port='', visa_resource='', namespace=RIG_NAMESPACE, composed=None,
+                       params_file='', config_directory=None, overrides=None):
+    """
+    Describe the hardware rig; return a :class:`HardwareRigGraph`.
+
+    :param port: the MDT693B's serial device: ``mdt693b_driver.port`` (``''``: the files').
+    :param visa_resource: the PM100's VISA resource: ``power_meter.resource``.
+    :param namespace: the rig namespace (``rig``).
+    :param composed: layout (bool or ``'true'``/``'false'``; ``None``/``''``: default).
+    :param params_file: a params file (or a list) merged after the hardware files.
+    :param overrides: ``{node: {name: value}}`` applied last (``bringup -p``).
+    :raises GraphError: a value is not allowed, a channel is named twice, a file is
+        missing (one clear line).
+    """
+    ns = g.check_namespace(namespace or RIG_NAMESPACE)
+    composed = g.DEFAULT_COMPOSED if composed in (None, '') else g.parse_bool('composed',
+                                                                              composed)
+    d = config_dir() if config_directory is None else config_directory
+    files = list(g.area_files(d)) + [os.path.join(str(d), f)
+                                     for f in RIG_FILES + HARDWARE_RIG_FILES]
+    for f in files:
+        if not os.path.isfile(f):
+            raise GraphError('config file %s is missing' % f)
+    users = g.user_files(params_file)
+    check_user(files, users, overrides)
+    files += users
+    over = {'/**': {}}
+    if port:
+        over[AMPLIFIER] = {'port': str(port)}
+    if visa_resource:
+        over[POWER_METER] = {'resource': str(visa_resource)}
+    over[LIFECYCLE_MANAGER] = {'managed_nodes': [AMPLIFIER]}
+    over = g.add_overrides(over, overrides)
+    merged = merge_params(files, over)
+    amp = effective(merged, AMPLIFIER)
+    why = check_wiring(amp)
+    if why:
+        raise GraphError(why)
+    if not amp.get('sensorless') or amp.get('controller') != 'feedforward':
+        raise GraphError('the hardware rig needs sensorless true and controller '
+                         'feedforward (a params file changed them)')
+    return HardwareRigGraph(namespace=ns, composed=composed, sync_mode=amp['sync_mode'],
+                            controller=amp['controller'], scenario='align2d', record='',
+                            processes=hardware_rig_processes(ns, composed),
+                            params_files=tuple(files), overrides=over,
+                            remappings=g.REMAPPINGS, managed_nodes=(AMPLIFIER,), seed=0)

@@ -1,0 +1,175 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The two-axis rig of the fiber_align graph, described once (pure Python: no rclpy).
+
+Built on :mod:`fiber_align.graph.description` (its :class:`~graph.Process`, params merge and
+checks) and used by the launch file (``rig:=true``) and ``bringup --rig``. Under one rig
+namespace (``rig`` unless told):
+
+- ``/rig/x/...`` and ``/rig/y/...``: two actuator graphs, each the control nodes of the
+  1-D graph (``simulated_actuator``, ``hysteresis_compensator``, ``fuzzy_pid_controller``,
+  ``actuator_driver``) with its own plant, sensor-noise seed and params sections
+  (``/rig/x/simulated_actuator``, ...); the plant is the executable ``rig_actuator`` (the
+  1-D plant node publishing its true tip position too);
+- ``/rig/simulated_optics_2d`` (executable ``rig_optics``): reads both true tip
+  positions (``x/tip_position``, ``y/tip_position``), publishes ``optical_power`` (W);
+- ``/rig/alignment_sequencer_2d`` (executable ``alignment_sequencer2d``): the 2-D
+  sequencer, ``x/setpoint`` and ``y/setpoint``, services ``align``, ``release``,
+  ``switch``;
+- ``/rig/lifecycle_manager``: activates ``x/actuator_driver`` and ``y/actuator_driver``.
+
+Layouts as in the 1-D graph: composed (default): three ``control_graph`` processes (x, y,
+and the rig's optics + sequencer; a composed process has one namespace); multi-process:
+one process per node.
+
+The run's description is the offline one (:mod:`fiber_align.simulation.
+alignment2d_scenarios`): plant seeds ``2 S`` (x) and ``2 S + 1`` (y), detector seed
+``S + 1000`` and the target ``random_target(S)`` for the run seed ``S``; the control period
+of the optics and the sequencer is the plants' ``1 / rate_hz``. The lockstep sample clock:
+each plant advances when its drive for sample k arrives, the drives need the sequencer's
+setpoints of sample k, which need both displacements and the power of sample k, so the
+two plants and the optics advance in step; the x plant publishes ``/clock``.
+"""
+
+import copy
+from dataclasses import dataclass
+import os
+
+from fiber_align.config import config_dir
+from fiber_align.graph import description as g
+from fiber_align.graph.params import (check_user, DRIVER, effective, GraphError, LIFECYCLE_MANAGER,
+                                      LIVE_VIEW, merge, merge_params, PLANT, wildcard_first)
+from fiber_align.simulation import seeds2d
+
+RIG_NAMESPACE = 'rig'
+AXES = ('x', 'y')
+OPTICS = 'simulated_optics_2d'
+SEQUENCER_2D = 'alignment_sequencer_2d'
+#: The rig's own nodes: name -> executable (from the registry, :data:`~graph.NODES`).
+RIG_NODES = {g.NODES[n].node: g.NODES[n].executable for n in (OPTICS, SEQUENCER_2D)}
+#: Each axis's nodes, in start order (the 1-D graph without a setpoint source).
+AXIS_NODES = g.control_nodes('none')
+#: Executables (``control_graph --nodes`` names) of the axis nodes that differ from the
+#: node name: the rig's plant also publishes its true tip position (``rig_actuator``).
+AXIS_EXECUTABLES = {PLANT: 'rig_actuator'}
+#: Params files of the rig's nodes, merged after the 1-D graph's area files.
+RIG_FILES = tuple(f for n in RIG_NODES for f in g.NODES[n].configs)
+MANAGED = tuple('%s/%s' % (a, DRIVER) for a in AXES)
+
+
+@dataclass(frozen=True)
+class RigGraph(g.Graph):
+    """
+    The rig (a :class:`~graph.Graph` whose processes carry their own namespaces).
+
+    Node names relative to the rig namespace: ``x/simulated_actuator``, ...,
+    ``simulated_optics_2d``. ``overrides`` keys: ``/**``, a bare node name (both axes'
+    nodes, or a rig node) or ``<axis>/<node>`` (one axis).
+    """
+
+    seed: int = 0
+
+    @property
+    def nodes(self):
+        """Return every node name relative to the rig namespace, in process order."""
+        out = []
+        for p in self.processes:
+            axis = p.namespace.rsplit('/', 1)[-1] if p.namespace != self.namespace else ''
+            out += [('%s/%s' % (axis, n)) if axis else n for n in p.nodes]
+        return tuple(out)
+
+    def params(self):
+        """Return the merged params mapping, node sections keyed ``/<ns>[/<axis>]/<node>``."""
+        base = merge_params(self.params_files, self.overrides)
+        root = '/' + self.namespace if self.namespace else ''
+        out = {'/**': base.get('/**', {'ros__parameters': {}})}
+        for a in AXES:
+            for n in AXIS_NODES:
+                sec = merge(base.get(n, {}), base.get('%s/%s' % (a, n), {}))
+                if sec:
+                    out['%s/%s/%s' % (root, a, n)] = sec
+        for n in tuple(RIG_NODES) + (LIFECYCLE_MANAGER, LIVE_VIEW):
+            if n in base:
+                out['%s/%s' % (root, n)] = base[n]
+        # a copy per section: no shared mappings, so no YAML aliases in the params file;
+        # /** first, as graph.py writes it (graph_params.wildcard_first)
+        return wildcard_first({k: copy.deepcopy(v) for k, v in out.items()})
+
+    def node_params(self, node):
+        """Return the effective parameters of ``node`` (relative: ``x/simulated_actuator``)."""
+        return effective(self.params(), node, self.namespace)
+
+
+def _axis_ns(ns, axis):
+    return '%s/%s' % (ns, axis) if ns else axis
+
+
+def rig_processes(ns, composed):
+    """Return the rig's processes (each with its namespace), the manager last."""
+    if composed:
+        hosted = ','.join(AXIS_EXECUTABLES.get(n, n) for n in AXIS_NODES)
+        procs = [g.Process(a, g.COMPOSED_EXECUTABLE, AXIS_NODES, ('--nodes', hosted),
+                           namespace=_axis_ns(ns, a)) for a in AXES]
+        procs.append(g.Process('rig', g.COMPOSED_EXECUTABLE, tuple(RIG_NODES),
+                               ('--nodes', ','.join(RIG_NODES)), namespace=ns))
+    else:
+        procs = [g.Process('%s/%s' % (a, n), AXIS_EXECUTABLES.get(n, n), (n,), node_name=n,
+                           namespace=_axis_ns(ns, a)) for a in AXES for n in AXIS_NODES]
+        procs += [g.Process(n, exe, (n,), node_name=n, namespace=ns)
+                  for n, exe in RIG_NODES.items()]
+    procs.append(g.Process(LIFECYCLE_MANAGER, LIFECYCLE_MANAGER, (LIFECYCLE_MANAGER,),
+                           node_name=LIFECYCLE_MANAGER, namespace=ns))
+    return tuple(procs)
+
+
+def build_rig(namespace=RIG_NAMESPACE, composed=None, sync_mode='', controller='',
+              params_file='', seed=0, config_directory=None, overrides=None):
+    """
+    Describe the rig for the given launch arguments; return a :class:`RigGraph`.
+
+    :param namespace: the rig namespace (``rig``).
+    :param composed: layout (bool or ``'true'``/``'false'``; ``None``/``''``: default).
+    :param sync_mode: ``realtime`` | ``lockstep`` (``''``: as the params files say).
+    :param controller: control law of both axes (``''``: as the params files say).
+    :param params_file: a params file merged after ``fiber_align.yaml`` (bare node
+        sections apply to both axes, ``x/<node>`` to one).
+    :param seed: the run seed ``S`` (seeds and target as offline, module docstring).
+    :param overrides: further ``{node: {name: value}}`` (bringup's options), applied last.
+    :raises GraphError: a value is not allowed or a file is missing.
+    """
+    ns = g.check_namespace(namespace)
+    composed = g.DEFAULT_COMPOSED if composed in (None, '') else g.parse_bool('composed',
+                                                                              composed)
+    d = config_dir() if config_directory is None else config_directory
+    files = list(g.area_files(d)) + [os.path.join(str(d), f) for f in RIG_FILES]
+    users = g.user_files(params_file)
+    check_user(files, users, overrides)
+    files += users
+    try:
+        seed = int(seed)
+    except (TypeError, ValueError):
+        raise GraphError('seed %r is not allowed: an integer >= 0' % (seed,)) from None
+    if seed < 0:
+        raise GraphError('seed %r is not allowed: an integer >= 0' % seed)
+    over = {'/**': {}}
+    if sync_mode:
+        over['/**']['sync_mode'] = g._choice('sync_mode', sync_mode, g.SYNC_MODES)
+    if controller:
+        over['/**']['controller'] = g._choice('controller', controller, g.CONTROLLERS)
+    seeds = seeds2d.run_seeds(seed)
+    target = seeds2d.random_target(seed)
+    over[PLANT] = {'optical_power_every': 0, 'tip_position_every': 1}
+    over['x/' + PLANT] = {'seed': seeds['plant_x'], 'publish_clock': True}
+    over['y/' + PLANT] = {'seed': seeds['plant_y'], 'publish_clock': False}
+    over[OPTICS] = {'seed': seeds['detector'], 'target.position_x_m': target[0],
+                    'target.position_y_m': target[1]}
+    over[LIFECYCLE_MANAGER] = {'managed_nodes': list(MANAGED)}
+    over = g.add_overrides(over, overrides)
+    merged = merge_params(files, over)
+    plant = effective(merged, PLANT)
+    sync = g._choice('sync_mode', plant.get('sync_mode', 'realtime'), g.SYNC_MODES)
+    law = g._choice('controller', plant.get('controller', 'composite'), g.CONTROLLERS)
+    return RigGraph(namespace=ns, composed=composed, sync_mode=sync, controller=law,
+                    scenario='align2d', record='', processes=rig_processes(ns, composed),
+                    params_files=tuple(files), overrides=over, remappings=g.REMAPPINGS,
+                    managed_nodes=MANAGED, seed=seed)

@@ -1,0 +1,61 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The emulator started as a child process, and the bounded stop of a child.
+
+The emulator (``fiber-align emulate``) ends with the process that started it by itself
+(:func:`fiber_align.lifeline.watch_parent`), as every executable of the package does: a
+parent killed with SIGKILL leaves no emulator behind keeping its pty and socket.
+"""
+
+import json
+import os
+import select
+import signal
+import subprocess
+import sys
+
+from fiber_align.hardware import errors as er
+
+#: s (wall): the longest wait for the emulator's JSON line.
+EMULATE_TIMEOUT_S = 20.0
+
+
+def start_emulator(extra=(), quiet=True, priority=0):
+    """
+    Start ``fiber-align emulate`` as a child of this process; return ``(proc, info)``.
+
+    :param extra: its options (``--slot``, ``--seed``, ...).
+    :param priority: run it under ``SCHED_FIFO`` at this priority (1..99; 0: the normal
+        policy; refused without the right to: then the normal policy).
+    :returns: the Popen and the JSON line it printed (``serial_link``, ``visa_resource``).
+    :raises DeviceError: no JSON line within :data:`EMULATE_TIMEOUT_S`.
+    """
+    def preexec():
+        try:        # before exec: every thread of the emulator inherits it
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        except (AttributeError, OSError):
+            pass
+    proc = subprocess.Popen([sys.executable, '-m', 'fiber_align.cli', 'emulate'] + list(extra),
+                            stdout=subprocess.PIPE, stderr=None if not quiet else
+                            subprocess.DEVNULL, text=True, start_new_session=True,
+                            preexec_fn=preexec if priority > 0 else None)
+    ready, _, _ = select.select([proc.stdout], [], [], EMULATE_TIMEOUT_S)
+    line = proc.stdout.readline() if ready else ''
+    try:
+        return proc, json.loads(line)
+    except ValueError:
+        stop_process(proc)
+        raise er.DeviceError('fiber-align emulate', er.NO_REPLY, 'no JSON line within %g s '
+                             '(%r)' % (EMULATE_TIMEOUT_S, line.strip())) from None
+
+
+def stop_process(proc, grace_s=5.0):
+    """SIGINT ``proc`` (a Popen), SIGKILL after ``grace_s`` s; return its exit code."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=grace_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=5.0)
+    return proc.returncode

@@ -1,0 +1,307 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+Offline station scenarios: the station sequencer (and its serial baseline) on four axes.
+
+The rig is two :class:`~fiber_align.simulation.alignment2d_scenarios.Rig2D` (input x-y and
+output x-y: four independent closed loops, each the control core's plant, composite
+controller, driver and sensor noise, its own seed), stepped at the control rate in the
+order of docs/CONTRACTS.md. One period ``k``: the four measured displacements and the
+output detector's reading ``P_k`` (W, of the true positions at ``t_k``) go to
+``seq.update(t_k, positions, P_k)``, whose four setpoints drive the loops for one period.
+
+``station``
+    Both facets at random offsets from the nominal positions (2-20 um on every axis, random
+    signs, drawn from the seed); from IDLE, ``align``. Metrics as ``align2d``:
+    ``time_to_first_light_s``, ``time_to_peak_s`` (command to TRACKING), ``final_loss_db``
+    (true loss against the true joint peak, mean over the first ``loss_window_s`` of
+    TRACKING, dithers included), ``peak_samples`` (readings in PEAKING), ``search_samples``,
+    ``samples``; the serial baseline's under ``baseline``, on the same facets and seeds;
+    ``samples_ratio`` = concurrent / serial peak samples.
+``cure``
+    Align (the station's method), then the adhesive pulls each fiber 0.5-2 um in a random
+    direction over 10-60 s (drawn from the seed); tracking on, and, from a copy of the same
+    aligned rig, tracking off (setpoints held). ``max_loss_db`` (largest true loss from the
+    cure's start), ``final_loss_db`` (mean over the last ``final_window_s``),
+    ``untracked_max_loss_db``, ``untracked_final_loss_db``; the alignment's own final loss
+    is ``align_final_loss_db``.
+"""
+
+import copy
+import json
+import math
+import sys
+
+import numpy as np
+
+from fiber_align.alignment import station as st
+from fiber_align.alignment import station_serial as ser
+from fiber_align.alignment.sequencer2d import default_period_s
+from fiber_align.alignment.states import TRACKING
+from fiber_align.jsonout import json_clean
+from fiber_align.plant import station_optics as so
+from fiber_align.simulation import alignment_bench as sc1
+from fiber_align.simulation.alignment2d_scenarios import Rig2D
+
+SCENARIOS = ('station', 'cure')
+METHODS = {'concurrent': st.Station, 'serial': ser.SerialStation}
+GOAL_LOSS_DB = 0.05
+
+
+class StationRig:
+    """Input and output x-y rigs: four closed loops (SI: m, s)."""
+
+    def __init__(self, kind='composite', period_s=1e-3, seed=0):
+        """Build both :class:`Rig2D` (seeds ``seed``, ``seed + 2``)."""
+        self.period_s = float(period_s)
+        self.sides = (Rig2D(kind, period_s, seed), Rig2D(kind, period_s, seed + 2))
+        self.reset(seed)
+
+    def reset(self, seed):
+        """Rest the four loops; restart their noise with seeds ``seed`` .. ``seed + 3``."""
+        self.sides[0].reset(seed)
+        self.sides[1].reset(seed + 2)
+
+    @property
+    def position(self):
+        """Return the four true positions (m)."""
+        return self.sides[0].position + self.sides[1].position
+
+    @property
+    def measured(self):
+        """Return the four sensor readings (m)."""
+        return self.sides[0].measured + self.sides[1].measured
+
+    def step(self, r):
+        """Run one control period of the four loops for the setpoints ``r`` (m)."""
+        self.sides[0].step(r[0], r[1])
+        self.sides[1].step(r[2], r[3])
+
+
+class Hold:
+    """Tracking off: the setpoints held at the aligned point (the ``update`` API)."""
+
+    state = 'HOLD'
+
+    def __init__(self, point):
+        """Hold ``point`` (4 values, m)."""
+        self.point = tuple(float(v) for v in point)
+
+    def update(self, t_s, positions_m, power_w, driver_active=None):
+        """Return the held setpoints (m)."""
+        return self.point
+
+
+class StationBench(sc1.Stepping):
+    """A station sequencer, the chip's optical link and the rig, one period a call."""
+
+    def __init__(self, rig, link, seq):
+        """Combine the parts; time starts at 0 s."""
+        self.rig, self.link, self.seq = rig, link, seq
+        self.period_s = rig.period_s
+        self.k = 0
+        self.last = None
+        #: what the drivers report to the sequencer (None, a bool or four bools)
+        self.driver_active = None
+
+    def step(self):
+        """Run one period; return ``(t, positions, reading)`` (s, m, W)."""
+        t = self.t
+        pos = self.rig.position
+        p = self.link.measure(t, pos, self.period_s)
+        r = self.seq.update(t, self.rig.measured, p, self.driver_active)
+        self.last = (t, pos, p)
+        self.rig.step(r)
+        self.k += 1
+        return self.last
+
+    def true_loss(self):
+        """Return the true loss (dB) of the last period."""
+        t, pos, _ = self.last
+        return float(self.link.loss_db(t, pos))
+
+
+def run_seeds(seed):
+    """Return the noise seeds of run ``seed``: ``plant`` (four: .. + 3), ``detector``."""
+    return dict(plant=4 * int(seed), detector=int(seed) + 1000)
+
+
+def random_facets(seed, seq=None, lo_m=2e-6, hi_m=20e-6):
+    """Return the four facet coordinates (m): nominal + 2-20 um, random signs, per axis."""
+    seq = seq or st.Station()
+    rng = np.random.default_rng([seed, 24])
+    off = rng.uniform(lo_m, hi_m, 4) * rng.choice((-1.0, 1.0), 4)
+    return tuple(float(v) for v in seq.park + off)
+
+
+def random_cure(seed):
+    """Return the cure overrides of run ``seed``: per fiber 0.5-2 um, any angle, 10-60 s."""
+    rng = np.random.default_rng([seed, 25])
+    out = {}
+    for s in so.SIDES:
+        out['cure_%s_amplitude_m' % s] = float(rng.uniform(0.5e-6, 2e-6))
+        out['cure_%s_angle_rad' % s] = float(rng.uniform(0.0, 2.0 * math.pi))
+        out['cure_%s_duration_s' % s] = float(rng.uniform(10.0, 60.0))
+    return out
+
+
+def build(seed=0, method='concurrent', facets=None, rig=None, seq_overrides=None,
+          **optics_overrides):
+    """
+    Return a :class:`StationBench` with the facets at ``facets`` (m; random if None).
+
+    :param rig: a :class:`StationRig` to reuse (reset with the seed), or a loop kind.
+    :param optics_overrides: keys of ``config/station.yaml`` (node
+        ``simulated_station_optics``) or of the source and detector of ``optics.yaml``.
+    """
+    seq = METHODS[method](**(seq_overrides or {}))
+    facets = random_facets(seed, seq) if facets is None else facets
+    ov = dict(optics_overrides)
+    for k, v in zip(('facet_in_x_m', 'facet_in_y_m', 'facet_out_x_m', 'facet_out_y_m'),
+                    facets):
+        ov[k] = float(v)
+    seeds = run_seeds(seed)
+    if rig is None or isinstance(rig, str):
+        rig = StationRig(rig or 'composite', seq.period_s, seeds['plant'])
+    rig.reset(seeds['plant'])
+    ov.setdefault('sample_period_s', rig.period_s)
+    link = so.StationLink.from_params(None, None, seed=seeds['detector'], **ov)
+    return StationBench(rig, link, seq)
+
+
+def align_bench(bench, idle_s=0.02, loss_window_s=0.02):
+    """Idle, ``align``, run to TRACKING or FAULT, the loss window; return metrics (SI)."""
+    seq = bench.seq
+    run = bench.align_run(idle_s, seq.p['search_timeout_s'] + 2.0, loss_window_s)
+    keys = ('time_to_first_light_s', 'time_to_peak_s', 'final_loss_db', 'peak_samples',
+            'search_samples', 'samples', 'aligned_offset_m')
+    out = {k: None for k in keys}
+    out.update(state=run['state'], fault_reason=run['fault_reason'],
+               iterations=run['iterations'], method=seq.method,
+               time_to_first_light_s=run['time_to_first_light_s'],
+               facets_m=list(bench.link.coupling.peak(run['t_stop'])))
+    if run['state'] == TRACKING:
+        out['time_to_peak_s'] = run['time_to_peak_s']
+        out['peak_samples'] = int(run['peak_samples'])
+        out['search_samples'] = int(run['search_samples'])
+        out['samples'] = int(round(run['time_to_peak_s'] / bench.period_s))
+        out['final_loss_db'] = float(np.mean(run['losses'])) if run['losses'] else None
+        pk = np.asarray(bench.link.coupling.peak(bench.t))
+        out['aligned_offset_m'] = float(np.linalg.norm(np.asarray(seq.aligned) - pk))
+    out['aligned'] = bool(out['final_loss_db'] is not None
+                          and out['final_loss_db'] <= GOAL_LOSS_DB)
+    return out
+
+
+def cure_bench(bench, cure, settle_s=0.2, tail_s=2.0, final_window_s=1.0):
+    """
+    From TRACKING, start the cure ``settle_s`` later; track on, and off from a copy.
+
+    :param cure: the ``cure_*`` keys of :func:`random_cure` (m, rad, s).
+    :returns: dict of the two runs' loss figures (dB) and the cure (SI).
+    """
+    t0 = bench.t + settle_s
+    cures = tuple(so.CureDrift(cure['cure_%s_amplitude_m' % s], cure['cure_%s_angle_rad' % s],
+                               cure['cure_%s_duration_s' % s], t0) for s in so.SIDES)
+    bench.link.coupling.cures = cures
+    t_end = t0 + max(c.duration_s for c in cures) + tail_s
+    off = copy.deepcopy(bench)
+    off.seq = Hold(bench.seq.aligned)
+    out = dict(cure_start_s=t0, cure_end_s=t_end - tail_s, **cure)
+    for label, b in (('', bench), ('untracked_', off)):
+        losses = []
+        while b.t < t_end - 1e-12:
+            b.step()
+            if b.last[0] >= t0:
+                losses.append(b.true_loss())
+        arr = np.asarray(losses)
+        n = max(1, int(round(final_window_s / b.period_s)))
+        out[label + 'max_loss_db'] = float(arr.max())
+        out[label + 'final_loss_db'] = float(arr[-n:].mean())
+    out['end_state'] = bench.seq.state
+    out['end_fault_reason'] = bench.seq.fault_reason
+    return out
+
+
+def run(name, seed=0, loop='composite', rig=None, **kw):
+    """
+    Run scenario ``name`` (``station`` or ``cure``); return a dict of SI metrics.
+
+    ``station``: the concurrent method's metrics, the serial baseline's under ``baseline``,
+    ``samples_ratio`` (concurrent / serial peak samples) and ``time_ratio``. ``cure``: the
+    alignment's metrics plus :func:`cure_bench`'s, the serial alignment under ``baseline``
+    is left out (the cure compares tracking on and off). Keyword arguments: ``facets``
+    (four, m), ``period_s`` (s), ``cure_duration_s`` (s: both fibers' pull over this time
+    instead of the drawn ones), keys of the optics files.
+    """
+    if name not in SCENARIOS:
+        raise ValueError('unknown scenario %r (allowed: %s)' % (name, ', '.join(SCENARIOS)))
+    period_s = kw.pop('period_s', None)
+    cure_duration_s = kw.pop('cure_duration_s', None)
+    if period_s is not None:
+        kw['seq_overrides'] = dict(period_s=float(period_s))
+    rig = rig or StationRig(loop, period_s or default_period_s(), 4 * seed)
+    b = build(seed, 'concurrent', rig=rig, **kw)
+    out = align_bench(b)
+    out.update(scenario=name, seed=seed, loop=loop, control_rate_hz=1.0 / rig.period_s)
+    if name == 'cure':
+        out['align_final_loss_db'] = out.pop('final_loss_db')
+        if b.seq.state == TRACKING:
+            cure = random_cure(seed)
+            if cure_duration_s is not None:
+                for side in so.SIDES:
+                    cure['cure_%s_duration_s' % side] = float(cure_duration_s)
+            out.update(cure_bench(b, cure))
+        else:
+            out.update(max_loss_db=None, final_loss_db=None, untracked_max_loss_db=None,
+                       untracked_final_loss_db=None, end_state=b.seq.state,
+                       end_fault_reason=b.seq.fault_reason)
+        out['simulated_s'] = b.t
+        return out
+    out.update(end_state=b.seq.state, end_fault_reason=b.seq.fault_reason, simulated_s=b.t)
+    base_bench = build(seed, 'serial', rig=rig, **kw)
+    base = align_bench(base_bench)
+    base.update(end_state=base_bench.seq.state, end_fault_reason=base_bench.seq.fault_reason)
+    out['baseline'] = base
+    for key, k in (('samples_ratio', 'peak_samples'), ('time_ratio', 'time_to_peak_s')):
+        a, c = out.get(k), base.get(k)
+        out[key] = (a / c) if a is not None and c else None
+    return out
+
+
+def run_cli(args):
+    """Run ``fiber-align simulate --scenario station|cure``; return an exit code."""
+    name = getattr(args, 'scenario', 'station')
+    seed = int(getattr(args, 'seed', 0) or 0)
+    kw = {}
+    rate = getattr(args, 'rate', None)
+    if rate:
+        kw['period_s'] = 1.0 / float(rate)
+    loop = getattr(args, 'loop', None) or 'composite'
+    res = json_clean(run(name, seed=seed, loop=loop, **kw))
+    if getattr(args, 'json', False):
+        print(json.dumps(res, indent=2, sort_keys=True))
+    else:
+        _print_human(res, sys.stdout)
+    return 0 if res.get('end_state') == TRACKING else 1
+
+
+def _print_human(res, out):
+    """Print the figures for people (dB, ms)."""
+    def f(v, scale=1.0, fmt='%.1f'):
+        return '-' if v is None else fmt % (v * scale)
+
+    print('scenario %s, seed %s, loop %s, %.0f Hz, facets (%s) um'
+          % (res['scenario'], res['seed'], res['loop'], res['control_rate_hz'],
+             ', '.join('%.1f' % (v * 1e6) for v in res['facets_m'])), file=out)
+    rows = [('concurrent', res)] + ([('serial', res['baseline'])] if 'baseline' in res else [])
+    for label, r in rows:
+        print('  %-10s %s %s: loss %s dB, first light %s ms, time to peak %s ms, peak '
+              'samples %s' % (label, r['state'], r['fault_reason'],
+                              f(r['final_loss_db'], fmt='%.4f'),
+                              f(r['time_to_first_light_s'], 1e3), f(r['time_to_peak_s'], 1e3),
+                              f(r['peak_samples'], fmt='%d')), file=out)
+    if res.get('max_loss_db') is not None:
+        print('  cure: tracked max loss %.4f dB, final %.4f dB; untracked max %.4f dB, final '
+              '%.4f dB' % (res['max_loss_db'], res['final_loss_db'],
+                           res['untracked_max_loss_db'], res['untracked_final_loss_db']),
+              file=out)
