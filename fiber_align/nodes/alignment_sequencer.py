@@ -9,13 +9,19 @@ sample). Topics and services (relative names, SI units):
   ``optical_power`` (std_msgs/Float64, W).
 - pub ``setpoint`` (std_msgs/Float64, m): exactly one per displacement sample.
 - pub ``alignment_state`` (std_msgs/String, JSON: state, fault_reason,
-  aligned_position_m, threshold_w, peak_samples), latched, on every change.
-- ``/diagnostics``: OK while IDLE, SEARCHING, PEAKING, TRACKING, RELEASING; ERROR with
-  the reason in FAULT.
+  aligned_position_m, threshold_w, peak_samples, hold_reason), latched, on every change.
+- ``/diagnostics``: OK while IDLE, SEARCHING, PEAKING, TRACKING, RELEASING; WARN with
+  the reason in HELD (the driver holds its output); ERROR with the reason in FAULT.
 - srv ``align``, ``release`` (std_srvs/Trigger); ``switch`` (std_srvs/SetBool: true goes
   to the last aligned position and re-peaks, false parks at 0 m).
-- sub ``/diagnostics``: a status of the ``actuator_driver`` at ERROR or STALE is passed
-  to the core as ``driver_active=False`` (FAULT "driver inactive" in an active state).
+- the driver's state (``_sequencer_node``): its latched ``drive_held`` (std_msgs/Bool),
+  ``actuator_driver/transition_event`` (lifecycle_msgs/TransitionEvent) and its status
+  on ``/diagnostics`` go to the core (:mod:`fiber_align.alignment.driver_state`): a
+  driver that stops driving (tripped, disabled, inactive, unconfigured, its device or
+  its process lost) puts an active state in HELD at once (the setpoint held, a WARN
+  on ``/diagnostics`` with the reason), which re-peaks once the driver drives again and
+  FAULTs after ``driver_down_timeout_s``; ``align`` and ``switch`` true are refused
+  (success false, the reason and what to do) while it is down.
 
 ``sensorless`` (graph-wide, the hardware graph: no ``displacement``): one ``update`` per
 ``optical_power`` reading, against the commanded displacement: the newest ``reference``
@@ -40,15 +46,20 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from fiber_align.alignment import sequencer as sq
-from fiber_align.nodes import _common as c
-from fiber_align.nodes._sequencer_node import SequencerNode, STATE_QOS  # noqa: F401
+from fiber_align.nodes._sequencer_node import SequencerNode
+from fiber_align.nodes.ros.bus import Pub, stamp_to_s, subscription
+from fiber_align.nodes.ros.diagnostics import Health
+from fiber_align.nodes.ros.params import declare_graph_values, declare_si, node_defaults, PRIORITY
+from fiber_align.nodes.ros.qos import (REALTIME_QOS, REFERENCE_LATCHED_QOS, sample_pub_qos,
+                                       sample_qos)
+from fiber_align.nodes.ros.runtime import run_node
 
 NODE_NAME = 'alignment_sequencer'
 AREA_FILES = ('sequencer.yaml',)
 POWER_QUEUE_LIMIT = 5
 #: Sensorless: the most control periods one reading advances the sequencer's clock by.
 MAX_GAP_PERIODS = 1.5
-#: Topics this node publishes (relative names; see ``_common.LocalBus``).
+#: Topics this node publishes (relative names; see ``ros.bus.LocalBus``).
 PUBLISHES = ('setpoint',)
 
 
@@ -59,40 +70,40 @@ class AlignmentSequencerNode(SequencerNode, Node):
         """
         Declare the parameters (defaults from config/), build the core, wire topics.
 
-        :param bus: the :class:`~fiber_align.nodes._common.LocalBus` of a composed
+        :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
             process, or ``None``.
         """
         super().__init__(NODE_NAME, **kwargs)
-        d = c.node_defaults(NODE_NAME, AREA_FILES)
-        self.lockstep, diag = c.declare_sync(self, d)
+        d = node_defaults(NODE_NAME, AREA_FILES)
+        g = declare_graph_values(self, d, 'sync_mode', 'diagnostics_period_s', 'sensorless',
+                                 'rate_hz', *PRIORITY)
+        self.lockstep, diag = g['sync_mode'] == 'lockstep', g['diagnostics_period_s']
         core = {}
-        for name in sq.KEYS + sq.NODE_KEYS:
+        for name in sq.KEYS:
             if name in d:
-                core[name] = c.declare_si(self, d, name, 'sequencer')
+                core[name] = declare_si(self, d, name, 'sequencer')
         self.seq = sq.Sequencer({k: v for k, v in core.items()})
-        self.pub_sp = c.Pub(self, Float64, 'setpoint', c.CONTROL_QOS, bus)
-        qos = c.sample_qos(self.lockstep)
-        self.sensorless = bool(c.declare(self, d, 'sensorless', 'no displacement sensor: '
-                                         'step on each optical_power reading against the '
-                                         'reference (m)', read_only=True))
-        self.max_gap_s = MAX_GAP_PERIODS * float(core['control_period_s'])
+        self.pub_sp = Pub(self, Float64, 'setpoint', sample_pub_qos(self.lockstep), bus)
+        qos = sample_qos(self.lockstep)
+        self.sensorless = bool(g['sensorless'])
+        self.max_gap_s = MAX_GAP_PERIODS / float(g['rate_hz'])
         self.y_ref = None               # sensorless: the newest reference (m)
         self._t = self._wall = None     # sensorless: control clock (s) and its wall time
         if self.sensorless:
-            c.subscription(self, Float64, 'reference', self._on_reference,
-                           c.REFERENCE_LATCHED_QOS, bus)
-            c.subscription(self, Float64, 'optical_power', self._on_reading,
-                           c.REALTIME_QOS, bus)
+            subscription(self, Float64, 'reference', self._on_reference,
+                         REFERENCE_LATCHED_QOS, bus)
+            subscription(self, Float64, 'optical_power', self._on_reading,
+                         REALTIME_QOS, bus)
         else:
-            c.subscription(self, JointState, 'displacement', self._on_disp, qos, bus)
-            c.subscription(self, Float64, 'optical_power', self._on_power, qos, bus)
+            subscription(self, JointState, 'displacement', self._on_disp, qos, bus)
+            subscription(self, Float64, 'optical_power', self._on_power, qos, bus)
         self._serve()
-        self.health = c.Health(self, diag)
+        self.health = Health(self, diag)
         self.y_q = []
         self.p_q = []
-        self.driver_active = None
         self.n_sp = 0
         self.t_last = None              # sample time (s) of the last sample stepped
+        self._watch_drivers({'actuator_driver': ''}, bus)
         self._publish_state()
         self.get_logger().info('sequencer ready (%s pairing)'
                                % ('index' if self.lockstep else 'latest power'))
@@ -107,7 +118,7 @@ class AlignmentSequencerNode(SequencerNode, Node):
 
     def _on_disp(self, msg):
         y = msg.position[0] if len(msg.position) else math.nan
-        t = c.stamp_to_s(msg.header.stamp)
+        t = stamp_to_s(msg.header.stamp)
         if self.lockstep:
             self.y_q.append((t, y))
             self._pair()
@@ -136,15 +147,11 @@ class AlignmentSequencerNode(SequencerNode, Node):
             t, y = self.y_q.pop(0)
             self._step(t, y, None)
 
-    def _driver_report(self, name, ok):
-        if name.rstrip('/').endswith('actuator_driver'):
-            self.driver_active = ok
-
     # -- the step -------------------------------------------------------------------
     def _step(self, t, y, p):
         y = None if not math.isfinite(y) else y
         self.t_last = t
-        r = self.seq.update(t, y, p, driver_active=self.driver_active)
+        r = self.seq.update(t, y, p)
         self.pub_sp.publish(Float64(data=float(r)))
         self.n_sp += 1
         self._publish_state()
@@ -163,8 +170,8 @@ class AlignmentSequencerNode(SequencerNode, Node):
 
 def main(args=None):
     """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
-    return c.run_node(AlignmentSequencerNode, NODE_NAME, args,
-                      realtime=lambda node: not node.lockstep)
+    return run_node(AlignmentSequencerNode, NODE_NAME, args,
+                    realtime=lambda node: not node.lockstep)
 
 
 if __name__ == '__main__':

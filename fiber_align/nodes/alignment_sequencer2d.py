@@ -16,12 +16,24 @@ Runs in the rig's namespace (``/rig``); topics and services (relative names, SI 
   (s), and ``align_sample``, the index of the update the last accepted ``align`` acted
   before), latched, on every change of state or fault and after every command.
 - ``/diagnostics``: OK in IDLE, SEARCHING, PEAKING, TRACKING, RELEASING; ERROR in FAULT.
+- the drivers' state (``_sequencer_node``): ``x/drive_held``, ``y/drive_held``
+  (std_msgs/Bool, latched), ``x/actuator_driver/transition_event`` and
+  ``y/actuator_driver/transition_event`` (lifecycle_msgs/TransitionEvent) and their
+  statuses on ``/diagnostics`` go to the core (:mod:`fiber_align.alignment.
+  driver_state`): a driver that stops driving ends an active state in FAULT at once,
+  with the reason; ``align`` and ``switch`` true are refused while one is down. On the
+  hardware rig the axis statuses ``mdt693b_driver/x`` and ``mdt693b_driver/y`` stand for
+  the drivers' on ``/diagnostics``.
 - srv ``align``, ``release`` (std_srvs/Trigger); ``switch`` (std_srvs/SetBool).
-- sub ``/diagnostics``: a status of ``x/actuator_driver`` or ``y/actuator_driver`` (this
-  namespace) at ERROR or above is passed to the core as ``driver_active=False``.
+
+``sensorless`` (graph-wide, the hardware rig: no ``displacement``): one ``update`` per
+``optical_power`` reading against the commanded positions, the newest ``x/reference``
+and ``y/reference`` (m, the setpoints each compensator accepted and positions by its
+inverse PI feedforward alone), at the wall time since the first reading, each gap
+counted as at most ``MAX_GAP_PERIODS`` control periods (as the 1-D sequencer).
 
 Pairing: ``lockstep`` pairs the i-th x, y and power and calls ``update`` with
-``t_i = i * control_period_s`` (the offline bench's time, bit for bit: the plants stamp
+``t_i = i / rate_hz`` (the offline bench's time, bit for bit: the plants stamp
 the same ``i T`` to the ns); a command (service) acts before the next update, whose index
 ``alignment_state`` reports as ``sample``. If no power arrives, positions wait at most
 ``power_queue_limit`` samples and are then processed without power (the core reports
@@ -31,6 +43,7 @@ y and the power received since the previous step, or none.
 
 import math
 import sys
+import time
 
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -38,14 +51,20 @@ from std_msgs.msg import Float64
 
 from fiber_align.alignment import sequencer2d as s2d
 from fiber_align.config import load_params
-from fiber_align.nodes import _common as c
+from fiber_align.graph.hardware_rig import AMPLIFIER
 from fiber_align.nodes._sequencer_node import SequencerNode
-from fiber_align.nodes.alignment_sequencer import POWER_QUEUE_LIMIT
+from fiber_align.nodes.alignment_sequencer import MAX_GAP_PERIODS, POWER_QUEUE_LIMIT
+from fiber_align.nodes.ros.bus import Pub, stamp_to_s, subscription
+from fiber_align.nodes.ros.diagnostics import Health
+from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults, PRIORITY
+from fiber_align.nodes.ros.qos import (REALTIME_QOS, REFERENCE_LATCHED_QOS, sample_pub_qos,
+                                       sample_qos)
+from fiber_align.nodes.ros.runtime import run_node
 
 NODE_NAME = s2d.CONFIG_NODE         # alignment_sequencer_2d
 AREA_FILES = (s2d.CONFIG_FILE,)
 AXES = ('x', 'y')
-#: Topics this node publishes (relative names; see ``_common.LocalBus``).
+#: Topics this node publishes (relative names; see ``ros.bus.LocalBus``).
 PUBLISHES = ('x/setpoint', 'y/setpoint')
 
 
@@ -59,28 +78,46 @@ class AlignmentSequencer2DNode(SequencerNode, Node):
         :param bus: the ``LocalBus`` of the rig's composed process, or ``None``.
         """
         super().__init__(NODE_NAME, **kwargs)
-        d = c.node_defaults(NODE_NAME, AREA_FILES)
-        self.lockstep, diag = c.declare_sync(self, d)
-        core = {name: c.declare(self, d, name, 'sequencer parameter (SI, see '
-                                'sequencer2d.yaml)', read_only=True)
+        d = node_defaults(NODE_NAME, AREA_FILES)
+        g = declare_graph_values(self, d, 'sync_mode', 'diagnostics_period_s', 'rate_hz',
+                                 'sensorless', *PRIORITY)
+        self.lockstep, diag = g['sync_mode'] == 'lockstep', g['diagnostics_period_s']
+        core = {name: declare(self, d, name, 'sequencer parameter (SI, see '
+                              'sequencer2d.yaml)', read_only=True)
                 for name in load_params(s2d.CONFIG_FILE, s2d.CONFIG_NODE)}
-        self.seq = s2d.Sequencer2D(core)
-        self.period_s = float(core['control_period_s'])
-        self.pub_sp = [c.Pub(self, Float64, a + '/setpoint', c.CONTROL_QOS, bus)
+        self.period_s = 1.0 / float(g['rate_hz'])
+        self.seq = s2d.Sequencer2D(core, period_s=self.period_s)
+        self.pub_sp = [Pub(self, Float64, a + '/setpoint', sample_pub_qos(self.lockstep), bus)
                        for a in AXES]
-        qos = c.sample_qos(self.lockstep)
-        c.subscription(self, JointState, 'x/displacement', self._on_x, qos, bus)
-        c.subscription(self, JointState, 'y/displacement', self._on_y, qos, bus)
-        c.subscription(self, Float64, 'optical_power', self._on_power, qos, bus)
+        qos = sample_qos(self.lockstep)
+        self.sensorless = bool(g['sensorless'])
+        self.max_gap_s = MAX_GAP_PERIODS * self.period_s
+        self.ref = {a: None for a in AXES}      # sensorless: the newest references (m)
+        self._t = self._wall = None     # sensorless: control clock (s) and its wall time
+        if self.sensorless:
+            for a in AXES:
+                subscription(self, Float64, a + '/reference',
+                             lambda msg, a=a: self._on_reference(a, msg),
+                             REFERENCE_LATCHED_QOS, bus)
+            subscription(self, Float64, 'optical_power', self._on_reading, REALTIME_QOS, bus)
+        else:
+            subscription(self, JointState, 'x/displacement', self._on_x, qos, bus)
+            subscription(self, JointState, 'y/displacement', self._on_y, qos, bus)
+            subscription(self, Float64, 'optical_power', self._on_power, qos, bus)
         self._serve()
-        self.health = c.Health(self, diag)
-        ns = self.get_namespace().rstrip('/')
-        self.drivers = {'%s/%s/actuator_driver' % (ns, a): None for a in AXES}
+        self.health = Health(self, diag)
         self.q = {'x': [], 'y': [], 'p': []}
         self.y_latest = None
         self.n = 0                      # updates done = index of the next sample
         self.align_sample = None
         self.t_last = None              # time (s) of the last update
+        # the hardware rig (sensorless): one amplifier node's transitions are both axes'
+        self._watch_drivers({name: a + '/' for name, a in zip(s2d.DRIVERS, AXES)}, bus,
+                            {n: AMPLIFIER for n in s2d.DRIVERS} if self.sensorless else None)
+        ns = self.get_namespace().rstrip('/')
+        # the hardware rig: one mdt693b_driver reports each axis under its own status name
+        self._driver_diag.update({'%s/mdt693b_driver/%s' % (ns, a): name
+                                  for name, a in zip(s2d.DRIVERS, AXES)})
         self._publish_state()
         self.get_logger().info('2-D sequencer ready (%s pairing)'
                                % ('index' if self.lockstep else 'latest y and power'))
@@ -97,7 +134,7 @@ class AlignmentSequencer2DNode(SequencerNode, Node):
             return
         p = self.q['p'][-1] if self.q['p'] else None
         self.q['p'] = []
-        self._step(c.stamp_to_s(msg.header.stamp), self._position(msg), self.y_latest, p)
+        self._step(stamp_to_s(msg.header.stamp), self._position(msg), self.y_latest, p)
 
     def _on_y(self, msg):
         if self.lockstep:
@@ -105,6 +142,20 @@ class AlignmentSequencer2DNode(SequencerNode, Node):
             self._pair()
         else:
             self.y_latest = self._position(msg)
+
+    def _on_reference(self, axis, msg):
+        self.ref[axis] = float(msg.data)
+
+    def _on_reading(self, msg):
+        """Sensorless: one step per reading (W) at the commanded positions (m)."""
+        w = time.monotonic()
+        gap = 0.0 if self._t is None else min(max(w - self._wall, 0.0), self.max_gap_s)
+        self._t = gap if self._t is None else self._t + gap
+        self._wall = w
+        s = self.seq.status()
+        x = self.ref['x'] if self.ref['x'] is not None else s['setpoint_x_m']
+        y = self.ref['y'] if self.ref['y'] is not None else s['setpoint_y_m']
+        self._step(self._t, x, y, float(msg.data))
 
     def _on_power(self, msg):
         self.q['p'].append(float(msg.data))
@@ -118,20 +169,11 @@ class AlignmentSequencer2DNode(SequencerNode, Node):
         while len(q['x']) > POWER_QUEUE_LIMIT and q['y']:
             self._step(self.n * self.period_s, q['x'].pop(0), q['y'].pop(0), None)
 
-    def _driver_report(self, name, ok):
-        if name in self.drivers:
-            self.drivers[name] = ok
-
-    def driver_active(self):
-        """Return False when a driver reports ERROR, True when both are fine, else None."""
-        v = list(self.drivers.values())
-        return False if False in v else (True if all(v) else None)
-
     # -- the step -------------------------------------------------------------------
     def _step(self, t, x, y, p):
         def ok(v):
             return v if v is not None and math.isfinite(v) else None
-        rx, ry = self.seq.update(t, ok(x), ok(y), p, driver_active=self.driver_active())
+        rx, ry = self.seq.update(t, ok(x), ok(y), p)
         self.n += 1
         self.t_last = t
         for pub, r in zip(self.pub_sp, (rx, ry)):
@@ -158,7 +200,7 @@ class AlignmentSequencer2DNode(SequencerNode, Node):
 
 def main(args=None):
     """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
-    return c.run_node(AlignmentSequencer2DNode, NODE_NAME, args)
+    return run_node(AlignmentSequencer2DNode, NODE_NAME, args)
 
 
 if __name__ == '__main__':

@@ -2,54 +2,40 @@
 """
 ``bag_recorder``: record the graph's topics into a rosbag2 (version 9) bag with rosbags.
 
-Parameters (defaults in ``config/recorder.yaml``, node ``bag_recorder``):
+Stands in for rosbag2's recorder (``ros2 bag record``), which a pip install of ROS 2 lacks.
 
-* ``output`` (str): bag directory to create; empty = ``fiber_align_<YYYYmmdd_HHMMSS>``.
-* ``storage`` (str): ``mcap`` or ``sqlite3``.
-* ``topics`` (str[]): names to record; relative names resolve in the node's namespace.
-* ``discovery_period_s`` (s): how often to look for publishers of not-yet-subscribed topics.
-* ``queue_depth`` (messages): history depth of every subscription.
-* ``counts_file`` (bool): write ``recorder_counts.json`` (messages per topic) in the bag.
+Parameters (``config/recorder.yaml``; each has its description): ``output``, ``storage``
+(mcap | sqlite3), ``topics`` (relative names resolve in the namespace),
+``discovery_period_s``, ``queue_depth``, ``counts_file``, ``flush_period_s``.
 
-A topic is subscribed (``raw=True``: the CDR bytes are written as received, stamped with
-the wall-clock receive time in ns) once a publisher shows its type. The QoS follows the
-publishers: reliable if all are reliable, transient-local if all are (the graph's
-per-sample topics: a late subscription still gets the writer's seconds of history), and
-``queue_depth`` deep. Every message is written in its callback, so whatever reached the
-node is in the bag; on SIGINT, SIGTERM or rclpy shutdown the spin ends and the bag is
-closed (finalised). A second signal during the close changes nothing.
-
-Nothing is lost silently: the DDS ``message_lost`` and ``incompatible_qos`` events of
-every subscription are counted, logged and reported on ``/diagnostics`` (``lost``,
-``incompatible_qos``, and ``recorded.<topic>`` per wanted topic, every
-``diagnostics_period_s``) and in ``recorder_counts.json``.
-
-Crash safety (mcap): every ``flush_period_s`` the pending chunk is closed and written
-to the file, so a recorder killed with SIGKILL (or a power cut) leaves a file whose
-complete chunks ``fiber-align bag-repair DIR`` turns into a readable bag: at worst the
-last ``flush_period_s`` is lost.
+A topic is subscribed raw (the CDR bytes written as received, stamped with the
+wall-clock receive time in ns) once a publisher shows its type, with the publishers'
+QoS (reliable if all are, transient-local if all are) ``queue_depth`` deep. Every
+message is written in its callback; on SIGINT, SIGTERM or shutdown the bag is
+finalised. Nothing is lost silently: ``message_lost`` and ``incompatible_qos`` events
+are counted, logged and reported on ``/diagnostics`` (``lost``, ``incompatible_qos``,
+``recorded.<topic>``) and in ``recorder_counts.json``. Crash safety (mcap): every
+``flush_period_s`` the pending chunk is written, so after a SIGKILL
+``fiber-align bag-repair DIR`` recovers all but the last ``flush_period_s``.
 """
 
 from datetime import datetime
 import json
 import os
-import signal
 import sys
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray
 import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 
+from fiber_align import lifeline
 from fiber_align.analysis import bag as bagio
 from fiber_align.config import ConfigError
-from fiber_align.nodes import _common as c
-from fiber_align.nodes._common import DIAG_QOS, make_executor, set_realtime_priority
 from fiber_align.nodes._msgtypes import message_class
-from fiber_align.nodes._runtime import StopFlag
+from fiber_align.nodes.ros.diagnostics import Health, OK, WARN
+from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults, PRIORITY
+from fiber_align.nodes.ros.runtime import run_node
 
 NODE_NAME = 'bag_recorder'
 AREA_FILES = ('recorder.yaml',)
@@ -65,25 +51,24 @@ class BagRecorder(Node):
     def __init__(self, **kwargs):
         """Declare the parameters, open the bag and start discovery."""
         super().__init__(NODE_NAME, **kwargs)
-        d = c.node_defaults(NODE_NAME, AREA_FILES)
+        d = node_defaults(NODE_NAME, AREA_FILES)
         ro = True
-        self.output = c.declare(self, d, 'output', 'bag directory to create (must not '
-                                'exist); empty: fiber_align_<date_time>', read_only=ro) \
+        self.output = declare(self, d, 'output', 'bag directory to create (must not '
+                              'exist); empty: fiber_align_<date_time>', read_only=ro) \
             or _default_output()
-        storage = c.declare(self, d, 'storage', 'bag storage', read_only=ro,
-                            choices=('mcap', 'sqlite3'))
-        c.declare(self, d, 'topics', 'topics to record (relative names resolve in the '
-                  'namespace)', read_only=ro)
-        period = c.declare(self, d, 'discovery_period_s', 'topic discovery period (s)',
-                           0.01, 60.0, ro)
-        self.depth = c.declare(self, d, 'queue_depth', 'reader history per topic '
-                               '(messages)', 1, 10_000_000, ro)
-        self.counts_file = c.declare(self, d, 'counts_file', 'write recorder_events.json '
-                                     'next to the bag (bool)', read_only=ro)
-        c.declare(self, d, 'flush_period_s', 'period of mcap chunk flushes (s)', 0.01,
-                  60.0, ro)
-        c.declare(self, d, 'diagnostics_period_s', '/diagnostics period (s)', 0.01, 60.0, ro)
-        c.declare_priority(self, d)
+        storage = declare(self, d, 'storage', 'bag storage', read_only=ro,
+                          choices=('mcap', 'sqlite3'))
+        declare(self, d, 'topics', 'topics to record (relative names resolve in the '
+                'namespace)', read_only=ro)
+        period = declare(self, d, 'discovery_period_s', 'topic discovery period (s)',
+                         0.01, 60.0, ro)
+        self.depth = declare(self, d, 'queue_depth', 'reader history per topic '
+                             '(messages)', 1, 10_000_000, ro)
+        self.counts_file = declare(self, d, 'counts_file', 'write recorder_events.json '
+                                   'next to the bag (bool)', read_only=ro)
+        declare(self, d, 'flush_period_s', 'period of mcap chunk flushes (s)', 0.01,
+                60.0, ro)
+        declare_graph_values(self, d, 'diagnostics_period_s', *PRIORITY)
         gp = self.get_parameter
         self.wanted = [self.resolve_topic_name(t) for t in gp('topics').value]
         from rosbags.rosbag2 import Writer
@@ -104,9 +89,8 @@ class BagRecorder(Node):
         flush = float(gp('flush_period_s').value)
         if flush > 0:
             self.create_timer(flush, self.flush)
-        self._diag_type = DiagnosticArray
-        self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', DIAG_QOS)
-        self.create_timer(float(gp('diagnostics_period_s').value), self.publish_diagnostics)
+        self.health = Health(self, float(gp('diagnostics_period_s').value),
+                             update=self._diag_values)
         self.get_logger().info('recording %s into %s (%s)'
                                % (', '.join(self.wanted), self.output, storage))
         self.discover()
@@ -188,26 +172,21 @@ class BagRecorder(Node):
         if bio is not None:
             bio.flush()
 
-    def publish_diagnostics(self):
+    def _diag_values(self):
         """Report counts, lost and incompatible-QoS events on ``/diagnostics``."""
-        from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-        level = 0 if not (self.lost or self.incompatible) else 1
-        msg = ('recording %s' % self.output) if not level else (
-            'lost %d message(s), %d incompatible QoS' % (self.lost, self.incompatible))
-        st = DiagnosticStatus(level=bytes([level]), name=self.get_fully_qualified_name(),
-                              message=msg, hardware_id='fiber_align')
-        vals = {'lost': self.lost, 'incompatible_qos': self.incompatible,
-                'closed': self.closed}
+        bad = self.lost or self.incompatible
+        self.health.status(WARN if bad else OK, 'lost %d message(s), %d incompatible QoS' % (
+            self.lost, self.incompatible) if bad else 'recording %s' % self.output)
         # every wanted topic, 0 until subscribed: a reader of these counts sees a
         # topic the recorder has not picked up yet as behind, not as absent
-        vals.update({'recorded.' + t: self.counts.get(t, 0) for t in self.wanted})
-        st.values = [KeyValue(key=k, value=str(v)) for k, v in vals.items()]
-        arr = self._diag_type(status=[st])
-        arr.header.stamp = self.get_clock().now().to_msg()
-        try:
-            self.pub_diag.publish(arr)
-        except Exception:  # noqa: BLE001 - context already shut down at exit
-            pass
+        self.health.set_values(lost=self.lost, incompatible_qos=self.incompatible,
+                               closed=self.closed,
+                               **{'recorded.' + t: self.counts.get(t, 0) for t in self.wanted})
+
+    def destroy_node(self):
+        """Finalise the bag (:meth:`close`), then destroy the node."""
+        self.close()
+        return super().destroy_node()
 
     def close(self):
         """Finalise the bag (idempotent); log and return the message counts per topic."""
@@ -249,52 +228,15 @@ def main(args=None):
     """
     Run the recorder until SIGINT, SIGTERM or shutdown; the bag is always finalised.
 
-    The node installs its own SIGINT/SIGTERM handlers: they only stop the spin loop, so
-    the messages already queued for the node are still taken and written before the
-    bag is closed.
+    A signal only ends the spin: the messages already queued are still taken and
+    written (:func:`_drain`) before the bag is closed (:meth:`BagRecorder.destroy_node`).
+    The realtime (events) executor: the Python wait-set loop would cost most of a core.
+    A parent that died (``bringup`` or ``ros2 launch`` killed) wants its graph gone
+    within 2 s, while the graph may publish until its own exit: the drain then ends
+    sooner (asked on every turn).
     """
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    stop = StopFlag()               # no lock in a handler: a nested signal would deadlock
-    parent = os.getppid()
-
-    def on_signal(signum, frame):
-        stop.set()
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
-    node = None
-    code = 0
-    try:
-        node = BagRecorder()
-        prio = int(node.get_parameter('realtime_priority').value)
-        if prio:
-            node.get_logger().info('scheduling: %s' % set_realtime_priority(
-                prio, node.get_parameter('lock_memory').value))
-        # the C++ events executor: about 9,000 messages a second at 1 kHz, where the
-        # Python wait-set loop of the SingleThreadedExecutor costs most of a core
-        executor = make_executor(True)
-        executor.add_node(node)
-        while rclpy.ok() and not stop.is_set():
-            executor.spin_once(timeout_sec=0.1)
-        # a parent that died (bringup killed: PR_SET_PDEATHSIG) wants every process of
-        # its graph gone within 2 s, while the graph may publish until its own exit:
-        # take what is queued for a moment, then close the bag. Asked on every turn: the
-        # signal comes when the parent's forking thread exits, and while its other
-        # threads still exit getppid() is unchanged (seen: a 1.1 s drain, then a second
-        # SIGTERM 37 ms later)
-        _drain(executor, node, lambda: os.getppid() != parent)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except ConfigError as exc:
-        print('bag_recorder: error: %s' % exc, file=sys.stderr, flush=True)
-        code = 2
-    finally:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, signal.SIG_IGN)
-        if node is not None:
-            node.close()
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+    return run_node(BagRecorder, NODE_NAME, args, realtime=lambda node: True,
+                    then=lambda ex, node: _drain(ex, node, lifeline.parent_gone))
 
 
 if __name__ == '__main__':

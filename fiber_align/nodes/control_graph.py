@@ -7,7 +7,7 @@ The analogue of a component container for a pip-installed rclpy, which has no
 fuzzy_pid_controller,actuator_driver --ros-args --params-file F ...`` builds each named
 node (each keeps its own name and reads its own params-file section) and spins them on
 one executor. Messages between the hosted nodes go through a
-:class:`~fiber_align.nodes._common.LocalBus`: a direct call instead of a round trip
+:class:`~fiber_align.nodes.ros.bus.LocalBus`: a direct call instead of a round trip
 through DDS serialisation and the executor, while every message is still published to
 DDS for outside subscribers (the recorder, ``ros2 topic echo``). A realtime control
 period is then one timer callback of the plant that runs the compensator, the
@@ -24,29 +24,14 @@ import sys
 from rclpy.executors import ExternalShutdownException
 from rclpy.utilities import remove_ros_args
 
-from fiber_align.nodes import _common as c
+from fiber_align.graph import description as graph
+from fiber_align.nodes.ros import runtime as c
+from fiber_align.nodes.ros.bus import LocalBus
 
-#: Nodes a composed process can host: name -> (module, class). The order in which they
-#: are built (and so the order of in-process delivery) follows this table.
-HOSTABLE = {
-    'simulated_actuator': ('fiber_align.nodes.simulated_actuator', 'SimulatedActuatorNode'),
-    # the rig's plant (graph_rig.py): node simulated_actuator, publishing tip_position too
-    'rig_actuator': ('fiber_align.nodes.rig_actuator', 'RigActuatorNode'),
-    # the setpoint sources first: their answer to a sample reaches the compensator and
-    # the controller within the same control period
-    'scenario_runner': ('fiber_align.nodes.scenario_runner', 'ScenarioRunnerNode'),
-    'alignment_sequencer': ('fiber_align.nodes.alignment_sequencer',
-                            'AlignmentSequencerNode'),
-    # the two-axis rig's own nodes (graph_rig.py): the optics, then the 2-D sequencer
-    'simulated_optics_2d': ('fiber_align.nodes.rig_optics', 'RigOpticsNode'),
-    'alignment_sequencer_2d': ('fiber_align.nodes.alignment_sequencer2d',
-                               'AlignmentSequencer2DNode'),
-    'hysteresis_compensator': ('fiber_align.nodes.hysteresis_compensator',
-                               'HysteresisCompensatorNode'),
-    'fuzzy_pid_controller': ('fiber_align.nodes.fuzzy_pid_controller',
-                             'FuzzyPidControllerNode'),
-    'actuator_driver': ('fiber_align.nodes.actuator_driver', 'ActuatorDriverNode'),
-}
+#: Nodes a composed process can host: ``--nodes`` name -> (module, class), in build
+#: order (the order of in-process delivery): the graph description's registry.
+HOSTABLE = {n: ('fiber_align.nodes.' + spec.executable, spec.node_class)
+            for n, spec in graph.HOSTABLE.items()}
 DEFAULT_NODES = ('simulated_actuator', 'hysteresis_compensator', 'fuzzy_pid_controller',
                  'actuator_driver')
 
@@ -71,15 +56,15 @@ def parse_nodes(argv):
 
 def build(names, bus=None):
     """
-    Build the named nodes on one :class:`~fiber_align.nodes._common.LocalBus`.
+    Build the named nodes on one :class:`~fiber_align.nodes.ros.bus.LocalBus`.
 
     :param names: node names from :data:`HOSTABLE` (after ``rclpy.init``).
     :returns: ``(nodes, bus)``.
     """
-    bus = bus if bus is not None else c.LocalBus()
+    bus = bus if bus is not None else LocalBus()
     mods = [importlib.import_module(HOSTABLE[n][0]) for n in names]
-    for m in mods:
-        bus.provide(*m.PUBLISHES)
+    for n in names:
+        bus.provide(*graph.HOSTABLE[n].publishes)
     nodes = []
     try:
         for n, m in zip(names, mods):
@@ -115,7 +100,7 @@ def main(args=None):
         return c.refuse('control_graph', exc)
     finally:
         c.finish(nodes)
-    return 0
+    return c.exit_code(stop)
 
 
 if __name__ == '__main__':

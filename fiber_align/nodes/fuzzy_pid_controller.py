@@ -3,27 +3,23 @@
 ``fuzzy_pid_controller``: the feedback law of the control core as a ROS 2 node.
 
 Runs once per ``displacement`` sample (sensor_msgs/JointState, m): ``fb_k =
-controller.step(r_k, y_k)`` with the law the factory builds for the graph's
-``controller`` (composite and fuzzy: fuzzy PID; composite-pid and pid: PID; feedforward
-and open-loop: 0 V), exactly what the offline loop computes. ``r`` is ``reference``
-(std_msgs/Float64, m): the setpoint the compensator accepted (the only consumer of
-``setpoint``), latched so a restarted controller has it at once. Publishes
-``feedback_voltage`` (V) and ``controller_state`` (Float64MultiArray, labelled dims in SI;
-every ``controller_state_every`` samples). ``~/reset``
-(std_srvs/Trigger) clears the integral and filters. Lockstep pairs the i-th displacement
-with the i-th reference; realtime steps on the newest sample along the realtime setpoint
-trajectory, with one period more delay than lockstep, and parks (0 V, no integral,
-reference model at the measured position) while ``drive_held`` is true or the drive is
-stale, so every resume is bumpless. Every parameter of ``config/controller.yaml`` is a
-ROS parameter; gains, scale factors and limits change live (checked, state kept). The
-full behaviour, with the reasons: docs/ros_interface.md, section "fuzzy_pid_controller".
+controller.step(r_k, y_k)`` with the law :func:`fiber_align.control.factory.
+build_controller` builds for the graph's ``controller``, exactly what the offline loop
+computes. ``r`` is ``reference`` (std_msgs/Float64, m): the setpoint the compensator
+accepted, latched. Publishes ``feedback_voltage`` (V) and ``controller_state``
+(Float64MultiArray, labelled dims in SI; every ``controller_state_every`` samples).
+``~/reset`` (std_srvs/Trigger) clears the integral and filters. Lockstep pairs the i-th
+displacement with the i-th reference; realtime follows the rules of
+:class:`fiber_align.control.realtime.ControllerStep` (parked while the drive is held,
+output held while it is stale, bumpless resumes). The parameters of
+``config/controller.yaml`` change live (checked, state kept); the graph-wide values are
+read-only. The full behaviour: docs/ros_interface.md, section "fuzzy_pid_controller".
 """
 
 import math
 import sys
 import time
 
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
@@ -31,42 +27,30 @@ from std_msgs.msg import Bool, Float64, Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import Trigger
 
 from fiber_align.config import ConfigError, flatten, unflatten
-from fiber_align.control.factory import build_controller, check_param, CONTROLLERS
-from fiber_align.control.factory import PARAM_RANGES
-from fiber_align.nodes import _common as c
-from fiber_align.nodes._cycle import CycleStats
+from fiber_align.control.cycle import CycleStats
+from fiber_align.control.factory import build_controller, PARAM_RANGES
+from fiber_align.control.fuzzy_pid import carry_state
+from fiber_align.control.realtime import ControllerStep, extend_lead
+from fiber_align.control.trajectory import Setpoint, stamp_ns
+from fiber_align.graph import checks
+from fiber_align.graph.params import SHARED
+from fiber_align.nodes.ros.bus import Pub, slack_of, subscription
+from fiber_align.nodes.ros.diagnostics import Health, OK
+from fiber_align.nodes.ros.params import declare, declare_graph_values, declare_shaping
+from fiber_align.nodes.ros.params import design_model, node_defaults, PRIORITY
+from fiber_align.nodes.ros.qos import LATCHED_QOS, LOCKSTEP_QOS, REALTIME_QOS
+from fiber_align.nodes.ros.qos import REFERENCE_LATCHED_QOS, sample_pub_qos, sample_qos
+from fiber_align.nodes.ros.runtime import run_node
 
 NODE_NAME = 'fuzzy_pid_controller'
 AREA_FILES = ('controller.yaml',)
-MODES = CONTROLLERS
-#: Realtime: the controller holds its output while the newest ``drive_voltage`` is older
-#: than this many periods (the loop is open: nothing may wind up); one value with the
-#: compensator's.
-DRIVE_STALE_PERIODS = c.DRIVE_STALE_PERIODS
 STATE_LABELS = ('error_m', 'error_rate_m_per_s', 'kp_v_per_m', 'ki_v_per_m_s',
                 'kd_v_s_per_m', 'output_v')
-GRAPH_KEYS = ('controller', 'sync_mode', 'rate_hz', 'diagnostics_period_s', 'setpoint_min_m',
-              'setpoint_max_m', 'realtime_setpoint_rate_m_per_s', 'controller_state_every',
-              'realtime_priority', 'lock_memory')
-#: Topics this node publishes (relative names; see ``_common.LocalBus``).
+#: The graph-wide values this node reads (read-only).
+GRAPH = ('controller', 'rate_hz', 'sync_mode', 'diagnostics_period_s', 'setpoint_min_m',
+         'setpoint_max_m', 'realtime_setpoint_rate_m_per_s') + PRIORITY
+#: Topics this node publishes (relative names, delivered in-process on a LocalBus).
 PUBLISHES = ('feedback_voltage', 'controller_state')
-
-
-def make_controller(controller, params, rate_hz, shaping, surface=None):
-    """
-    Build the feedback law exactly as the offline simulation does.
-
-    :param controller: a controller name of ``fiber-align simulate`` (composite,
-        composite-pid, fuzzy, pid, feedforward, open-loop); the last two have no feedback.
-    :param params: controller parameters (nested, SI).
-    :param rate_hz: control rate (Hz).
-    :param shaping: the reference shaping and design file (the compensator's values,
-        :func:`~fiber_align.nodes._common.declare_shaping`).
-    :param surface: the fuzzy surface of the controller it replaces (reused if it fits).
-    :returns: an object with ``step(r, y) -> V`` or ``None``.
-    """
-    return build_controller(controller, params, shaping, c.design_model(shaping), rate_hz,
-                            surface)
 
 
 class FuzzyPidControllerNode(Node):
@@ -76,94 +60,81 @@ class FuzzyPidControllerNode(Node):
         """
         Declare parameters (defaults from config/), build the controller, wire topics.
 
-        :param bus: the :class:`~fiber_align.nodes._common.LocalBus` of a composed
+        :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
             process, or ``None``.
         """
         super().__init__(NODE_NAME, **kwargs)
-        d = c.node_defaults(NODE_NAME, AREA_FILES)
-        self.mode = c.declare(self, d, 'controller', 'control law (as in fiber-align simulate)',
-                              choices=MODES)
-        self.rate_hz = c.declare(self, d, 'rate_hz', 'control rate (Hz)', 1.0, 20000.0, True)
-        self.lockstep = c.declare(self, d, 'sync_mode', 'message pairing', read_only=True,
-                                  choices=c.SYNC_MODES) == 'lockstep'
-        diag = c.declare(self, d, 'diagnostics_period_s', '/diagnostics period (s)', 0.01,
-                         60.0, True)
-        self.sp_lo = c.declare(self, d, 'setpoint_min_m', 'lowest accepted setpoint (m)',
-                               -1e-3, 1e-3)
-        self.sp_hi = c.declare(self, d, 'setpoint_max_m', 'highest accepted setpoint (m)',
-                               -1e-3, 1e-3)
-        rate = c.declare_graph(self, d, 'realtime_setpoint_rate_m_per_s',
-                               c.REALTIME_SETPOINT_RATE_M_PER_S,
-                               'realtime: rate limit of the setpoint trajectory (m/s); '
-                               '<= 0: none', -1.0, 10.0, True)
-        c.declare_priority(self, d)
-        self.traj = c.SetpointTrajectory(1.0 / self.rate_hz, rate)
-        self.state_every = c.declare(self, d, 'controller_state_every',
-                                     'publish controller_state every N samples (1); 0: off',
-                                     0, 1000000)
-        self.shaping = c.declare_shaping(self, d)   # the reference model's (SHARED)
-        core = {k: v for k, v in d.items() if k not in GRAPH_KEYS and k not in c.SHARED}
+        d = node_defaults(NODE_NAME, AREA_FILES)
+        g = declare_graph_values(self, d, *GRAPH)
+        self.mode, self.rate_hz = g['controller'], g['rate_hz']
+        self.lockstep = g['sync_mode'] == 'lockstep'
+        self.sp = Setpoint(g['setpoint_min_m'], g['setpoint_max_m'])
+        self.state_every = declare(self, d, 'controller_state_every',
+                                   'publish controller_state every N samples (1); 0: off',
+                                   0, 1000000)
+        self.shaping = declare_shaping(self, d)   # the reference model's (SHARED)
+        own = GRAPH + ('controller_state_every',)
+        core = {k: v for k, v in d.items() if k not in own and k not in SHARED}
         self.core_names = []
         for name, value in flatten(core).items():
-            key = name.split('.')[-1]
-            lo, hi = PARAM_RANGES.get(key, (None, None))
+            lo, hi = PARAM_RANGES.get(name.split('.')[-1], (None, None))
             scalar = isinstance(value, (int, float)) and not isinstance(value, bool)
-            c.declare(self, {name: value}, name, 'controller parameter (SI, see '
-                      'controller.yaml)', lo if scalar else None, hi if scalar else None)
+            declare(self, {name: value}, name, 'controller parameter (SI, see '
+                    'controller.yaml)', lo if scalar else None, hi if scalar else None)
             self.core_names.append(name)
-        self.ctl = self._make(self.mode, self._core_params())
+        # what the limits must reach: the setpoint range at the design gain (m, m/V)
+        self.limits_for = (self.mode, g['setpoint_min_m'], g['setpoint_max_m'],
+                           design_model(self.shaping)[1])
+        why = self._check({n: self.get_parameter(n).value for n in self.core_names},
+                          self._core_params())
+        if why:
+            raise ConfigError('fuzzy_pid_controller: %s' % why)
+        self.step = ControllerStep(None, 1.0 / self.rate_hz,
+                                   g['realtime_setpoint_rate_m_per_s'])
+        self.step.ctl = self._make(self._core_params())
         self.add_on_set_parameters_callback(self._on_set)
 
-        self.slack = c.slack_of(bus)
-        self.pub_fb = c.Pub(self, Float64, 'feedback_voltage', c.CONTROL_QOS, bus,
-                            slack=self.slack)
-        self.pub_state = c.Pub(self, Float64MultiArray, 'controller_state', c.CONTROL_QOS,
-                               bus)
+        self.slack = slack_of(bus)
+        pub_qos = sample_pub_qos(self.lockstep)
+        self.pub_fb = Pub(self, Float64, 'feedback_voltage', pub_qos, bus, slack=self.slack)
+        self.pub_state = Pub(self, Float64MultiArray, 'controller_state', pub_qos, bus)
         self._fb_msg = Float64()
         self._state_msg = Float64MultiArray()
         self._state_msg.layout.dim = [MultiArrayDimension(label=lab, size=1, stride=1)
                                       for lab in STATE_LABELS]
-        c.subscription(self, JointState, 'displacement', self._on_disp,
-                       c.sample_qos(self.lockstep), bus)
+        subscription(self, JointState, 'displacement', self._on_disp,
+                     sample_qos(self.lockstep), bus)
         # the reference is the setpoint the compensator accepted (it is the only consumer
         # of ``setpoint``); realtime reads it latched, so a restarted controller has it
-        c.subscription(self, Float64, 'reference', self._on_setpoint,
-                       c.LOCKSTEP_QOS if self.lockstep else c.REFERENCE_LATCHED_QOS, bus)
-        self.held = False               # realtime: the driver holds its output
-        self.t_drive = None             # realtime: wall time (s) of the newest drive
+        subscription(self, Float64, 'reference', self._on_setpoint,
+                     LOCKSTEP_QOS if self.lockstep else REFERENCE_LATCHED_QOS, bus)
         if not self.lockstep:
-            c.subscription(self, Bool, 'drive_held', self._on_held, c.LATCHED_QOS, bus)
-            c.subscription(self, Float64, 'drive_voltage', self._on_drive, c.REALTIME_QOS,
-                           bus)
+            subscription(self, Bool, 'drive_held', self._on_held, LATCHED_QOS, bus)
+            subscription(self, Float64, 'drive_voltage', self._on_drive, REALTIME_QOS,
+                         bus)
         self.create_service(Trigger, '~/reset', self._on_reset)
-        self.health = c.Health(self, diag, slack=self.slack)
+        self.health = Health(self, g['diagnostics_period_s'], slack=self.slack)
         self._stamp_ns = 0              # realtime: stamp (ns) of the sample being answered
         self.wired = self.lockstep      # realtime: the driver and compensator are heard
         if not self.lockstep:
             self.health.cycle = CycleStats(self.rate_hz)
-        self.r = 0.0
-        self.r_prev = 0.0               # realtime: latest setpoint at the previous sample
-        self.has_setpoint = False       # realtime: feedback off until the first setpoint
-        self.y_latest = 0.0
         self.sp_q = []
         self.y_q = []
         self.n_fb = 0
         self.n_state = 0
-        self.rejected = 0
-        self.n_y = 0
-        self.health.status(c.OK, 'running (%s)' % self.mode if self.lockstep else
+        self.health.status(OK, 'running (%s)' % self.mode if self.lockstep else
                            'waiting for a setpoint: feedback off (%s)' % self.mode)
         self.get_logger().info('controller ready: mode %s at %g Hz, %s pairing'
                                % (self.mode, self.rate_hz,
                                   'index' if self.lockstep else 'latest-setpoint'))
 
     # -- parameters -----------------------------------------------------------------
-    def _make(self, mode, params):
+    def _make(self, params):
         """Build the feedback law; realtime: its reference model's lead covers one more T."""
-        ctl = make_controller(mode, params, self.rate_hz, self.shaping,
-                              getattr(getattr(self, 'ctl', None), 'surface', None))
+        ctl = build_controller(self.mode, params, self.shaping, design_model(self.shaping),
+                               self.rate_hz, getattr(self.step.ctl, 'surface', None))
         if ctl is not None and not self.lockstep:
-            c.extend_lead(getattr(ctl, 'reference_filter', None), 1.0 / self.rate_hz)
+            extend_lead(getattr(ctl, 'reference_filter', None), 1.0 / self.rate_hz)
         return ctl
 
     def _core_params(self, changes=None):
@@ -171,188 +142,89 @@ class FuzzyPidControllerNode(Node):
         flat.update(changes or {})
         return unflatten(flat)
 
+    def _check(self, changes, params):
+        """Return ``None`` or why ``params`` (nested, ``changes`` applied) are refused."""
+        return checks.controller_values(changes, params, *self.limits_for)
+
     def _on_set(self, params):
-        """Validate a live update; rebuild the controller and keep its state."""
-        changes = {}
-        mode = self.mode
+        """Validate a live update (:mod:`fiber_align.graph.checks`); rebuild, keep state."""
         for p in params:
-            if p.name in ('setpoint_min_m', 'setpoint_max_m'):
-                res = c.check_parameters([p], {p.name: (-1e-3, 1e-3)})
-                if not res.successful:
-                    return res
-            elif p.name == 'controller':
-                if p.value not in MODES:
-                    return SetParametersResult(successful=False, reason='controller=%r: must be '
-                                               'one of %s' % (p.value, ', '.join(MODES)))
-                mode = p.value
-            elif p.name in self.core_names:
-                why = check_param(p.name, p.value)
-                if why:
-                    return SetParametersResult(successful=False, reason=why)
-                changes[p.name] = p.value
-        if not changes and mode == self.mode:
-            for p in params:
-                if p.name == 'setpoint_min_m':
-                    self.sp_lo = float(p.value)
-                elif p.name == 'setpoint_max_m':
-                    self.sp_hi = float(p.value)
+            if p.name == 'controller_state_every':  # in range (its descriptor): applied
+                self.state_every = int(p.value)
+        changes = {p.name: p.value for p in params if p.name in self.core_names}
+        if not changes:
             return SetParametersResult(successful=True)
+        why = self._check(changes, self._core_params(changes))
+        if why:
+            return SetParametersResult(successful=False, reason=why)
         try:
-            new = self._make(mode, self._core_params(changes))
+            new = self._make(self._core_params(changes))
         except (ConfigError, ValueError, KeyError, TypeError) as exc:
-            return SetParametersResult(successful=False, reason='rejected: %s' % exc)
-        if new is not None and self.ctl is not None and mode == self.mode:
-            old, npid = self.ctl.pid, new.pid
-            npid.integral, npid.deriv, npid.e_prev, npid.u = (
-                old.integral, old.deriv, old.e_prev, old.u)
-            new.u = self.ctl.u
-            if getattr(self.ctl, 'reference_filter', None) is not None:
-                new.reference_filter = self.ctl.reference_filter
-        self.ctl = new
-        self.mode = mode
-        for p in params:
-            if p.name == 'setpoint_min_m':
-                self.sp_lo = float(p.value)
-            elif p.name == 'setpoint_max_m':
-                self.sp_hi = float(p.value)
+            return SetParametersResult(successful=False, reason='%s rejected: %s' % (
+                ', '.join(changes), exc))
+        if new is not None and self.step.ctl is not None:
+            carry_state(self.step.ctl, new)
+        self.step.ctl = new
         self.get_logger().info('parameters updated: %s' % ', '.join(p.name for p in params))
         return SetParametersResult(successful=True)
 
     # -- messages -------------------------------------------------------------------
     def _on_reset(self, request, response):
         """Clear the controller's integral and filters."""
-        if self.ctl is not None:
-            self.ctl.reset()
+        if self.step.ctl is not None:
+            self.step.ctl.reset()
             if not self.lockstep:
-                self._park()
-        response.success = True
-        response.message = 'controller reset'
+                self.step.park()
+        response.success, response.message = True, 'controller reset'
         return response
 
-    def _park(self):
-        """Realtime: rest at the latest measured position (reference model, trajectory)."""
-        y = self.y_latest
-        y = max(0.0, float(y)) if math.isfinite(y) else 0.0
-        self.traj.reset(y)
-        self.r_prev = y         # the setpoint one sample old
-        rf = getattr(self.ctl, 'reference_filter', None)
-        if rf is None:
-            return
-        rf.reset()
-        if rf.shaper is not None:
-            rf.shaper.reset(y)
-        if rf.lead is not None:
-            rf.lead.reset(y)
-        rf.x, rf.xd = y, 0.0
-
-    def _valid(self, value):
-        """Return ``value`` as a float (m), or ``None`` after reporting why it is rejected."""
-        why = c.check_setpoint(value, self.sp_lo, self.sp_hi)
-        if why is None:
-            return float(value)
-        self.rejected += 1
-        msg = 'rejected %s; holding %.6g m' % (why, self.r)
-        self.get_logger().warn(msg)
-        self.health.warn(msg)
-        self.health.set_values(rejected_setpoints=self.rejected, setpoint_m=self.r)
-        return None
-
     def _on_setpoint(self, msg):
-        r = self._valid(msg.data)
+        why = self.sp.take(msg.data)
+        if why:
+            self.get_logger().warn(why)
+            self.health.warn(why)
+            self.health.set_values(rejected_setpoints=self.sp.rejected,
+                                   setpoint_m=self.sp.value)
         if self.lockstep:
-            self.r = self.r if r is None else r
-            self.sp_q.append(self.r)
+            self.sp_q.append(self.sp.value)
             self._pair()
-        elif r is not None:
-            if not self.has_setpoint:
-                # first setpoint of this controller: start from rest at the present
-                # position, which is also the "setpoint one sample old"
-                self.has_setpoint = True
-                if self.ctl is not None:
-                    self.ctl.reset()
-                self._park()
-                self.health.status(c.OK, 'running (%s)' % self.mode)
-            self.r = r
+        elif not why and self.step.setpoint():  # the first: start parked where it is
+            self.health.status(OK, 'running (%s)' % self.mode)
 
     def _on_held(self, msg):
         """Realtime: the driver holds (true) or passes (false) its output."""
-        held = bool(msg.data)
-        if held and not self.held and self.ctl is not None:
-            self.ctl.reset()            # nothing may wind up while the output is held
-        self.held = held
+        self.step.set_held(msg.data)
 
     def _on_drive(self, msg):
         """Realtime: note when the newest drive command arrived (wall time)."""
-        self.t_drive = time.monotonic()
+        self.step.drive(time.monotonic())
 
     def _on_disp(self, msg):
         y = msg.position[0] if len(msg.position) else math.nan
-        self.n_y += 1
         if self.lockstep:
             self.y_q.append(y)
             self._pair()
             return
-        self.y_latest = y
+        self.step.y_latest = y
         if not self.wired and not self._wire():
             return
         st = msg.header.stamp
-        self._stamp_ns = c.stamp_ns(st)
-        n = self.traj.periods(st)
-        if n > c.MAX_CATCH_UP and self.ctl is not None:
-            self.ctl.reset()            # stalled: the integral is stale (docstring)
-            self._park()
-            n = 1
-        if self.held or not self.has_setpoint:
-            if self.held:
-                # park at the present position (integral already cleared): after the
-                # driver resumes, trajectory and reference model start from here
-                self._park()
-            self._publish(0.0, math.nan, 0.0, (0.0, 0.0, 0.0))
-            return
-        t_drive = self.t_drive
-        if t_drive is None or time.monotonic() - t_drive > DRIVE_STALE_PERIODS / self.rate_hz:
-            # no fresh drive: the loop is open (driver stalled or not publishing): hold
-            # the output and integrate nothing; the trajectory and the reference model
-            # wait, as the compensator's trajectory does, so that the drive goes on
-            # from where it stopped instead of jumping by the stall's move
-            u = self.ctl.u if self.ctl is not None else 0.0
-            self._publish(u, math.nan, 0.0, getattr(self.ctl, 'gains', (0.0, 0.0, 0.0)))
-            return
-        # realtime: the trajectory's value one sample old for each period since the last
-        # sample (one period of delay, see the docstring); periods whose sample this node
-        # skipped advance the reference model only
-        seq = [self.r_prev] + self.traj.advance(self.r, n)
-        self.r_prev = seq[-1]
-        rf = getattr(self.ctl, 'reference_filter', None)
-        if rf is not None:
-            for r in seq[:-2]:
-                rf.step(r)
-        self._step(seq[-2], y)
+        self._stamp_ns = stamp_ns(st)
+        self._publish(*self.step.sample(st, y, self.sp.value, time.monotonic()))
 
     def _wire(self):
         """Realtime: True once the driver and compensator are heard (then start parked)."""
         # a restarted controller that ran before its drive_voltage, drive_held and
-        # reference readers matched wound up blind to a held driver (two hogs: 102 um)
+        # reference readers matched would wind up blind to a held driver
         self.wired = all(self.count_publishers(self.resolve_topic_name(t)) > 0
                          for t in ('drive_voltage', 'drive_held', 'reference'))
-        if self.wired and self.ctl is not None:
-            self.ctl.reset()
-            self._park()
+        if self.wired and self.step.ctl is not None:
+            self.step.reset()
         return self.wired
 
     def _pair(self):
         while self.sp_q and self.y_q:
-            self._step(self.sp_q.pop(0), self.y_q.pop(0))
-
-    def _step(self, r, y):
-        if self.ctl is None:
-            fb, e, de, gains = 0.0, r - y, 0.0, (0.0, 0.0, 0.0)
-        else:
-            fb = self.ctl.step(r, y)
-            e = r - y
-            de = self.ctl.pid.deriv
-            gains = self.ctl.gains
-        self._publish(fb, e, de, gains)
+            self._publish(*self.step.step(self.sp_q.pop(0), self.y_q.pop(0)))
 
     def _publish(self, fb, e, de, gains):
         """Publish the feedback (V) and the controller state (SI)."""
@@ -372,8 +244,8 @@ class FuzzyPidControllerNode(Node):
         if self.n_fb % 500 == 0:
             self.health.set_values(**{'sent.feedback_voltage': self.n_fb,
                                       'sent.controller_state': self.n_state,
-                                      'rejected_setpoints': self.rejected,
-                                      'setpoint_m': self.r, 'mode': self.mode})
+                                      'rejected_setpoints': self.sp.rejected,
+                                      'setpoint_m': self.sp.value, 'mode': self.mode})
 
     def sent_counts(self):
         """Return published message counts per topic."""
@@ -381,19 +253,8 @@ class FuzzyPidControllerNode(Node):
 
 
 def main(args=None):
-    """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
-    stop = c.init(args)
-    node = None
-    try:
-        node = FuzzyPidControllerNode()
-        c.spin(node, realtime=not node.lockstep, priority=c.node_priority(node), stop=stop)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except c.NODE_ERRORS as exc:
-        return c.refuse(NODE_NAME, exc)
-    finally:
-        c.finish(node)
-    return 0
+    """Run the node (bad parameters: one line, exit 2)."""
+    return run_node(FuzzyPidControllerNode, NODE_NAME, args)
 
 
 if __name__ == '__main__':

@@ -8,8 +8,7 @@ exact inverse of the Prandtl-Ishlinskii model, after the optional resonance-supp
 :func:`fiber_align.control.factory.build_feedforward` for the graph's ``controller`` so
 that it is exactly the offline loop's feedforward (``fuzzy``/``pid``: 0 V; ``open-loop``: linear).
 
-When it steps (the shaper and the inverse model advance once per step, so they must
-step once per control period):
+When it steps (shaper and inverse model advance once per step: once per period):
 
 - ``lockstep``: one ``feedforward_voltage`` (std_msgs/Float64, V) per ``setpoint``
   (std_msgs/Float64, m), so index pairing holds (the setpoint source publishes one
@@ -17,37 +16,26 @@ step once per control period):
 - ``sensorless`` (graph-wide, the hardware graph): one per setpoint as in lockstep, no
   ``displacement`` subscription;
 - ``realtime``: one ``feedforward_voltage`` per ``displacement`` sample (sensor_msgs/
-  JointState, newest only; its stamp counts the sample periods), towards the latest
-  valid setpoint along the realtime setpoint trajectory
-  (:class:`fiber_align.nodes._common.SetpointTrajectory`: rate limit
-  ``realtime_setpoint_rate_m_per_s``, 2 mm/s unless the params files set it), stepped
-  once per sample it answers. The controller runs the same trajectory. After samples
-  this node skipped (it was stalled) it goes on from where it was, one period later,
-  rather than over the skipped periods at once: that was a jump of the feedforward by
-  the whole stall's move (a 20 ms stall in a 45 um move: peaks of 107-116 um for a
-  50 um target; now 58-62 um, the controller's reference having gone on meanwhile;
-  ``test_nodes_realtime.py``). While the newest ``drive_voltage`` (newest only) is more
-  than ``DRIVE_STALE_PERIODS`` periods old (a stalled driver) the trajectory waits and
-  the last feedforward is published again, so that the drive goes on from there (a
-  20 ms driver stall mid-move: 50-55 um, 67-85 um before). A setpoint alone
-  publishes nothing: a single setpoint from an outside client is thus followed over the
-  next samples instead of stopping at the shaper's first tap. The delay compensation
-  (``delay_compensation``: a lead over the shaper delay plus one period) predicts one
-  period further, the extra delay of the realtime loop (``simulated_actuator``).
+  JointState, newest only), towards the latest valid setpoint along the realtime
+  setpoint trajectory (rate limit ``realtime_setpoint_rate_m_per_s``); the step rules
+  (drive held, a stall, a stale drive) are :class:`fiber_align.control.realtime.
+  CompensatorStep`'s. A setpoint alone publishes nothing: it is followed over the next
+  samples. The delay compensation predicts one period further, the extra delay of the
+  realtime loop (``simulated_actuator``).
 
 Parameters: the model (``thresholds_v``, ``weights_m_per_v``) inline or in
 ``model_file`` (a params file written by ``PIModel.save``), the shaping, and
-``controller`` (graph-wide, see above). Services (std_srvs/Trigger): ``~/reload_model``
-reads the model again (e.g. after ``fiber-align identify`` wrote a new file), keeping the
-old model when the new one cannot be loaded or inverted; ``~/reset`` restarts the
-feedforward at rest at the present position (realtime: the latest measurement; lockstep:
-the held setpoint), so that it moves to the held setpoint through the shaper again.
-While the driver reports ``drive_held`` true (std_msgs/Bool, latched; realtime), and
-after a gap of more than ``_common.MAX_CATCH_UP`` sample periods in its input (it was
-stalled and may have missed ``drive_held``), the compensator rests at the measured
-position in the same way, so that when
-the driver resumes the drive returns to the setpoint through the shaper instead of as a
-jump that rings the bending mode.
+``controller`` (graph-wide, see above). A ``model_file`` that names no readable,
+invertible model file, or inline lists that make no invertible model, are refused at
+start-up and when set (:mod:`fiber_align.graph.checks`). Services (std_srvs/Trigger):
+``~/reload_model`` reads the model again (e.g. after ``fiber-align identify`` wrote a new
+file), keeping the old model when the new one cannot be loaded or inverted; ``~/reset``
+restarts the feedforward at rest at the present position (realtime: the latest
+measurement; lockstep: the held setpoint), so that it moves to the held setpoint through
+the shaper again.
+While the driver reports ``drive_held`` true (std_msgs/Bool, latched; realtime) the
+compensator rests at the measured position, so that the drive returns to the setpoint
+through the shaper instead of as a jump that rings the bending mode.
 
 A NaN, infinite or out-of-range setpoint (outside ``[setpoint_min_m, setpoint_max_m]``)
 is rejected with a logged reason and a WARN on ``/diagnostics``; the last valid setpoint
@@ -55,26 +43,42 @@ is used in its place (in lockstep exactly one output is still published per inpu
 pairing holds) and the actuator stays where it was.
 """
 
-import math
 import sys
 import time
 
-from rclpy.executors import ExternalShutdownException
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64
 from std_srvs.srv import Trigger
 
 from fiber_align.config import ConfigError
-from fiber_align.control.factory import build_feedforward, CONTROLLERS
+from fiber_align.control.cycle import CycleStats
+from fiber_align.control.factory import build_feedforward
+from fiber_align.control.realtime import CompensatorStep, extend_lead
+from fiber_align.control.trajectory import Setpoint, stamp_ns
+from fiber_align.graph import checks
 from fiber_align.hysteresis.pi import PIModel
-from fiber_align.nodes import _common as c
-from fiber_align.nodes._cycle import CycleStats
+from fiber_align.nodes.ros.bus import Pub, slack_of, subscription
+from fiber_align.nodes.ros.diagnostics import Health, OK
+from fiber_align.nodes.ros.params import declare, declare_graph_values, declare_shaping
+from fiber_align.nodes.ros.params import design_model, node_defaults, PRIORITY
+from fiber_align.nodes.ros.qos import CONTROL_QOS, LATCHED_QOS, LOCKSTEP_QOS, REALTIME_QOS
+from fiber_align.nodes.ros.qos import sample_pub_qos, SETPOINT_QOS
+from fiber_align.nodes.ros.runtime import run_node
 
 NODE_NAME = 'hysteresis_compensator'
 AREA_FILES = ('compensator.yaml', 'models/compensator_model.yaml')
-#: Topics this node publishes (relative names; see ``_common.LocalBus``).
+#: Topics this node publishes (relative names, delivered in-process on a LocalBus).
 PUBLISHES = ('feedforward_voltage', 'reference')
+#: The graph-wide values this node reads (read-only).
+GRAPH = ('rate_hz', 'sync_mode', 'sensorless', 'diagnostics_period_s', 'setpoint_min_m',
+         'setpoint_max_m', 'controller', 'realtime_setpoint_rate_m_per_s') + PRIORITY
+#: The node's own parameters: name -> description (read-only but the model's).
+OWN = {'model_file': 'PI model params file; empty: the inline model',
+       'model_source': 'where the inline model comes from',
+       'thresholds_v': 'PI play-operator thresholds (V)',
+       'weights_m_per_v': 'PI weights (m/V)'}
 
 
 class HysteresisCompensatorNode(Node):
@@ -84,75 +88,82 @@ class HysteresisCompensatorNode(Node):
         """
         Declare parameters (defaults from config/), load the model, wire topics.
 
-        :param bus: the :class:`~fiber_align.nodes._common.LocalBus` of a composed
+        :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
             process, or ``None``.
         """
         super().__init__(NODE_NAME, **kwargs)
-        d = c.node_defaults(NODE_NAME, AREA_FILES)
-        self.rate_hz = c.declare(self, d, 'rate_hz', 'control rate (Hz)', 1.0, 20000.0, True)
-        self.lockstep = c.declare(self, d, 'sync_mode', 'sample clock', read_only=True,
-                                  choices=c.SYNC_MODES) == 'lockstep'
+        d = node_defaults(NODE_NAME, AREA_FILES)
+        g = declare_graph_values(self, d, *GRAPH)
+        self.rate_hz = g['rate_hz']
+        self.lockstep = g['sync_mode'] == 'lockstep'
         # sensorless (the hardware graph): no displacement to clock it; one feedforward
         # per setpoint, as in lockstep (the sequencer steps once per power reading)
-        sensorless = c.declare(self, d, 'sensorless', 'no displacement sensor: step once '
-                               'per setpoint', read_only=True)
-        self.per_setpoint = self.lockstep or bool(sensorless)
-        diag = c.declare(self, d, 'diagnostics_period_s', '/diagnostics period (s)', 0.01,
-                         60.0, True)
-        self.sp_lo = c.declare(self, d, 'setpoint_min_m', 'lowest accepted setpoint (m)',
-                               -1e-3, 1e-3, True)
-        self.sp_hi = c.declare(self, d, 'setpoint_max_m', 'highest accepted setpoint (m)',
-                               -1e-3, 1e-3, True)
-        c.declare(self, d, 'controller', 'control law (as in fiber-align simulate)',
-                  read_only=True, choices=CONTROLLERS)
-        rate = c.declare_graph(self, d, 'realtime_setpoint_rate_m_per_s',
-                               c.REALTIME_SETPOINT_RATE_M_PER_S,
-                               'realtime: rate limit of the setpoint trajectory (m/s); '
-                               '<= 0: none', -1.0, 10.0, True)
-        c.declare_priority(self, d)
-        self.traj = c.SetpointTrajectory(1.0 / self.rate_hz, rate)
-        c.declare(self, d, 'model_file', 'PI model params file; empty: the inline model')
-        c.declare(self, d, 'model_source', 'where the inline model comes from')
-        c.declare(self, d, 'thresholds_v', 'PI play-operator thresholds (V)')
-        c.declare(self, d, 'weights_m_per_v', 'PI weights (m/V)')
-        self.shaping = c.declare_shaping(self, d)
-        self.open_loop_gain = c.declare(self, d, 'open_loop_gain_v_per_m',
-                                        'linear feedforward gain (V/m)', 0.0, 1e9, True)
-        self.slack = c.slack_of(bus)
-        self.pub = c.Pub(self, Float64, 'feedforward_voltage', c.CONTROL_QOS, bus,
-                         slack=self.slack)
-        # the accepted setpoint for the controller (one consumer of ``setpoint``)
-        self.pub_ref = c.Pub(self, Float64, 'reference', c.CONTROL_QOS, bus,
-                             latched=not self.lockstep)
+        self.per_setpoint = self.lockstep or bool(g['sensorless'])
+        self.sp = Setpoint(g['setpoint_min_m'], g['setpoint_max_m'])
+        for name, text in OWN.items():
+            declare(self, d, name, text)
+        why = self._check_model({})
+        if why:
+            raise ConfigError('hysteresis_compensator: %s' % why)
+        self.add_on_set_parameters_callback(self._on_set)
+        self.shaping = declare_shaping(self, d)
+        self.open_loop_gain = declare(self, d, 'open_loop_gain_v_per_m',
+                                      'linear feedforward gain (V/m)', 0.0, 1e9, True)
+        self.slack = slack_of(bus)
+        self.pub = Pub(self, Float64, 'feedforward_voltage', sample_pub_qos(self.lockstep),
+                       bus, slack=self.slack)
+        # the accepted setpoint for the controller (one consumer of ``setpoint``); realtime
+        # publishes it on change, transient local: a restarted controller gets the present
+        self.pub_ref = Pub(self, Float64, 'reference', CONTROL_QOS, bus,
+                           latched=not self.lockstep)
         self._msg = Float64()
         self._ref_msg = Float64()
         self.n_ref = 0
         # lockstep: transient local, so the first setpoint of the source (published as
         # soon as it matched) is not lost if this reader matched a moment later
-        c.subscription(self, Float64, 'setpoint', self._on_setpoint,
-                       c.LOCKSTEP_QOS if self.lockstep else c.SETPOINT_QOS, bus)
-        self.held = False               # realtime: the driver holds its output
+        subscription(self, Float64, 'setpoint', self._on_setpoint,
+                     LOCKSTEP_QOS if self.lockstep else SETPOINT_QOS, bus)
         if not self.per_setpoint:
-            c.subscription(self, JointState, 'displacement', self._on_sample,
-                           c.REALTIME_QOS, bus)
-            c.subscription(self, Bool, 'drive_held', self._on_held, c.LATCHED_QOS, bus)
-            c.subscription(self, Float64, 'drive_voltage', self._on_drive, c.REALTIME_QOS,
-                           bus)
-        self.t_drive = None             # realtime: wall time (s) of the newest drive
-        self.ff_last = 0.0              # realtime: the feedforward last published (V)
+            subscription(self, JointState, 'displacement', self._on_sample,
+                         REALTIME_QOS, bus)
+            subscription(self, Bool, 'drive_held', self._on_held, LATCHED_QOS, bus)
+            subscription(self, Float64, 'drive_voltage', self._on_drive, REALTIME_QOS,
+                         bus)
         self.create_service(Trigger, '~/reload_model', self._on_reload)
         self.create_service(Trigger, '~/reset', self._on_reset)
-        self.health = c.Health(self, diag, slack=self.slack)
+        self.health = Health(self, g['diagnostics_period_s'], slack=self.slack)
         self.health.cycle = CycleStats(self.rate_hz)
-        self.r = 0.0
-        self.y_latest = 0.0
         self.n_ff = 0
-        self.rejected = 0
-        self.ff = self.build()
-        self.health.status(c.OK, 'ready (%s)' % self.get_parameter('controller').value)
-        self.get_logger().info('compensator ready: %s, shaping %s, model %s'
-                               % (self.get_parameter('controller').value,
-                                  self.get_parameter('shaping').value, self.model_name()))
+        self.step = CompensatorStep(self.build(), 1.0 / self.rate_hz,
+                                    g['realtime_setpoint_rate_m_per_s'])
+        self.health.status(OK, 'ready (%s)' % g['controller'])
+        self.get_logger().info('compensator ready: %s, shaping %s, model %s' % (
+            g['controller'], self.shaping['shaping'], self.model_name()))
+
+    def _check_model(self, changes):
+        """Return ``None`` or why the model parameters (``changes`` applied) are refused."""
+        v = {n: changes.get(n, self.get_parameter(n).value)
+             for n in ('model_file', 'thresholds_v', 'weights_m_per_v')}
+        if 'model_file' in changes or not changes:
+            why = checks.model_file(v['model_file'])
+            if why:
+                return why
+        if 'thresholds_v' in changes or 'weights_m_per_v' in changes or not changes:
+            return checks.pi_model(v['thresholds_v'], v['weights_m_per_v'])
+        return None
+
+    def _on_set(self, params):
+        """
+        Refuse a model that cannot be used (:mod:`fiber_align.graph.checks`).
+
+        A ``model_file`` must name a readable, invertible model file ('' the inline
+        model), the inline lists an invertible model; ``~/reload_model`` then loads it.
+        """
+        changes = {p.name: p.value for p in params if p.name in OWN}
+        why = self._check_model(changes) if changes else None
+        if why:
+            return SetParametersResult(successful=False, reason=why)
+        return SetParametersResult(successful=True)
 
     def model_name(self):
         """Return where the model comes from (file path or ``inline``)."""
@@ -170,9 +181,9 @@ class HysteresisCompensatorNode(Node):
         """Return a fresh :class:`Feedforward` (V from m) for the parameters."""
         comp = dict(self.shaping, open_loop_gain_v_per_m=self.open_loop_gain)
         ff = build_feedforward(self.get_parameter('controller').value, comp,
-                               self.load_model(), c.design_model(self.shaping), self.rate_hz)
+                               self.load_model(), design_model(self.shaping), self.rate_hz)
         if not self.per_setpoint:
-            c.extend_lead(ff, 1.0 / self.rate_hz)    # the realtime loop's extra period
+            extend_lead(ff, 1.0 / self.rate_hz)    # the realtime loop's extra period
         return ff
 
     def _on_reload(self, request, response):
@@ -185,8 +196,8 @@ class HysteresisCompensatorNode(Node):
             self.get_logger().error(response.message)
             self.health.warn(response.message)
             return response
-        ff.start_at(self.r)   # the new inverse settled at the present setpoint
-        self.ff = ff
+        ff.start_at(self.sp.value)   # the new inverse settled at the present setpoint
+        self.step.ff = ff
         response.success = True
         response.message = 'model reloaded from %s' % self.model_name()
         self.get_logger().info(response.message)
@@ -201,72 +212,40 @@ class HysteresisCompensatorNode(Node):
         reaches the whole loop or none of it). Lockstep passes one ``reference`` per
         setpoint (the held one in place of a rejected one, so pairing holds).
         """
-        why = c.check_setpoint(msg.data, self.sp_lo, self.sp_hi)
-        if why is None:
-            self.r = float(msg.data)
-        else:
-            self.rejected += 1
-            text = 'rejected %s; holding %.6g m' % (why, self.r)
-            self.get_logger().warn(text)
-            self.health.warn(text)
+        why = self.sp.take(msg.data)
+        if why:
+            self.get_logger().warn(why)
+            self.health.warn(why)
             self._update_values()
             if not self.per_setpoint:
                 return
         ref = self._ref_msg
-        ref.data = self.r
+        ref.data = self.sp.value
         self.pub_ref.publish(ref)
         self.n_ref += 1
         if self.per_setpoint:
-            self._publish(self.ff.step(self.r))
+            self._publish(self.step.ff.step(self.sp.value))
 
     def _on_sample(self, msg):
-        """Realtime: step the feedforward; count the sample-to-feedforward latency (s)."""
-        self._step_sample(msg)
+        """Realtime: step the feedforward (:class:`CompensatorStep`); count the latency."""
         st, cyc = msg.header.stamp, self.health.cycle
-        ns = c.stamp_ns(st)
+        self._publish(self.step.sample(st, msg.position[0] if len(msg.position) else None,
+                                       self.sp.value, time.monotonic()))
+        ns = stamp_ns(st)
         cyc.record((time.time_ns() - ns) * 1e-9, cyc.index(ns))
-
-    def _step_sample(self, msg):
-        """Step the feedforward one period (a gap over MAX_CATCH_UP: rest, see below)."""
-        if len(msg.position):
-            self.y_latest = msg.position[0]
-        n = self.traj.periods(msg.header.stamp)
-        if self.held or n > c.MAX_CATCH_UP:
-            # the driver holds its output (or this node was stalled and cannot know):
-            # rest at the present position, so that after the resume the feedforward
-            # returns to the setpoint along the trajectory
-            y = self._present()
-            self.traj.reset(y)
-            self._publish(self.ff.start_at(y))
-            return
-        t_drive = self.t_drive
-        if t_drive is not None and \
-                time.monotonic() - t_drive > c.DRIVE_STALE_PERIODS / self.rate_hz:
-            # the driver is stalled (the loop is open): the trajectory waits, so that
-            # the drive goes on from here when the driver does, not by the stall's move
-            self._publish(self.ff_last)
-            return
-        # one period whatever the gap (docstring): a stall delays the move, never jumps it
-        self._publish(self.ff.step(self.traj.advance(self.r, 1)[0]))
-
-    def _present(self):
-        """Return the latest measured position (m), at least 0 m."""
-        y = self.y_latest
-        return max(0.0, float(y)) if math.isfinite(y) else 0.0
 
     def _on_held(self, msg):
         """Realtime: the driver holds (true) or passes (false) its output."""
-        self.held = bool(msg.data)
+        self.step.held = bool(msg.data)
 
     def _on_drive(self, msg):
         """Realtime: note when the newest drive command arrived (wall time)."""
-        self.t_drive = time.monotonic()
+        self.step.drive(time.monotonic())
 
     def _on_reset(self, request, response):
         """Restart the feedforward at rest at the present position (m)."""
-        y = max(0.0, self.r) if self.per_setpoint else self._present()
-        self.ff.start_at(y)
-        self.traj.reset(y)
+        y = max(0.0, self.sp.value) if self.per_setpoint else self.step.present()
+        self.step.rest(y)
         response.success = True
         response.message = 'feedforward restarted at %.6g m' % y
         self.get_logger().info(response.message)
@@ -274,7 +253,6 @@ class HysteresisCompensatorNode(Node):
 
     def _publish(self, v):
         """Publish the feedforward voltage ``v`` (V)."""
-        self.ff_last = v
         msg = self._msg
         msg.data = float(v)
         self.pub.publish(msg)
@@ -285,8 +263,8 @@ class HysteresisCompensatorNode(Node):
     def _update_values(self):
         """Report counts and the held setpoint (m) on ``/diagnostics``."""
         self.health.set_values(**{'sent.feedforward_voltage': self.n_ff,
-                                  'rejected_setpoints': self.rejected,
-                                  'setpoint_m': self.r})
+                                  'rejected_setpoints': self.sp.rejected,
+                                  'setpoint_m': self.sp.value})
 
     def sent_counts(self):
         """Return published message counts per topic."""
@@ -294,19 +272,8 @@ class HysteresisCompensatorNode(Node):
 
 
 def main(args=None):
-    """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
-    stop = c.init(args)
-    node = None
-    try:
-        node = HysteresisCompensatorNode()
-        c.spin(node, realtime=not node.lockstep, priority=c.node_priority(node), stop=stop)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except c.NODE_ERRORS as exc:
-        return c.refuse(NODE_NAME, exc)
-    finally:
-        c.finish(node)
-    return 0
+    """Run the node (bad parameters: one line, exit 2)."""
+    return run_node(HysteresisCompensatorNode, NODE_NAME, args)
 
 
 if __name__ == '__main__':

@@ -2,54 +2,40 @@
 """
 ``lifecycle_manager``: bring the graph's managed (lifecycle) nodes to active, in order.
 
-A small nav2-style manager that works whatever process hosts the managed nodes (one
-process per node or the composed ``control_graph``), where a launch_ros
-``LifecycleNode`` event handler only reaches a node that is a process of its own.
+Stands in for nav2's ``lifecycle_manager``, which a pip install of ROS 2 lacks; it works
+whatever process hosts the managed nodes (one per node or the composed ``control_graph``).
 
-Parameters (defaults in ``config/lifecycle_manager.yaml``; the launch file and
-``bringup`` set ``managed_nodes`` from :mod:`fiber_align.nodes.graph`):
-
-* ``managed_nodes`` (str[], read-only): relative (or absolute) node names, configured
-  and activated in this order, deactivated and cleaned up in the reverse order.
-* ``autostart`` (bool, read-only): run the start-up sequence at once.
-* ``service_timeout_s`` (s): bound on each wait for a node's ``get_state`` and
-  ``change_state`` services (retried every second until then) and on each call.
-* ``diagnostics_period_s`` (s, read-only, graph-wide).
+Parameters (defaults in ``config/lifecycle_manager.yaml``; ``managed_nodes`` from
+:mod:`fiber_align.graph.description`): ``managed_nodes`` (activated in this order,
+deactivated in the reverse), ``autostart``, ``service_timeout_s`` (s: the bound on each
+wait for a node's lifecycle services and on each call), ``diagnostics_period_s``.
 
 Services (std_srvs/Trigger): ``~/startup`` (configure what is unconfigured, activate
-what is inactive; a node already active is left alone) and ``~/shutdown`` (deactivate
-what is active, clean up what is inactive: the nodes end unconfigured, ``startup``
-brings them back). Each answers ``success`` and one line saying what happened.
-
-Progress and failures go to the log and to ``/diagnostics`` (status
-``/<ns>/lifecycle_manager``: OK while starting and when every node is active, ERROR with
-the reason when a node's services do not appear in time, a call is not answered or a
-transition is refused; key ``state.<node>`` holds each node's last known state). A
-failure stops the sequence at that node and is reported, never raised: the manager keeps
-running and ``~/startup`` can be called again.
+what is inactive) and ``~/shutdown`` (deactivate, clean up: the nodes end
+unconfigured); each answers ``success`` and one line. Progress and failures go to the
+log and ``/diagnostics`` (ERROR with the reason; ``state.<node>``: each node's last
+known state). A failure stops the sequence at that node, never the manager.
 """
 
+import sys
 import threading
 import time
 
-from rcl_interfaces.msg import ParameterDescriptor
-import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from fiber_align.nodes import _common as c
+from fiber_align.nodes.ros.diagnostics import ERROR, Health, OK
+from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults
+from fiber_align.nodes.ros.runtime import run_node
 
 NODE_NAME = 'lifecycle_manager'
 AREA_FILES = ('lifecycle_manager.yaml',)
 #: lifecycle_msgs State ids and Transition ids used here (lifecycle_msgs/msg/*).
 UNCONFIGURED, INACTIVE, ACTIVE, FINALIZED = 1, 2, 3, 4
 CONFIGURE, CLEANUP, ACTIVATE, DEACTIVATE = 1, 2, 3, 4
-#: Slice (s) of the bounded waits, so a shutdown of the context ends them quickly.
-WAIT_SLICE_S = 0.1
-#: A ``get_state`` request unanswered this long (s) is sent again (see ``_call``).
-GET_STATE_RESEND_S = 1.0
+#: Slice (s) of the bounded waits; a ``get_state`` unanswered this long (s) is resent.
+WAIT_SLICE_S, GET_STATE_RESEND_S = 0.1, 1.0
 
 
 class LifecycleManager(Node):
@@ -58,30 +44,25 @@ class LifecycleManager(Node):
     def __init__(self, **kwargs):
         """Declare the parameters (defaults from config/), create the services."""
         super().__init__(NODE_NAME, **kwargs)
-        d = c.node_defaults(NODE_NAME, AREA_FILES)
-        self.declare_parameter('managed_nodes', list(d.get('managed_nodes', [])),
-                               ParameterDescriptor(
-                                   description='lifecycle nodes to configure and activate, '
-                                   'in order (relative or absolute names)', read_only=True))
-        self.declare_parameter('autostart', bool(d.get('autostart', True)),
-                               ParameterDescriptor(description='run the start-up sequence '
-                                                   'at once', read_only=True))
-        c.declare(self, d, 'service_timeout_s', 'bound on each wait for lifecycle services '
-                  'and on each call (s)', 0.1, 3600.0)
-        c.declare(self, d, 'diagnostics_period_s', '/diagnostics period (s)', 0.01, 60.0,
-                  True)
+        d = node_defaults(NODE_NAME, AREA_FILES)
+        d = dict({'managed_nodes': [], 'autostart': True}, **d)
+        declare(self, d, 'managed_nodes', 'lifecycle nodes to configure and activate, in '
+                'order (relative or absolute names)', read_only=True)
+        declare(self, d, 'autostart', 'run the start-up sequence at once', read_only=True)
+        declare(self, d, 'service_timeout_s', 'bound on each wait for lifecycle services '
+                'and on each call (s)', 0.1, 3600.0)
+        declare_graph_values(self, d, 'diagnostics_period_s')
         self.managed = [str(n) for n in self.get_parameter('managed_nodes').value]
         self.states = {n: 'unknown' for n in self.managed}
         self._busy = threading.Lock()
         self._lc_group = ReentrantCallbackGroup()
         self._lc_clients = {}
-        self.health = c.Health(self, self.get_parameter('diagnostics_period_s').value)
-        self.health.status(c.OK, 'waiting: %s' % (', '.join(self.managed) or 'no nodes'))
+        self.health = Health(self, self.get_parameter('diagnostics_period_s').value)
+        self.health.status(OK, 'waiting: %s' % (', '.join(self.managed) or 'no nodes'))
         self._update_values()
         group = MutuallyExclusiveCallbackGroup()
         self.create_service(Trigger, '~/startup', self._on_startup, callback_group=group)
         self.create_service(Trigger, '~/shutdown', self._on_shutdown, callback_group=group)
-        self._autostart_timer = None
         if self.get_parameter('autostart').value:
             self._autostart_timer = self.create_timer(
                 0.01, self._autostart, callback_group=MutuallyExclusiveCallbackGroup())
@@ -89,7 +70,6 @@ class LifecycleManager(Node):
     # -- services -------------------------------------------------------------------
     def _autostart(self):
         self.destroy_timer(self._autostart_timer)
-        self._autostart_timer = None
         self.startup()
 
     def _on_startup(self, request, response):
@@ -119,20 +99,20 @@ class LifecycleManager(Node):
                 if why:
                     msg = '%s failed at %s: %s' % (what, name, why)
                     self.get_logger().error(msg)
-                    self.health.status(c.ERROR, msg)
+                    self.health.status(ERROR, msg)
                     self.health.error(msg)
                     return False, msg
             final = 'active' if what == 'startup' else 'unconfigured'
             msg = '%s done in %.2f s: %s %s' % (what, time.monotonic() - t0,
                                                 ', '.join(nodes) or 'no nodes', final)
             self.get_logger().info(msg)
-            self.health.status(c.OK, msg)
+            self.health.status(OK, msg)
             self.health.publish()
             return True, msg
         except Exception as exc:  # noqa: BLE001 - the manager never dies of a node
             msg = '%s failed: %s: %s' % (what, type(exc).__name__, exc)
             self.get_logger().error(msg)
-            self.health.status(c.ERROR, msg)
+            self.health.status(ERROR, msg)
             return False, msg
         finally:
             self._busy.release()
@@ -166,27 +146,26 @@ class LifecycleManager(Node):
                 time.sleep(0.05)
                 continue
             tid = steps[sid]
-            self.health.status(c.OK, '%s: %s (%s)' % (name, labels[tid], label))
+            self.health.status(OK, '%s: %s (%s)' % (name, labels[tid], label))
             self.get_logger().info('%s: %s' % (name, labels[tid]))
             ok = self._change_state(name, tid)
             if isinstance(ok, str):
                 return ok
             if not ok:
                 state = self._get_state(name)
-                now = state[1] if isinstance(state, tuple) else 'unknown'
-                self._set_state(name, now)
-                return 'transition %s refused (state now %s)' % (labels[tid], now)
+                self._set_state(name, state[1] if isinstance(state, tuple) else 'unknown')
+                return 'transition %s refused (state now %s)' % (labels[tid],
+                                                                 self.states[name])
         return 'state did not settle'
 
     # -- service calls --------------------------------------------------------------
     def _client(self, name, srv):
         from lifecycle_msgs.srv import ChangeState, GetState
-        key = (name, srv)
-        if key not in self._lc_clients:
-            typ = GetState if srv == 'get_state' else ChangeState
-            self._lc_clients[key] = self.create_client(
-                typ, '%s/%s' % (name, srv), callback_group=self._lc_group)
-        return self._lc_clients[key]
+        if (name, srv) not in self._lc_clients:
+            self._lc_clients[name, srv] = self.create_client(
+                GetState if srv == 'get_state' else ChangeState, '%s/%s' % (name, srv),
+                callback_group=self._lc_group)
+        return self._lc_clients[name, srv]
 
     def _timeout(self):
         return float(self.get_parameter('service_timeout_s').value)
@@ -206,7 +185,7 @@ class LifecycleManager(Node):
                         srv, timeout, self.resolve_service_name(cl.srv_name))
                 if tries % 5 == 0:
                     self.get_logger().info('waiting for %s/%s' % (name, srv))
-                    self.health.status(c.OK, 'waiting for %s/%s' % (name, srv))
+                    self.health.status(OK, 'waiting for %s/%s' % (name, srv))
         return None
 
     def _call(self, name, srv, request, resend_s=None):
@@ -214,10 +193,8 @@ class LifecycleManager(Node):
         Call a service with a bounded wait; return the response or the reason (str).
 
         :param resend_s: for a query (``get_state``): send the request again when no
-            answer came within this many seconds. A server may drop its response while
-            the discovery of this client is still under way ("failed to send response
-            (timeout)", seen when the four processes of the two-axis rig start at once),
-            and that call would then wait out the whole bound.
+            answer came within this many seconds (a server may drop its response while
+            the discovery of this client is still under way).
         """
         cl = self._client(name, srv)
         done = threading.Event()
@@ -246,18 +223,14 @@ class LifecycleManager(Node):
     def _get_state(self, name):
         from lifecycle_msgs.srv import GetState
         res = self._call(name, 'get_state', GetState.Request(), resend_s=GET_STATE_RESEND_S)
-        if isinstance(res, str):
-            return res
-        return res.current_state.id, res.current_state.label
+        return res if isinstance(res, str) else (res.current_state.id, res.current_state.label)
 
     def _change_state(self, name, transition_id):
         from lifecycle_msgs.srv import ChangeState
         req = ChangeState.Request()
         req.transition.id = int(transition_id)
         res = self._call(name, 'change_state', req)
-        if isinstance(res, str):
-            return res
-        return bool(res.success)
+        return res if isinstance(res, str) else bool(res.success)
 
     def _set_state(self, name, label):
         self.states[name] = label
@@ -268,22 +241,10 @@ class LifecycleManager(Node):
 
 
 def main(args=None):
-    """Run the manager until SIGINT/SIGTERM (demo_nodes_py idiom, threaded executor)."""
-    rclpy.init(args=args)
-    node = None
-    executor = MultiThreadedExecutor(num_threads=3)
-    try:
-        node = LifecycleManager()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        executor.shutdown(timeout_sec=1.0)
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    """Run the node (bad parameters: one line, exit 2)."""
+    return run_node(LifecycleManager, NODE_NAME, args, realtime=lambda node: False,
+                    threads=3)
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

@@ -11,33 +11,37 @@ A lost meter is reopened every ``reconnect_period_s`` (s) and the node keeps run
 
 The meter is read on a thread of its own (pyvisa calls block for about 3 ms per averaged
 sample); rclpy publishers are thread-safe. Parameters (read-only, defaults from
-``config/hardware.yaml``, node ``power_meter``): ``resource``, ``visa_backend``,
+``config/hardware.yaml``, node ``power_meter``; ``resource`` from its ``/**`` section, where
+a command line's ``-p resource:=...`` wins): ``resource``, ``visa_backend``,
 ``wavelength_m`` (m), ``averaging_count``, ``rate_hz`` (Hz), ``timeout_s`` (s),
 ``reconnect_period_s`` (s), ``diagnostics_period_s`` (s).
 """
 
+import sys
 import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64
 
 from fiber_align.config import load_params
 from fiber_align.hardware import errors as er
 from fiber_align.hardware.pm100 import PM100
+from fiber_align.nodes.ros.diagnostics import ERROR, OK, STALE
+from fiber_align.nodes.ros.params import declare
+from fiber_align.nodes.ros.qos import DIAG_QOS
+from fiber_align.nodes.ros.runtime import run_node
 
-OK, ERROR, STALE = 0, 2, 3
-FLOATS = {  # name: (low, high, description)
-    'wavelength_m': (200e-9, 20e-6, 'wavelength correction (m), sent in nm'),
-    'rate_hz': (0.1, 1000.0, 'largest reading rate (Hz)'),
-    'timeout_s': (0.01, 10.0, 'bound on every query (s); no reply = meter lost'),
-    'reconnect_period_s': (0.05, 60.0, 'time between reconnection attempts (s)'),
-    'diagnostics_period_s': (0.05, 60.0, 'period of /diagnostics (s)'),
+PARAMS = {  # name: (description, low, high); all read-only
+    'resource': ('VISA resource (TCPIP::host::port::SOCKET, ASRL..., USB0::...)', None, None),
+    'visa_backend': ('pyvisa backend (@py = pyvisa-py)', None, None),
+    'averaging_count': ('SENS:AVER:COUN (samples of ~3 ms each)', 1, 10000),
+    'wavelength_m': ('wavelength correction (m), sent in nm', 200e-9, 20e-6),
+    'rate_hz': ('largest reading rate (Hz)', 0.1, 1000.0),
+    'timeout_s': ('bound on every query (s); no reply = meter lost', 0.01, 10.0),
+    'reconnect_period_s': ('time between reconnection attempts (s)', 0.05, 60.0),
+    'diagnostics_period_s': ('period of /diagnostics (s)', 0.05, 60.0),
 }
 
 
@@ -48,31 +52,18 @@ class PowerMeterNode(Node):
         """Declare the parameters and start the reading thread (``kwargs``: rclpy Node's)."""
         super().__init__('power_meter', **kwargs)
         d = load_params('hardware.yaml', 'power_meter')
+        # the device address sits under /** so that a command line's -p wins over it
+        d['resource'] = load_params('hardware.yaml', '/**')['resource']
         # graph-wide (/** in fiber_align.yaml), as every node of the graph
         d['diagnostics_period_s'] = load_params('fiber_align.yaml', '/**')[
             'diagnostics_period_s']
-        self.declare_parameter('resource', str(d['resource']), ParameterDescriptor(
-            description='VISA resource (TCPIP::host::port::SOCKET, ASRL..., USB0::...)',
-            read_only=True))
-        self.declare_parameter('visa_backend', str(d['visa_backend']), ParameterDescriptor(
-            description='pyvisa backend (@py = pyvisa-py)', read_only=True))
-        self.declare_parameter('averaging_count', int(d['averaging_count']),
-                               ParameterDescriptor(
-                                   description='SENS:AVER:COUN (samples of ~3 ms each)',
-                                   read_only=True, integer_range=[IntegerRange(
-                                       from_value=1, to_value=10000, step=1)]))
-        for name, (lo, hi, text) in FLOATS.items():
-            self.declare_parameter(name, float(d[name]), ParameterDescriptor(
-                description=text, read_only=True, floating_point_range=[
-                    FloatingPointRange(from_value=lo, to_value=hi)]))
-        g = {n: self.get_parameter(n).value for n in
-             ('resource', 'visa_backend', 'averaging_count', *FLOATS)}
+        g = {name: declare(self, d, name, text, lo, hi, True)
+             for name, (text, lo, hi) in PARAMS.items()}
         self.p = g
         self.meter = PM100(g['resource'], g['wavelength_m'], g['averaging_count'],
                            g['timeout_s'], g['visa_backend'])
-        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        self.pub = self.create_publisher(Float64, 'optical_power', qos)
-        self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', qos)
+        self.pub = self.create_publisher(Float64, 'optical_power', DIAG_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', DIAG_QOS)
         self.lock = threading.Lock()
         self.level, self.message = STALE, 'connecting to the meter'
         self.readings = 0
@@ -191,19 +182,9 @@ class PowerMeterNode(Node):
 
 
 def main(args=None):
-    """Run the node (demo_nodes_py idiom)."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = PowerMeterNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    """Run the node (bad parameters: one line, exit 2)."""
+    return run_node(PowerMeterNode, 'power_meter', args, realtime=lambda node: False)
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

@@ -22,12 +22,14 @@ import sys
 
 from sensor_msgs.msg import JointState
 
-from fiber_align.nodes import _common as c
-from fiber_align.nodes.simulated_actuator import JOINT_NAME, NODE_NAME
-from fiber_align.nodes.simulated_actuator import SimulatedActuatorNode
+from fiber_align.nodes.ros.bus import Pub
+from fiber_align.nodes.ros.params import declare, node_defaults
+from fiber_align.nodes.ros.qos import sample_pub_qos
+from fiber_align.nodes.ros.runtime import run_node
+from fiber_align.nodes.simulated_actuator import JOINT_NAME, NODE_NAME, SimulatedActuatorNode
 
 AREA_FILES = ('plant.yaml', 'optics.yaml')
-#: Topics this node publishes (relative names; see ``_common.LocalBus``).
+#: Topics this node publishes (relative names; see ``ros.bus.LocalBus``).
 PUBLISHES = ('displacement', 'optical_power', 'tip_position')
 
 
@@ -37,15 +39,16 @@ class RigActuatorNode(SimulatedActuatorNode):
     def __init__(self, bus=None, **kwargs):
         """Build the 1-D plant node, then the rig's parameters and publisher."""
         super().__init__(bus=bus, **kwargs)
-        d = c.node_defaults(NODE_NAME, AREA_FILES)
-        self.tip_every = c.declare(self, d, 'tip_position_every', 'publish tip_position '
-                                   '(true tip position, m) every N samples; 0: off', 0,
-                                   1000000, True)
-        if not c.declare(self, d, 'publish_clock', 'lockstep: publish /clock (the rig: '
-                         'the x plant only)', read_only=True) and self.pub_clock is not None:
+        d = node_defaults(NODE_NAME, AREA_FILES)
+        self.tip_every = declare(self, d, 'tip_position_every', 'publish tip_position '
+                                 '(true tip position, m) every N samples; 0: off', 0,
+                                 1000000, True)
+        if not declare(self, d, 'publish_clock', 'lockstep: publish /clock (the rig: '
+                       'the x plant only)', read_only=True) and self.pub_clock is not None:
             self.destroy_publisher(self.pub_clock)
             self.pub_clock = None
-        self.pub_tip = c.Pub(self, JointState, 'tip_position', c.CONTROL_QOS, bus)
+        self.pub_tip = Pub(self, JointState, 'tip_position',
+                           sample_pub_qos(self.sync_mode == 'lockstep'), bus)
         self._tip = JointState(name=[JOINT_NAME], position=[0.0], velocity=[0.0])
         self.n_tip = 0
 
@@ -67,7 +70,7 @@ class RigActuatorNode(SimulatedActuatorNode):
 
 def main(args=None):
     """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
-    return c.run_node(RigActuatorNode, NODE_NAME, args)
+    return run_node(RigActuatorNode, NODE_NAME, args)
 
 
 if __name__ == '__main__':

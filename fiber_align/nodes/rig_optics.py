@@ -13,7 +13,7 @@ namespace (``/rig``); topics (relative names, SI units):
 - ``/diagnostics``: OK, the sample count and the last reading.
 
 Pairing: ``lockstep`` pairs the i-th x with the i-th y position and reads the detector at
-``t_i = i * optics.sample_period_s`` (the offline bench's ``k T``, bit for bit), one
+``t_i = i / rate_hz`` (the offline bench's ``k T``, bit for bit), one
 reading per pair, so the sequencer gets exactly the offline run's power. ``realtime``
 reads the detector on every x sample with the latest y position, at the x stamp's time.
 
@@ -30,20 +30,24 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
-from fiber_align.nodes import _common as c
-from fiber_align.plant import optics as op
-from fiber_align.plant import optics2d as o2
+from fiber_align.nodes.ros.bus import Pub, stamp_to_s, subscription
+from fiber_align.nodes.ros.diagnostics import Health, OK
+from fiber_align.nodes.ros.params import declare, declare_graph_values, flatten_defaults
+from fiber_align.nodes.ros.params import node_defaults, PRIORITY
+from fiber_align.nodes.ros.qos import sample_pub_qos, sample_qos
+from fiber_align.nodes.ros.runtime import run_node
+from fiber_align.plant import optics as op, optics2d as o2
 
 NODE_NAME = o2.CONFIG_NODE          # simulated_optics_2d
 AREA_FILES = (o2.CONFIG_FILE,)
-#: Topics this node publishes (relative names; see ``_common.LocalBus``).
+#: Topics this node publishes (relative names; see ``ros.bus.LocalBus``).
 PUBLISHES = ('optical_power',)
 OPTICS_KEYS = o2.LINK_KEYS + o2.DETECTOR_KEYS
 
 
 def optics_defaults():
     """Return the ``optics.*`` defaults (dotted names) of ``config/optics.yaml``."""
-    flat = c.flatten_defaults(c.node_defaults(op.CONFIG_NODE), op.CONFIG_KEY)
+    flat = flatten_defaults(node_defaults(op.CONFIG_NODE), op.CONFIG_KEY)
     return {k: v for k, v in flat.items() if k.split('.', 1)[1] in OPTICS_KEYS}
 
 
@@ -53,31 +57,34 @@ class RigOpticsNode(Node):
     def __init__(self, bus=None, **kwargs):
         """Declare the parameters (defaults from config/), build the link, wire topics."""
         super().__init__(NODE_NAME, **kwargs)
-        d = c.node_defaults(NODE_NAME, AREA_FILES)
+        d = node_defaults(NODE_NAME, AREA_FILES)
         d.update(optics_defaults())
-        self.lockstep, diag = c.declare_sync(self, d)
-        seed = c.declare(self, d, 'seed', 'detector noise seed', 0, 2 ** 31 - 1, True)
+        g = declare_graph_values(self, d, 'sync_mode', 'diagnostics_period_s', 'rate_hz',
+                                 *PRIORITY)
+        self.lockstep, diag = g['sync_mode'] == 'lockstep', g['diagnostics_period_s']
+        seed = declare(self, d, 'seed', 'detector noise seed', 0, 2 ** 31 - 1, True)
         optics = {}
         for name in sorted(k for k in d if k.startswith('optics.')):
-            optics[name] = c.declare(self, d, name, 'optics constant (SI, see optics.yaml)',
-                                     read_only=True)
+            optics[name] = declare(self, d, name, 'optics constant (SI, see optics.yaml)',
+                                   read_only=True)
         target = {}
-        for name, value in sorted(c.flatten_defaults(d, 'target').items()):
-            target[name] = c.declare(self, {name: value}, name, 'target (output core) '
-                                     'motion (SI: m, m/s, Hz, rad; see optics2d.yaml)',
-                                     read_only=True)
-        self.link = o2.OpticalLink2D.from_params(optics, target, seed=int(seed))
-        self.period_s = float(self.link.detector.sample_period_s)
-        self.pub = c.Pub(self, Float64, 'optical_power', c.CONTROL_QOS, bus)
-        qos = c.sample_qos(self.lockstep)
-        c.subscription(self, JointState, 'x/tip_position', self._on_x, qos, bus)
-        c.subscription(self, JointState, 'y/tip_position', self._on_y, qos, bus)
-        self.health = c.Health(self, diag)
+        for name, value in sorted(flatten_defaults(d, 'target').items()):
+            target[name] = declare(self, {name: value}, name, 'target (output core) '
+                                   'motion (SI: m, m/s, Hz, rad; see optics2d.yaml)',
+                                   read_only=True)
+        self.period_s = 1.0 / float(g['rate_hz'])
+        self.link = o2.OpticalLink2D.from_params(optics, target, seed=int(seed),
+                                                 sample_period_s=self.period_s)
+        self.pub = Pub(self, Float64, 'optical_power', sample_pub_qos(self.lockstep), bus)
+        qos = sample_qos(self.lockstep)
+        subscription(self, JointState, 'x/tip_position', self._on_x, qos, bus)
+        subscription(self, JointState, 'y/tip_position', self._on_y, qos, bus)
+        self.health = Health(self, diag)
         self.x_q, self.y_q = [], []
         self.y_latest = None
         self.n = 0
         self._msg = Float64()
-        self.health.status(c.OK, 'ready')
+        self.health.status(OK, 'ready')
         self.get_logger().info('rig optics ready (%s pairing), target at (%.2f, %.2f) um'
                                % ('index' if self.lockstep else 'latest y',
                                   self.link.coupling.target.position(0.0)[0] * 1e6,
@@ -92,7 +99,7 @@ class RigOpticsNode(Node):
             self.x_q.append(self._position(msg))
             self._pair()
         elif self.y_latest is not None:
-            self._read(c.stamp_to_s(msg.header.stamp), self._position(msg), self.y_latest)
+            self._read(stamp_to_s(msg.header.stamp), self._position(msg), self.y_latest)
 
     def _on_y(self, msg):
         if self.lockstep:
@@ -127,7 +134,7 @@ class RigOpticsNode(Node):
 
 def main(args=None):
     """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
-    return c.run_node(RigOpticsNode, NODE_NAME, args)
+    return run_node(RigOpticsNode, NODE_NAME, args)
 
 
 if __name__ == '__main__':

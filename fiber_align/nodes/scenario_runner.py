@@ -35,22 +35,25 @@ import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 
 from fiber_align.config import ConfigError
-from fiber_align.simulation import scenarios
-from fiber_align.nodes import _common as c
+from fiber_align.control.trajectory import stamp_ns
 from fiber_align.nodes._recording import diag_entry, recorder_missing, recorder_short
+from fiber_align.nodes.ros.bus import Pub, subscription
+from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults
+from fiber_align.nodes.ros.qos import DIAG_QOS, LATCHED_QOS, sample_pub_qos, sample_qos
+from fiber_align.nodes.ros.runtime import run_node
+from fiber_align.simulation import scenarios
 
 NODE_NAME = 'scenario_runner'
 AREA_FILES = ('scenario.yaml',)
 SCENARIOS = ('step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment')
 #: Accepted as a parameter value; ``none`` starts no runner (graph.py, bringup).
 CHOICES = ('none',) + SCENARIOS
-#: Topics this node publishes (relative names; see ``_common.LocalBus``).
+#: Topics this node publishes (relative names; see ``ros.bus.LocalBus``).
 PUBLISHES = ('setpoint', 'feedforward_voltage', 'feedback_voltage')
 
 
@@ -93,46 +96,44 @@ class ScenarioRunnerNode(Node):
         """
         Declare the parameters (defaults from config/) and wire the topics.
 
-        :param bus: the :class:`~fiber_align.nodes._common.LocalBus` of a composed
+        :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
             process, or ``None``.
         """
         super().__init__(NODE_NAME, **kwargs)
-        d = c.node_defaults(NODE_NAME, AREA_FILES)
-        self.name_ = c.declare(self, d, 'scenario', 'scenario to run', read_only=True,
-                               choices=SCENARIOS if d.get('scenario') != 'none' else CHOICES)
+        d = node_defaults(NODE_NAME, AREA_FILES)
+        self.name_ = declare(self, d, 'scenario', 'scenario to run', read_only=True,
+                             choices=SCENARIOS if d.get('scenario') != 'none' else CHOICES)
         if self.name_ == 'none':
             raise ConfigError('scenario_runner: scenario none runs no runner; choose one '
                               'of %s' % ', '.join(SCENARIOS))
-        dur = c.declare(self, d, 'duration_s', 'length (s of sample time); 0: the '
-                        "scenario's own", 0.0, 1e6, True)
-        reach = c.declare(self, d, 'reach_m', 'largest reachable displacement (m); 0: '
-                          'unknown', 0.0, 1e-2, True)
-        lo = c.declare(self, d, 'setpoint_min_m', 'lowest accepted setpoint (m)', -1e-3,
-                       1e-3, True)
-        hi = c.declare(self, d, 'setpoint_max_m', 'highest accepted setpoint (m)', -1e-3,
-                       1e-3, True)
-        self.exit_when_done = c.declare(self, d, 'exit_when_done', 'end the process when '
-                                        'the scenario is over (ros2 launch)', read_only=True)
-        self.wait_recorder = c.declare(self, d, 'wait_for_recorder', 'at the end, wait for '
-                                       'bag_recorder to hold what was sent (bool)',
-                                       read_only=True)
-        self.recorder_wait_s = c.declare(self, d, 'recorder_wait_s', 'longest such wait (s)',
-                                         0.0, 600.0, True)
-        self.lockstep = c.declare(self, d, 'sync_mode', 'sample clock', read_only=True,
-                                  choices=c.SYNC_MODES) == 'lockstep'
-        self.period_s = 1.0 / c.declare(self, d, 'rate_hz', 'control rate (Hz)', 1.0,
-                                        20000.0, True)
-        self.source = Source(self.name_, *setpoint_range(lo, hi, reach))
+        dur = declare(self, d, 'duration_s', 'length (s of sample time); 0: the '
+                      "scenario's own", 0.0, 1e6, True)
+        reach = declare(self, d, 'reach_m', 'largest reachable displacement (m); 0: '
+                        'unknown', 0.0, 1e-2, True)
+        g = declare_graph_values(self, d, 'setpoint_min_m', 'setpoint_max_m', 'sync_mode',
+                                 'rate_hz')
+        self.exit_when_done = declare(self, d, 'exit_when_done', 'end the process when '
+                                      'the scenario is over (ros2 launch)', read_only=True)
+        self.wait_recorder = declare(self, d, 'wait_for_recorder', 'at the end, wait for '
+                                     'bag_recorder to hold what was sent (bool)',
+                                     read_only=True)
+        self.recorder_wait_s = declare(self, d, 'recorder_wait_s', 'longest such wait (s)',
+                                       0.0, 600.0, True)
+        self.lockstep = g['sync_mode'] == 'lockstep'
+        self.period_s = 1.0 / g['rate_hz']
+        self.source = Source(self.name_, *setpoint_range(g['setpoint_min_m'],
+                                                         g['setpoint_max_m'], reach))
         self.sc = self.source.sc
         self.duration_s = float(dur) if dur > 0 else float(self.sc.duration_s)
+        pub_qos = sample_pub_qos(self.lockstep)
         if self.sc.open_loop:
-            self.pub_ff = c.Pub(self, Float64, 'feedforward_voltage', c.CONTROL_QOS, bus)
-            self.pub_fb = c.Pub(self, Float64, 'feedback_voltage', c.CONTROL_QOS, bus)
+            self.pub_ff = Pub(self, Float64, 'feedforward_voltage', pub_qos, bus)
+            self.pub_fb = Pub(self, Float64, 'feedback_voltage', pub_qos, bus)
         else:
-            self.pub_sp = c.Pub(self, Float64, 'setpoint', c.CONTROL_QOS, bus)
-        self.pub_state = self.create_publisher(String, 'scenario_state', c.LATCHED_QOS)
-        c.subscription(self, JointState, 'displacement', self._on_disp,
-                       c.sample_qos(self.lockstep), bus)
+            self.pub_sp = Pub(self, Float64, 'setpoint', pub_qos, bus)
+        self.pub_state = self.create_publisher(String, 'scenario_state', LATCHED_QOS)
+        subscription(self, JointState, 'displacement', self._on_disp,
+                     sample_qos(self.lockstep), bus)
         self._msg = Float64()
         self._zero = Float64(data=0.0)
         self.t0_ns = None
@@ -142,14 +143,14 @@ class ScenarioRunnerNode(Node):
         self._t_done = None
         if self.exit_when_done and self.wait_recorder:
             self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag,
-                                     c.DIAG_QOS)
+                                     DIAG_QOS)
         self.pub_state.publish(String(data='ready'))
         self.get_logger().info('scenario %s, %g s' % (self.name_, self.duration_s))
 
     def _on_disp(self, msg):
         if self.done:
             return
-        ns = c.stamp_ns(msg.header.stamp)
+        ns = stamp_ns(msg.header.stamp)
         if self.t0_ns is None:
             self.t0_ns = ns
             self.pub_state.publish(String(data='running'))
@@ -215,19 +216,8 @@ class ScenarioRunnerNode(Node):
 
 
 def main(args=None):
-    """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
-    stop = c.init(args)
-    node = None
-    try:
-        node = ScenarioRunnerNode()
-        c.spin(node, realtime=not node.lockstep, priority=c.node_priority(node), stop=stop)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except c.NODE_ERRORS as exc:
-        return c.refuse(NODE_NAME, exc)
-    finally:
-        c.finish(node)
-    return 0
+    """Run the node (bad parameters: one line, exit 2)."""
+    return run_node(ScenarioRunnerNode, NODE_NAME, args)
 
 
 if __name__ == '__main__':

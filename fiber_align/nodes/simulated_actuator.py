@@ -30,65 +30,68 @@ Modes (parameter ``sync_mode``):
      system clock, so stamps count sample periods exactly);
   2. latches the newest drive received since then; it is held over [t_k, t_k+1].
 
-  The command computed from y_k arrives some 0.1-1 ms after t_k, is latched at t_k+1
-  and first shows in y_k+2: the realtime loop has exactly **one period more delay than
-  lockstep**, whatever the message latency is, as long as it is below one period. The
-  controller accounts for this delay (``fuzzy_pid_controller``). A tick at which no drive
-  has arrived since the previous tick is a **missed cycle**: the previous drive is held
-  again (zero-order hold). A tick that comes more than one period late advances the plant
-  by every elapsed period (the simulated plant keeps wall time) and counts the periods
-  it skipped as missed too, replaying the drives written meanwhile over them
-  (:mod:`fiber_align.plant.dac`: why); after a stall of over ``MAX_CATCH_UP`` periods
-  it waits one tick for them (they race the timer when the process wakes).
+  The command computed from y_k is latched at t_k+1 and first shows in y_k+2: the
+  realtime loop has exactly **one period more delay than lockstep**, whatever the
+  message latency is, as long as it is below one period (the controller accounts for
+  it). Missed cycles, late ticks and the replay of the drives a stall wrote:
+  :class:`fiber_align.plant.dac.DacClock`.
 
 Realtime: the sample-to-drive latency (publishing y_k to the first drive after it) and
 the missed cycles, per run (:meth:`SimulatedActuatorNode.latency_stats`, ``latency_*``)
-and per diagnostics window (``cycle.*``, :mod:`fiber_align.nodes._cycle`).
+and per diagnostics window (``cycle.*``, :mod:`fiber_align.control.cycle`).
 """
 
 import sys
 import time
 
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
 
-from fiber_align.nodes import _common as c
-from fiber_align.nodes._cycle import CycleStats, LatencyHistogram, loop_summary
+from fiber_align.control.cycle import CycleStats, LatencyHistogram
+from fiber_align.control.trajectory import MAX_CATCH_UP
+from fiber_align.nodes._plant_clock import PlantClock
+from fiber_align.nodes.ros.bus import Pub, slack_of, subscription
+from fiber_align.nodes.ros.diagnostics import Health
+from fiber_align.nodes.ros.params import check_parameters, declare, declare_graph_values
+from fiber_align.nodes.ros.params import flatten_defaults, node_defaults, PRIORITY
+from fiber_align.nodes.ros.qos import CLOCK_QOS, DAC_QOS, LOCKSTEP_QOS, SAMPLE_DEPTH
+from fiber_align.nodes.ros.qos import sample_pub_qos
+from fiber_align.nodes.ros.runtime import run_node
 from fiber_align.plant.actuator import KINDS, SimulatedActuator
-from fiber_align.plant.dac import replay_edges
+from fiber_align.plant.dac import DacClock
 from fiber_align.plant.optics import OpticalLink
 
 NODE_NAME = 'simulated_actuator'
 AREA_FILES = ('plant.yaml', 'optics.yaml')
 JOINT_NAME = 'bimorph_tip'
-#: Topics this node publishes (relative names; see ``_common.LocalBus``).
+#: Topics this node publishes (relative names; see ``ros.bus.LocalBus``).
 PUBLISHES = ('displacement', 'optical_power')
 PLANT_KEYS = ('rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min', 'v_max',
               'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m', 'seed')
-WARMUP_SAMPLES = 1000      # realtime: samples before the statistics start (1 s at 1 kHz)
 
 
-class SimulatedActuatorNode(Node):
+class SimulatedActuatorNode(PlantClock, Node):
     """Transport, parameters and health around :class:`SimulatedActuator`."""
 
     def __init__(self, bus=None, **kwargs):
         """
         Declare the parameters (defaults from config/), build the plant, wire topics.
 
-        :param bus: the :class:`~fiber_align.nodes._common.LocalBus` of a composed
+        :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
             process (``control_graph``), or ``None``.
         """
         super().__init__(NODE_NAME, **kwargs)
-        d = c.node_defaults(NODE_NAME, AREA_FILES)
+        d = node_defaults(NODE_NAME, AREA_FILES)
         ro = True
-        self.rate_hz = c.declare(self, d, 'rate_hz', 'control rate (Hz)', 1.0, 20000.0, ro)
-        c.declare(self, d, 'hysteresis', 'true hysteresis law of the plant', read_only=ro,
-                  choices=KINDS)
+        g = declare_graph_values(self, d, 'rate_hz', 'sync_mode', 'diagnostics_period_s',
+                                 *PRIORITY)
+        self.rate_hz, self.sync_mode = g['rate_hz'], g['sync_mode']
+        declare(self, d, 'hysteresis', 'true hysteresis law of the plant', read_only=ro,
+                choices=KINDS)
         for name, text, lo, hi in (
                 ('omega_n_rad_s', 'first bending mode (rad/s); <= 0: design model', -1.0, 1e6),
                 ('damping_ratio', 'modal damping ratio (1)', 0.0, 0.999),
@@ -98,45 +101,49 @@ class SimulatedActuatorNode(Node):
                 ('noise_rms_m', 'sensor noise (m RMS)', 0.0, 1e-3),
                 ('resolution_m', 'sensor resolution (m)', 0.0, 1e-3),
                 ('seed', 'sensor noise seed', 0, 2 ** 31 - 1)):
-            c.declare(self, d, name, text, lo, hi, ro)
-        self.sync_mode = c.declare(self, d, 'sync_mode', 'sample clock', read_only=ro,
-                                   choices=c.SYNC_MODES)
-        self.timeout_s = c.declare(self, d, 'lockstep_timeout_s',
-                                   'lockstep: warn when no drive within this time (s)',
-                                   0.001, 3600.0)
-        self.autostart = c.declare(self, d, 'autostart', 'start the clock without ~/run',
-                                   read_only=ro)
-        diag_period = c.declare(self, d, 'diagnostics_period_s', '/diagnostics period (s)',
-                                0.01, 60.0, ro)
-        self.power_every = c.declare(self, d, 'optical_power_every',
-                                     'publish optical_power every N samples (1); 0: off '
-                                     '(the alignment sequencer needs 1)', 0, 1000000)
-        c.declare_priority(self, d)
+            declare(self, d, name, text, lo, hi, ro)
+        self.timeout_s = declare(self, d, 'lockstep_timeout_s',
+                                 'lockstep: warn when no drive within this time (s)',
+                                 0.001, 3600.0)
+        self.autostart = declare(self, d, 'autostart', 'start the clock without ~/run',
+                                 read_only=ro)
+        self.start_reader = declare(self, d, 'start_after_reader', 'realtime: start the '
+                                    'clock once this node subscribes to displacement and '
+                                    'drive_voltage ("" = none)', read_only=ro)
+        self.start_wait_s = declare(self, d, 'start_wait_s', 'bound of that wait (s, wall)',
+                                    0.0, 3600.0, ro)
+        self.created = time.monotonic()
+        diag_period = g['diagnostics_period_s']
+        self.power_every = declare(self, d, 'optical_power_every',
+                                   'publish optical_power every N samples (1); 0: off '
+                                   '(the alignment sequencer needs 1)', 0, 1000000)
         self.add_on_set_parameters_callback(self._on_set)
         params = {k: self.get_parameter(k).value for k in PLANT_KEYS}
         self.plant = SimulatedActuator.from_params(params)
         self.period_s = self.plant.period_s
         optics_params = {}
-        for name, value in sorted(c.flatten_defaults(d, 'optics').items()):
-            optics_params[name] = c.declare(self, {name: value}, name,
-                                            'optics model parameter (SI, see optics.yaml)',
-                                            read_only=ro)
-        self.optics = OpticalLink.from_params(optics_params, seed=int(params['seed'])) \
+        for name, value in sorted(flatten_defaults(d, 'optics').items()):
+            optics_params[name] = declare(self, {name: value}, name,
+                                          'optics model parameter (SI, see optics.yaml)',
+                                          read_only=ro)
+        self.optics = OpticalLink.from_params(optics_params, seed=int(params['seed']),
+                                              sample_period_s=self.period_s) \
             if optics_params else None
 
-        self.slack = c.slack_of(bus)
-        self.pub_disp = c.Pub(self, JointState, 'displacement', c.CONTROL_QOS, bus,
-                              slack=self.slack)
-        self.pub_power = c.Pub(self, Float64, 'optical_power', c.CONTROL_QOS, bus)
+        self.slack = slack_of(bus)
+        pub_qos = sample_pub_qos(self.sync_mode == 'lockstep')
+        self.pub_disp = Pub(self, JointState, 'displacement', pub_qos, bus,
+                            slack=self.slack)
+        self.pub_power = Pub(self, Float64, 'optical_power', pub_qos, bus)
         self.pub_clock = None
         if self.sync_mode == 'lockstep':
-            self.pub_clock = self.create_publisher(ClockMsg, '/clock', c.CLOCK_QOS)
+            self.pub_clock = self.create_publisher(ClockMsg, '/clock', CLOCK_QOS)
         self._js = JointState(name=[JOINT_NAME], position=[0.0], velocity=[0.0])
         self._power = Float64()
-        c.subscription(self, Float64, 'drive_voltage', self._on_drive,
-                       c.LOCKSTEP_QOS if self.sync_mode == 'lockstep' else c.DAC_QOS, bus)
+        subscription(self, Float64, 'drive_voltage', self._on_drive,
+                     LOCKSTEP_QOS if self.sync_mode == 'lockstep' else DAC_QOS, bus)
         self.create_service(SetBool, '~/run', self._on_run)
-        self.health = c.Health(self, diag_period, slack=self.slack)
+        self.health = Health(self, diag_period, slack=self.slack)
         if self.sync_mode == 'realtime':
             self.health.cycle = CycleStats(self.rate_hz)
 
@@ -146,8 +153,6 @@ class SimulatedActuatorNode(Node):
         self.n_disp = 0
         self.n_power = 0
         self.n_clock = 0
-        self.n_drive = 0
-        self.v_latest = 0.0
         self.pending = []               # lockstep: drives not yet applied
         self._advancing = False         # lockstep: _advance is on the stack (local bus)
         # lockstep only: the EventsExecutor of a realtime process has no guard conditions
@@ -155,14 +160,8 @@ class SimulatedActuatorNode(Node):
             if self.sync_mode == 'lockstep' else None
         self.wait_since = None
         self.holds = 0
-        # realtime: sample clock and latency bookkeeping (perf_counter seconds)
-        self.u_latched = 0.0            # drive held over the present period (V)
-        self.period_ns = int(round(self.period_s * 1e9))
-        self.wall0_ns = 0               # system time (ns) of the nominal tick 0
-        self.m0 = None                  # scheduled time (s) of the first tick
-        self.drives_in_period = 0
-        self.writes = []                # realtime: drives received since the last tick
-        self.deferred = False           # realtime: a stall's catch-up waits one tick
+        # realtime: the sample clock (DacClock) and the latency (perf_counter s)
+        self.dac = DacClock(self.plant, self.period_s, MAX_CATCH_UP, SAMPLE_DEPTH)
         self.t_pub = None
         self.drive_seen = True
         self.lat = LatencyHistogram()   # realtime: sample-to-drive latencies (s)
@@ -184,8 +183,8 @@ class SimulatedActuatorNode(Node):
     # -- parameters -----------------------------------------------------------------
     def _on_set(self, params):
         """Check live updates (``lockstep_timeout_s`` and ``optical_power_every``)."""
-        res = c.check_parameters(params, {'lockstep_timeout_s': (0.001, 3600.0),
-                                          'optical_power_every': (0, 1000000)})
+        res = check_parameters(params, {'lockstep_timeout_s': (0.001, 3600.0),
+                                        'optical_power_every': (0, 1000000)})
         if res.successful:
             for p in params:
                 if p.name == 'lockstep_timeout_s':
@@ -193,42 +192,6 @@ class SimulatedActuatorNode(Node):
                 elif p.name == 'optical_power_every':
                     self.power_every = int(p.value)
         return res
-
-    # -- start / hold ---------------------------------------------------------------
-    def _maybe_autostart(self):
-        # realtime too waits to hear a driver: a restarted plant sampling before its drive
-        # reader matched left the loop open and the controller wound up (100 V, 158 um)
-        if self.autostart and not self.started and self.count_publishers(
-                self.resolve_topic_name('drive_voltage')) > 0 and (
-                self.sync_mode == 'realtime'
-                or self.count_subscribers(self.pub_disp.topic_name) > 0):
-            self._start()
-
-    def _on_run(self, request, response):
-        """Start (``data`` true) or hold (false) the sample clock."""
-        if request.data:
-            self._start()
-        else:
-            self.running, self.m0 = False, None
-            self.health.status(0, 'held at sample %d' % self.k)
-        response.success, response.message = True, self.health.message
-        return response
-
-    def _start(self):
-        if self.running:
-            return
-        self._autostart_timer.cancel()
-        self.running = True
-        self.health.status(0, 'running')
-        if not self.started:
-            self.started = True
-            self.get_logger().info('sample clock started (%s)' % self.sync_mode)
-            if self.sync_mode == 'lockstep':
-                self.wait_since = time.monotonic()
-                self._publish_sample(0.0)
-        elif self.sync_mode == 'lockstep':
-            self.wait_since = time.monotonic()
-            self._next.trigger()
 
     # -- publishing -----------------------------------------------------------------
     def _publish_sample(self, t_s):
@@ -244,7 +207,7 @@ class SimulatedActuatorNode(Node):
         if self.sync_mode == 'lockstep':
             ns = int(round(t_s * 1e9))
         else:
-            ns = self.wall0_ns + self.k * self.period_ns
+            ns = self.dac.wall0_ns + self.k * self.dac.period_ns
         stamp.sec, stamp.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
         if self.pub_clock is not None:
             self.pub_clock.publish(ClockMsg(clock=stamp))
@@ -260,122 +223,6 @@ class SimulatedActuatorNode(Node):
                                                  self.period_s))
             self.pub_power.publish(msg)
             self.n_power += 1
-
-    # -- drive ----------------------------------------------------------------------
-    def _on_drive(self, msg):
-        """Take a drive command (V); realtime: keep the newest for the next tick."""
-        self.n_drive += 1
-        if self.sync_mode == 'realtime':
-            self.v_latest = msg.data
-            self.drives_in_period += 1
-            if len(self.writes) < c.SAMPLE_DEPTH:
-                self.writes.append(msg.data)
-            if not self.drive_seen:
-                self.drive_seen = True
-                lat = time.perf_counter() - self.t_pub
-                self.health.cycle.record(lat, self.k)
-                if self.k >= self.stats_from:
-                    self.lat.record(lat)
-            return
-        self.pending.append(msg.data)
-        if self.running and not self._advancing:
-            self._next.trigger()
-
-    def _advance(self):
-        """
-        Lockstep: apply the drive of sample k, publish sample k + 1 (one per callback).
-
-        Run by the executor through a guard condition, one sample per call: in a composed
-        process the whole loop answers a sample inside ``_publish_sample`` (in-process
-        delivery), and a source in the same process (the sequencer) answers every
-        sample, so stepping in a loop here would never return to the executor, and no
-        service call (``~/run``, ``align``) would ever be answered.
-        """
-        if self._advancing or not (self.pending and self.running):
-            return
-        self._advancing = True
-        try:
-            v = self.pending.pop(0)
-            self.v_latest = v
-            self.plant.step(v)
-            self.k += 1
-            self.wait_since = time.monotonic()
-            self._publish_sample(self.k * self.period_s)
-        finally:
-            self._advancing = False
-        if self.pending and self.running:
-            self._next.trigger()
-
-    def _on_watch(self):
-        """Lockstep: warn (and keep holding) when the drive is late."""
-        self._update_values()
-        if not (self.running and self.started) or self.wait_since is None:
-            return
-        late = time.monotonic() - self.wait_since
-        if late > self.timeout_s:
-            self.holds += 1
-            msg = ('no drive_voltage for sample %d within %.3g s: holding'
-                   % (self.k, self.timeout_s))
-            self.get_logger().warn(msg)
-            self.health.warn(msg)
-            self.wait_since = time.monotonic()
-
-    def _on_tick(self):
-        """Realtime: one tick of the sample clock (see the module docstring)."""
-        if not self.running:
-            self.writes.clear()
-            return
-        period = self.period_s
-        until = self.timer.time_until_next_call()
-        now = time.perf_counter()
-        # scheduled time of this tick: the timer's next call minus one period
-        sched = now + (until * 1e-9 if until is not None else 0.0) - period
-        fresh = self.n_disp == 0
-        if self.m0 is None:
-            # first tick after a start: sample 0 (plant at rest) or the next sample
-            k_next = self.k + (0 if fresh else 1)
-            self.m0 = sched - k_next * period
-            self.wall0_ns = time.time_ns() - int(round((now - sched) * 1e9)) \
-                - k_next * self.period_ns
-        steps = int(round((sched - self.m0) / period)) - self.k
-        if fresh:
-            steps = 0
-        else:
-            steps = max(1, steps)
-            if steps > c.MAX_CATCH_UP and not self.deferred:
-                self.deferred = True    # a stall: its drives may still be on their way
-                return
-            self.deferred = False
-            if self.drives_in_period == 0 and self.n_drive > 0 \
-                    and self.k >= self.stats_from:
-                self.missed += 1
-            if self.k >= self.stats_from:
-                self.skipped += steps - 1
-            self.plant.step(self.u_latched)
-            if steps > 1:               # periods this late tick skipped (docstring)
-                for v in replay_edges(self.u_latched, self.writes, steps)[:-1]:
-                    self.plant.step(v)
-        self.k += steps
-        self.writes.clear()
-        # latch first: in a composed process the drive computed from this sample
-        # arrives inside _publish_sample (in-process delivery) and is for the next tick
-        self.u_latched = self.v_latest
-        self.drives_in_period = 0
-        self.drive_seen = False
-        self.t_pub = time.perf_counter()
-        self._publish_sample(0.0)
-
-    def reset_stats(self, warmup=WARMUP_SAMPLES):
-        """Restart the realtime statistics ``warmup`` samples from now (0: at once)."""
-        self.stats_from = self.k + int(warmup)
-        self.lat = LatencyHistogram()
-        self.missed = 0
-        self.skipped = 0
-
-    def latency_stats(self):
-        """Return the realtime loop statistics since :meth:`reset_stats` (loop_summary)."""
-        return loop_summary(self.lat, max(0, self.k - self.stats_from),
-                            self.missed, self.skipped, self.k + 1 if self.started else 0)
 
     def _update_values(self):
         vals = {'sample': self.k, 'sim_time_s': self.k * self.period_s,
@@ -394,20 +241,8 @@ class SimulatedActuatorNode(Node):
 
 
 def main(args=None):
-    """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
-    stop = c.init(args)
-    node = None
-    try:
-        node = SimulatedActuatorNode()
-        c.spin(node, realtime=node.sync_mode == 'realtime',
-               priority=c.node_priority(node), stop=stop)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except c.NODE_ERRORS as exc:
-        return c.refuse(NODE_NAME, exc)
-    finally:
-        c.finish(node)
-    return 0
+    """Run the node (bad parameters: one line, exit 2)."""
+    return run_node(SimulatedActuatorNode, NODE_NAME, args)
 
 
 if __name__ == '__main__':

@@ -3,13 +3,13 @@
 Node processes of ``bringup``: started, relayed, stopped, never left behind.
 
 Each child runs in a session of its own (a terminal's Ctrl-C reaches ``bringup`` only,
-which then stops the children in order) and asks the kernel for ``SIGTERM`` when the
-thread that started it dies (``prctl(PR_SET_PDEATHSIG)``): if ``bringup`` is killed with
-SIGKILL, every node still gets a clean stop (the recorder finalises its bag) instead of
-running on as an orphan that keeps publishing on the domain.
+which then stops the children in order) and watches its parent itself, as every
+executable of the package does (:func:`fiber_align.lifeline.watch_parent`): if
+``bringup`` is killed with SIGKILL, every node still gets a clean stop (the recorder
+finalises its bag) instead of running on as an orphan that keeps publishing on the
+domain.
 """
 
-import ctypes
 import json
 import math
 import os
@@ -19,34 +19,22 @@ import sys
 import threading
 import time
 
-from fiber_align.nodes._common import SENT_PREFIX
-
-PR_SET_PDEATHSIG = 1
-_LIBC = ctypes.CDLL(None, use_errno=True)   # loaded here: the child only calls it
-
-
-def _die_with_parent(parent_pid):
-    """Return a ``preexec_fn``: SIGTERM this child when its parent dies."""
-    def set_pdeathsig():
-        _LIBC.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
-        if os.getppid() != parent_pid:      # the parent died before the prctl
-            os.kill(os.getpid(), signal.SIGTERM)
-    return set_pdeathsig
+from fiber_align.nodes.ros.runtime import SENT_PREFIX
 
 
 class Child:
     """One node process; relays its output and collects its exit reports."""
 
     def __init__(self, name, cmd, env, quiet):
-        """Start ``cmd`` (a list) in its own session, bound to this process's life."""
+        """Start ``cmd`` (a list) in its own session (it ends with this process)."""
         self.name = name
         self.sent = {}               # node name -> {topic: count} (exit reports)
         self.quiet = quiet
         self.last_error = ''
+        self.cpu0 = None             # (monotonic s, CPU s) at :meth:`mark`
         self.proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True, bufsize=1,
-                                     start_new_session=True,
-                                     preexec_fn=_die_with_parent(os.getpid()))
+                                     start_new_session=True)
         self.thread = threading.Thread(target=self._relay, daemon=True)
         self.thread.start()
 
@@ -84,6 +72,17 @@ class Child:
         self.thread.join(timeout=1.0)
         return self.proc.returncode
 
+    def mark(self):
+        """Start the CPU count of :meth:`usage` (the run's start)."""
+        self.cpu0 = (time.monotonic(), cpu_time_s(self.proc.pid))
+
+    def usage(self):
+        """Return CPU (s per s since :meth:`mark`) and resident memory (MB)."""
+        t_a, c_a = self.cpu0 or (math.inf, 0.0)      # not marked: the start failed
+        wall = time.monotonic() - t_a
+        return {'cpu_per_s': (cpu_time_s(self.proc.pid) - c_a) / wall if wall > 0 else None,
+                'rss_mb': rss_bytes(self.proc.pid) / 1e6}
+
 
 def cpu_time_s(pid):
     """Return the user + system CPU time (s) of process ``pid``, or NaN if it is gone."""
@@ -102,24 +101,3 @@ def rss_bytes(pid):
             return int(f.read().split()[1]) * os.sysconf('SC_PAGE_SIZE')
     except (OSError, IndexError, ValueError):
         return math.nan
-
-
-def wait_idle(pid, limit_s, window_s=0.1, busy_s=0.011, quiet_windows=2):
-    """
-    Wait until process ``pid`` is idle; return the wall time waited (s).
-
-    Idle: at most ``busy_s`` CPU seconds in each of ``quiet_windows`` consecutive
-    ``window_s`` windows (s); the wait is bounded by ``limit_s`` (s wall).
-    """
-    t0 = time.monotonic()
-    last, quiet = cpu_time_s(pid), 0
-    while time.monotonic() - t0 < limit_s:
-        time.sleep(window_s)
-        now = cpu_time_s(pid)
-        if not math.isfinite(now):
-            break
-        quiet = quiet + 1 if now - last <= busy_s else 0
-        last = now
-        if quiet >= quiet_windows:
-            break
-    return time.monotonic() - t0

@@ -1,22 +1,34 @@
 # SPDX-License-Identifier: Apache-2.0
-"""``bringup``'s command line: options, their checks, the parameter overrides."""
+"""
+``bringup``'s command line: options, their checks, and the graph they describe.
+
+The options map onto the arguments of :mod:`fiber_align.graph` (``build``,
+``build_rig``, ``build_hardware``: the launch file's), and the rest onto parameter
+overrides of the description; bringup merges nothing itself.
+"""
 
 import argparse
 import math
 import os
-import re
 import sys
 
 import yaml
 
 from fiber_align.config import ConfigError
+from fiber_align.graph import description as gd, rig as gr
+from fiber_align.graph.description import NODES
+from fiber_align.graph.live import check_endpoint, live_settings, with_live
+from fiber_align.graph.params import GraphError, PLANT, RECORDER, SCENARIO_RUNNER
+from fiber_align.nodes.scenario_runner import setpoint_range, Source
 
-SCENARIOS = ('none', 'step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment',
-             'align')
 TRACKING_SCENARIOS = ('step', 'sine', 'triangle', 'staircase')
-#: controller names, as in ``fiber-align simulate``
-CONTROLLERS = ('composite', 'composite-pid', 'fuzzy', 'pid', 'feedforward', 'open-loop')
-_NAME = re.compile(r'^[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$')
+#: bringup options of the 1-D graph only: (attribute, option); refused with ``--rig``.
+ONE_AXIS_OPTIONS = (('scenario', '--scenario'), ('duration', '--duration'),
+                    ('model', '--model'), ('rate', '--rate'), ('no_noise', '--no-noise'),
+                    ('cycles', '--cycles'), ('record', '--record'), ('storage', '--storage'),
+                    ('strict', '--strict'))
+#: What the scenario runner publishes in the open-loop experiment (it drives the driver).
+OPEN_LOOP = ('feedforward_voltage', 'feedback_voltage')
 
 
 def _positive(kind, what):
@@ -32,12 +44,10 @@ def _positive(kind, what):
 
 
 def _namespace(text):
-    ns = text.strip('/')
-    if ns and not _NAME.match(ns):
-        raise argparse.ArgumentTypeError(
-            'namespace %r: letters, digits and _ separated by /, each part starting with '
-            'a letter' % text)
-    return ns
+    try:                # the description's rule, as under ros2 launch
+        return gd.check_namespace(text)
+    except GraphError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 class _Parser(argparse.ArgumentParser):
@@ -56,8 +66,9 @@ def parse_args(argv):
         argv = argv[:argv.index('--ros-args')]
     ap = _Parser(prog='bringup', description='Start the fiber_align graph, run a scenario, '
                  'record, stop, summarise.')
-    ap.add_argument('--scenario', choices=SCENARIOS, default=None,
-                    help='scenario to run (default: bringup.scenario of fiber_align.yaml)')
+    ap.add_argument('--scenario', choices=gd.SCENARIOS, default=None,
+                    help='scenario to run (default: scenario_runner.scenario of '
+                         'config/scenario.yaml, as ros2 launch)')
     ap.add_argument('--rig', action='store_true',
                     help='the two-axis rig (/rig/x, /rig/y, optics, 2-D sequencer) running '
                          'align2d; lockstep: compared with the offline run (--seed: the '
@@ -66,7 +77,8 @@ def parse_args(argv):
                     help="scenario length (s of sample time; default: the scenario's)")
     ap.add_argument('--sync', choices=('realtime', 'lockstep'), default=None,
                     help='sample clock (default: sync_mode of fiber_align.yaml)')
-    ap.add_argument('--controller', choices=CONTROLLERS, default='composite')
+    ap.add_argument('--controller', choices=gd.CONTROLLERS, default=None,
+                    help='control law (default: controller of fiber_align.yaml)')
     ap.add_argument('--model', metavar='FILE', default=None,
                     help='PI model params file for the compensator (e.g. from fiber-align '
                          'identify, or config/hysteresis_paper.yaml)')
@@ -97,7 +109,8 @@ def parse_args(argv):
     ap.add_argument('--quiet', action='store_true', help="do not relay the nodes' output")
     hw = ap.add_argument_group('hardware bench (docs/hardware.md)')
     hw.add_argument('--hardware', action='store_true', help='the sensorless graph on an '
-                    'MDT693B + PM100 (no simulated plant): align, --cycles, hold')
+                    'MDT693B + PM100 (no simulated plant): align, --cycles, hold; with '
+                    '--rig: both axes on one MDT693B (config/hardware_rig.yaml)')
     hw.add_argument('--emulate', action='store_true', help='with --hardware: start '
                     '`fiber-align emulate` and use its serial_link and visa_resource')
     hw.add_argument('--port', help='MDT693B serial device (default: config/hardware.yaml)')
@@ -106,45 +119,137 @@ def parse_args(argv):
     hw.add_argument('--hold', type=float, default=None, metavar='S',
                     help='--hardware: hold TRACKING this long (s) after the cycles; '
                          'default: until Ctrl-C')
+    lv = ap.add_argument_group('live view (docs/live_view.md)')
+    lv.add_argument('--live', action='store_true', help='serve the graph to Foxglove '
+                    '(ws://HOST:PORT; the live_view process)')
+    lv.add_argument('--live-port', type=int, default=None, metavar='PORT',
+                    help='--live: TCP port (default: config/live_view.yaml, 8765)')
+    lv.add_argument('--live-host', default=None, metavar='HOST',
+                    help='--live: address (default: config/live_view.yaml, 127.0.0.1)')
     a = ap.parse_args(argv)
+    if not a.live and (a.live_port is not None or a.live_host is not None):
+        ap.error('--live-port and --live-host need --live')
     if not a.hardware and (a.emulate or a.port or a.visa_resource or a.slot is not None
                            or a.hold is not None):
         ap.error('--emulate, --port, --visa-resource, --slot and --hold need --hardware')
-    if a.hardware and a.rig:
-        ap.error('--hardware and --rig: choose one')
+    if a.hardware and a.rig and (a.slot is not None or a.record or a.model):
+        ap.error('--slot, --record and --model are not available with --rig --hardware '
+                 '(--seed picks the emulated target; the models are in hardware_rig.yaml)')
     if a.emulate and (a.port or a.visa_resource):
         ap.error('--emulate chooses the port and the VISA resource itself')
     if a.cycles is not None and a.cycles < 0:
         ap.error('--cycles must be >= 0, got %d' % a.cycles)
-    for path, opt in ((a.trace, '--trace'), (a.summary, '--summary')):
+    for path, opt in ((a.trace, '--trace'), (a.summary, '--summary'), (a.record, '--record')):
         if path and not os.path.isdir(os.path.dirname(os.path.abspath(path))):
             ap.error('%s %s: the folder %s does not exist'
-                     % (opt, path, os.path.dirname(path) or '.'))
-    if a.record and os.path.exists(a.record):
-        ap.error('--record %s exists already; choose a new bag directory' % a.record)
-    if a.record and not os.path.isdir(os.path.dirname(os.path.abspath(a.record))):
-        ap.error('--record %s: the folder %s does not exist'
-                 % (a.record, os.path.dirname(os.path.abspath(a.record))))
-    if a.model and not os.path.isfile(a.model):
-        ap.error('--model %s: no such file' % a.model)
+                     % (opt, path, os.path.dirname(os.path.abspath(path))))
     return a
 
 
-def param_overrides(args, sync):
+def describe(a):
     """
-    Return ``{node or '/**': {name: value}}`` of the command line.
+    Return ``(graph, source)`` of the 1-D graph the options ``a`` describe.
 
-    :raises ConfigError: a ``-p`` that is not ``NODE:NAME:=VALUE``.
+    The description's :func:`~fiber_align.graph.description.build` with the launch
+    arguments of the options; with a scenario the harness holds the plant until the
+    graph is connected (``autostart`` false) and ends the run itself (the runner's
+    ``exit_when_done`` false, ``duration_s`` set). ``source``: the scenario runner's
+    setpoints (:class:`~fiber_align.nodes.scenario_runner.Source`) or ``None``.
+
+    :raises GraphError: a bad option, params file or ``-p`` (exit code 2).
     """
-    ov = {'/**': {'sync_mode': sync, 'controller': args.controller},
-          'simulated_actuator': {'autostart': False}}
-    if args.seed is not None:
-        ov['simulated_actuator']['seed'] = int(args.seed)
-    if args.no_noise:
-        ov['simulated_actuator']['noise_rms_m'] = 0.0
-    if args.model:
-        ov['hysteresis_compensator'] = {'model_file': os.path.abspath(args.model)}
-    return parse_params(args.param, ov)
+    ov = parse_params(a.param, {})
+    plant = {} if a.seed is None else {'seed': int(a.seed)}
+    if a.no_noise:
+        plant['noise_rms_m'] = 0.0
+    if a.rate:
+        ov.setdefault('/**', {})['rate_hz'] = float(a.rate)
+    if a.storage:
+        ov.setdefault(RECORDER, {})['storage'] = a.storage
+    kw = dict(namespace=a.namespace, composed=a.composed, sync_mode=a.sync or '',
+              controller=a.controller or '', params_file=a.params_file,
+              model_file=a.model or '', record=a.record or '')
+    g = gd.build(scenario=a.scenario or '', overrides=dict(ov, **{PLANT: plant}) if plant
+                 else ov, **kw)
+    if g.scenario == 'none':
+        return live(a, g), None
+    plant['autostart'] = False
+    ov[PLANT] = dict(ov.get(PLANT, {}), **plant)
+    src = None
+    if SCENARIO_RUNNER in g.nodes:
+        sp = g.node_params(SCENARIO_RUNNER)
+        src = Source(g.scenario, *setpoint_range(sp['setpoint_min_m'], sp['setpoint_max_m'],
+                                                 sp['reach_m']))
+        dur = a.duration or float(sp['duration_s']) or float(src.sc.duration_s)
+        ov[SCENARIO_RUNNER] = dict(ov.get(SCENARIO_RUNNER, {}), exit_when_done=False,
+                                   wait_for_recorder=False, duration_s=float(dur))
+    return live(a, gd.build(scenario=g.scenario, overrides=ov, **kw)), src
+
+
+def live(a, graph):
+    """
+    Return ``graph`` with the live view when ``--live`` (:func:`fiber_align.graph.live.with_live`).
+
+    :raises GraphError: a bad ``--live-port``/``--live-host``, or that port in use.
+    """
+    g = with_live(graph, a.live, '' if a.live_port is None else a.live_port,
+                  a.live_host or '')
+    served = live_settings(g)
+    if served:
+        check_endpoint(*served)
+    return g
+
+
+def expected_endpoints(graph, observed=(), recorded=()):
+    """
+    Return ``{topic: (publishers, subscribers)}`` (at least) the running graph must have.
+
+    From the node registry (:data:`fiber_align.graph.description.NODES`): the topics its
+    nodes publish and read, only those some node, the observer or the recorder reads. A
+    reader hosted in one process with the topic's publisher reads it in-process
+    (``LocalBus``), not as a DDS subscription.
+
+    :param graph: a 1-D :class:`~fiber_align.graph.description.Graph`.
+    :param observed: the topics the observer subscribes to.
+    :param recorded: the topics the recorder subscribes to (``topics``; empty: none).
+    """
+    def publishes(node):
+        if node == SCENARIO_RUNNER:
+            return OPEN_LOOP if graph.scenario == 'hysteresis-experiment' else ('setpoint',)
+        return NODES[node].publishes if node in NODES else ()
+    pubs, subs = {}, {t: 1 for t in observed}
+    for p in graph.processes:
+        own = {t for n in p.nodes for t in publishes(n)}
+        for n in p.nodes:
+            for t in publishes(n):
+                pubs[t] = pubs.get(t, 0) + 1
+            for t in NODES[n].subscribes if n in NODES else ():
+                if not (len(p.nodes) > 1 and t in own):
+                    subs[t] = subs.get(t, 0) + 1
+    out = {t: (pubs.get(t, 0), n) for t, n in subs.items()}
+    if graph.sync_mode == 'lockstep':
+        out['/clock'] = (1, 0)
+    recorded = {t.lstrip('/') for t in recorded}
+    return {k: (p, s + (1 if p and k.lstrip('/') in recorded else 0))
+            for k, (p, s) in out.items()}
+
+
+def describe_rig(a):
+    """
+    Return the rig's :class:`~fiber_align.graph.rig.RigGraph` for the options ``a``.
+
+    The plants are held (``autostart`` false) until both drivers are active.
+
+    :raises GraphError: a bad option (exit code 2).
+    """
+    bad = [opt for attr, opt in ONE_AXIS_OPTIONS if getattr(a, attr, None) not in (None, False)]
+    if bad:
+        raise GraphError('%s: not available with --rig' % ', '.join(bad))
+    ov = parse_params(a.param, {PLANT: {'autostart': False}})
+    return live(a, gr.build_rig(namespace=a.namespace or gr.RIG_NAMESPACE,
+                                composed=a.composed, sync_mode=a.sync or '',
+                                controller=a.controller or '', seed=int(a.seed or 0),
+                                params_file=a.params_file, overrides=ov))
 
 
 def parse_params(items, ov):
@@ -154,6 +259,7 @@ def parse_params(items, ov):
     :param items: ``NODE:NAME:=VALUE`` strings (``NODE`` ``**`` = all nodes; VALUE YAML).
     :raises ConfigError: an item that is not ``NODE:NAME:=VALUE`` or not YAML.
     """
+    # NODE may be <axis>/<node> (the rig): the description checks the names
     for item in items:
         node, sep1, rest = item.partition(':')
         name, sep2, value = rest.partition(':=')

@@ -1,15 +1,16 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-``bringup``'s own ROS side: it watches the graph and calls its services.
+``bringup``'s one observer of a running graph (the 1-D graph, the rig, the bench).
 
-It publishes nothing on the control topics: the setpoint source of a scenario is the
-``scenario_runner`` node (or the ``alignment_sequencer``), the same node ``ros2 launch``
-starts. The observer records the trace of the run from ``displacement`` (every sample:
-reliable, deep, transient local), the scenario's reference at each sample time (the
-same :class:`~fiber_align.nodes.scenario_runner.Source` the runner publishes) or, with
-no scenario, the graph's ``reference``, and ``drive_voltage``, ``optical_power`` and
-``alignment_state``. Service clients live on a second node that only the calling thread
-spins, so a call never waits on the executor thread.
+It publishes nothing on the control topics and changes no node's state: the setpoint
+source is the graph's own node (``scenario_runner`` or a sequencer) and
+``lifecycle_manager`` activates the drivers; the observer watches. Per sample it records
+the streams it is given (reliable, deep, transient local: every sample), the
+``alignment_state`` changes and, through its own thread, ``/diagnostics``. With a
+``clock`` stream (the 1-D ``displacement``) it keeps the sample times and the scenario's
+reference at each (:class:`~fiber_align.nodes.scenario_runner.Source`). Service clients
+live on a second node that only the calling thread spins, so a call never waits on the
+executor thread. Its rclpy context is its own.
 """
 
 import json
@@ -17,9 +18,14 @@ import math
 import threading
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
+from rclpy.executors import SingleThreadedExecutor
 
-from fiber_align.nodes._common import CONTROL_QOS, stamp_ns
+from fiber_align.analysis.run_summary import worst_cycles
+from fiber_align.control.trajectory import stamp_ns
+from fiber_align.nodes._recording import diag_entry
+from fiber_align.nodes.ros.qos import DIAG_QOS, LATCHED_QOS, sample_pub_qos
 
 
 class BringupError(RuntimeError):
@@ -34,102 +40,187 @@ class StartStall(BringupError):
     """A lockstep graph did not answer its first sample within the start-up bound."""
 
 
-class Runner:
-    """
-    Watch a running graph: trace, stall checks, service calls.
+def spin_thread(executor):
+    """Return a started daemon thread spinning ``executor`` until it is shut down."""
+    def spin():
+        try:
+            executor.spin()
+        except Exception:  # noqa: BLE001 - executor shut down at exit
+            pass
+    th = threading.Thread(target=spin, daemon=True)
+    th.start()
+    return th
 
-    :param source: the scenario's :class:`~fiber_align.nodes.scenario_runner.Source`
-        (its values are the trace's ``r``), or ``None`` to record the graph's
-        ``reference``.
+
+#: s: the longest diagnostics period of a node of the graph (fiber_align.yaml: 0.5 s),
+#: plus margin: the first report counted starts its window inside the run.
+WINDOW_S = 0.6
+
+
+class DiagnosticsWatch:
+    """
+    Keep the newest ``/diagnostics`` values of every node, on a node and thread of its own.
+
+    The observer's executor may be seconds behind with samples (Python executor) when the
+    stop needs fresh reports, hence a thread of its own.
+
+    :ivar latest: node name -> its last key/value pairs (strings), ``level``, ``message``
+        and ``_t`` (monotonic s of arrival).
+    :ivar worst: node name -> its worst cycle window (:func:`summary.worst_cycles`).
+    :ivar errors: node name -> the distinct ERROR messages it reported (why a FAULT).
     """
 
-    def __init__(self, namespace, source, lockstep, rate_hz, duration_s=math.inf):
-        """Create the nodes, their clients and subscriptions."""
-        from lifecycle_msgs.srv import ChangeState, GetState
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.node import Node
-        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    def __init__(self, namespace, context):
+        """Subscribe and start spinning (``namespace``: the graph's, or ``''``)."""
+        import rclpy
+        self.latest = {}
+        self.worst = {}
+        self.errors = {}
+        #: monotonic s: reports of windows inside [run_from, run_to] count for ``worst``
+        self.run_from = None
+        self.run_to = None
+        self.node = rclpy.create_node('bringup_diagnostics', namespace=namespace or None,
+                                      context=context)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag,
+                                      DIAG_QOS)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.thread = spin_thread(self.executor)
+
+    def _on_diag(self, msg):
+        for st in msg.status:
+            now = time.monotonic()
+            node, values = diag_entry(st, now)
+            self.latest[node] = values
+            if values['level'] >= 2 and values['message'] not in self.errors.get(node, []):
+                self.errors.setdefault(node, []).append(values['message'])
+            # a report covers the diagnostics period before it (0.5 s by default): the
+            # first full window starts a period after the run did
+            if self.run_from is not None and now >= self.run_from + WINDOW_S and (
+                    self.run_to is None or now <= self.run_to):
+                worst_cycles(self.worst, node, self.latest[node])
+
+    def close(self):
+        """Stop the executor and join the thread (it must leave rclpy before exit)."""
+        self.executor.shutdown(timeout_sec=0.5)
+        self.thread.join(timeout=2.0)
+        self.node.destroy_node()
+
+
+class Observer:
+    """
+    Watch a running graph: streams, states, diagnostics, stall checks, service calls.
+
+    :param namespace: the graph's namespace (``''``: none).
+    :param streams: key -> topic recorded per message (``*displacement``: its position,
+        m; others ``std_msgs/Float64`` data, SI).
+    :param clock: the key of the stream that times the samples (``None``: none).
+    :param source: the scenario's Source (the trace's reference) or ``None``.
+    :param lockstep: sample times are multiples of ``1 / rate_hz``.
+    :param duration_s: the run ends at this sample time (s).
+    :param qos: the QoS of the stream subscriptions (``None``: the per-sample topics'
+        profile of the sync mode, every sample).
+    """
+
+    def __init__(self, namespace, streams, clock=None, source=None, lockstep=False,
+                 rate_hz=1000.0, duration_s=math.inf, qos=None):
+        """Create the context, both nodes, their subscriptions and the spin threads."""
+        import rclpy
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64, String
-        from std_srvs.srv import SetBool, Trigger
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx, args=[])
         ns = namespace.strip('/') or None
-        self.node = Node('bringup', namespace=ns)
-        self.cnode = Node('bringup_client', namespace=ns)
-        self.cexec = SingleThreadedExecutor()
+        self.node = rclpy.create_node('bringup', namespace=ns, context=self.ctx)
+        self.cnode = rclpy.create_node('bringup_client', namespace=ns, context=self.ctx)
+        self.cexec = SingleThreadedExecutor(context=self.ctx)
         self.cexec.add_node(self.cnode)
-        self.ns = self.node.get_namespace().rstrip('/')
-        self.source = source
-        self.lockstep = lockstep
-        self.period = 1.0 / rate_hz
-        self.duration = float(duration_s)
-        self.node.create_subscription(JointState, 'displacement', self._on_disp, CONTROL_QOS)
-        self.node.create_subscription(Float64, 'drive_voltage', self._on_drive, CONTROL_QOS)
-        if source is None:
-            state_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                                   reliability=ReliabilityPolicy.RELIABLE,
-                                   durability=DurabilityPolicy.TRANSIENT_LOCAL)
-            self.node.create_subscription(Float64, 'reference', self._on_reference,
-                                          CONTROL_QOS)
-            self.node.create_subscription(Float64, 'optical_power', self._on_power,
-                                          CONTROL_QOS)
-            self.node.create_subscription(String, 'alignment_state', self._on_state,
-                                          state_qos)
-        c = self.cnode
-        self.change = c.create_client(ChangeState, 'actuator_driver/change_state')
-        self.get_state = c.create_client(GetState, 'actuator_driver/get_state')
-        self.run_cli = c.create_client(SetBool, 'simulated_actuator/run')
-        self.align_cli = c.create_client(Trigger, 'align')
-        self.switch_cli = c.create_client(SetBool, 'switch')
-        self.active = False          # record samples
+        self.source, self.lockstep, self.clock = source, lockstep, clock
+        self.period, self.duration = 1.0 / rate_hz, float(duration_s)
+        self.lock = threading.Lock()
+        self.data = {k: [] for k in streams}
+        self.stamps = {k: [] for k in streams}      # monotonic s of each message
+        self.t, self.r = [], []
+        self.states = []             # (sample index, status dict) of alignment_state
+        self.active = clock is None  # record samples (the clock stream: from start())
         self.t0_ns = None
         self.done = threading.Event()
-        self.t, self.r, self.y, self.v, self.p = [], [], [], [], []
-        self.states = []             # (sample index, status dict) of alignment_state
-        self.progress = time.monotonic()   # wall time of the latest recorded sample
-        self.stall_s = 10.0
-        self.start_stall_s = 3.0
-        self.started = time.monotonic()
-        self.lock = threading.Lock()
+        self.progress = self.started = time.monotonic()
+        self.stall_s, self.start_stall_s = 10.0, 3.0
+        qos = sample_pub_qos(lockstep) if qos is None else qos
+        for key, topic in streams.items():
+            typ = JointState if topic.endswith('displacement') else Float64
+            self.node.create_subscription(typ, topic, self._adder(key), qos)
+        self.node.create_subscription(String, 'alignment_state', self._on_state, LATCHED_QOS)
+        #: monotonic s at which the scenario runner said ``done`` (``None``: not yet)
+        self.runner_done_at = None
+        self.node.create_subscription(String, 'scenario_state', self._on_runner,
+                                      LATCHED_QOS)
+        self.clients = {}
+        self.executor = SingleThreadedExecutor(context=self.ctx)
+        self.executor.add_node(self.node)
+        self.spin = spin_thread(self.executor)
+        self.watch = DiagnosticsWatch(namespace, self.ctx)
+
+    def client(self, srv_type, name):
+        """Return the (cached) client of service ``name`` (relative to the namespace)."""
+        if name not in self.clients:
+            self.clients[name] = self.cnode.create_client(srv_type, name)
+        return self.clients[name]
 
     @property
     def samples(self):
-        """Return the number of displacement samples recorded so far."""
-        return len(self.y)
+        """Return the samples recorded in every stream (the clock's count, if any)."""
+        with self.lock:
+            if self.clock is not None:
+                return len(self.t)
+            return min((len(v) for v in self.data.values()), default=0)
 
-    def _on_disp(self, msg):
+    def _adder(self, key):
+        def add(msg):
+            v = float(msg.position[0]) if hasattr(msg, 'position') and len(msg.position) \
+                else (math.nan if hasattr(msg, 'position') else float(msg.data))
+            if key == self.clock:
+                return self._on_clock(msg, v)
+            if self.active or self.data[key]:
+                with self.lock:
+                    self.data[key].append(v)
+                    self.stamps[key].append(time.monotonic())
+        return add
+
+    def _on_clock(self, msg, y):
         if not self.active or self.done.is_set():
             return
         ns = stamp_ns(msg.header.stamp)
-        if self.t0_ns is None:
-            self.t0_ns = ns
+        self.t0_ns = ns if self.t0_ns is None else self.t0_ns
         t = (ns - self.t0_ns) * 1e-9
         if self.lockstep:
             t = round(t / self.period) * self.period
         if t >= self.duration - 0.5 * self.period:
             self.done.set()
             return
-        y = msg.position[0] if len(msg.position) else math.nan
         self.progress = time.monotonic()
         with self.lock:
             self.t.append(t)
-            self.y.append(y)
+            self.data[self.clock].append(y)
             if self.source is not None:
                 self.r.append(math.nan if self.source.open_loop else self.source.value(t))
 
-    def _on_drive(self, msg):
-        if self.active or self.v:
-            with self.lock:
-                self.v.append(msg.data)
+    def _on_runner(self, msg):
+        if msg.data == 'done' and self.runner_done_at is None:
+            self.runner_done_at = time.monotonic()
 
-    def _on_reference(self, msg):
-        if self.active:
-            with self.lock:
-                self.r.append(msg.data)
+    def behind(self, drain_s):
+        """
+        Return True when the runner's ``done`` is ``drain_s`` (s) old and this record short.
 
-    def _on_power(self, msg):
-        if self.active:
-            with self.lock:
-                self.p.append(msg.data)
+        Short: this observer's own sample clock has not reached the end. Realtime only:
+        on a loaded machine this process reads the 1 kHz streams slower than the graph
+        sends them, and would end the run long after the graph's end.
+        """
+        return (not self.lockstep and self.runner_done_at is not None
+                and not self.done.is_set()
+                and time.monotonic() - self.runner_done_at > drain_s)
 
     def _on_state(self, msg):
         try:
@@ -143,22 +234,29 @@ class Runner:
         """
         Return the sample index from which state ``st`` holds.
 
-        Lockstep: the sample after the one the sequencer stepped last (its stamp in
-        ``sample_time_s``); this observer may be seconds behind the graph there. Realtime:
-        the number of samples received so far.
+        Lockstep with a clock: the sample after the one the sequencer stepped last (its
+        stamp in ``sample_time_s``); this observer may be behind the graph. Otherwise the
+        state's own ``sample``, or the samples received so far.
         """
         ts = st.get('sample_time_s')
         if self.lockstep and ts is not None and self.t0_ns is not None:
             return int(round((float(ts) - self.t0_ns * 1e-9) / self.period)) + 1
-        return len(self.y)
+        return st['sample'] if self.clock is None and 'sample' in st else len(self.t)
+
+    @property
+    def status(self):
+        """Return the latest ``alignment_state`` status dict (``{}`` before the first)."""
+        with self.lock:
+            return dict(self.states[-1][1]) if self.states else {}
+
+    def first(self, state, after=-1):
+        """Return ``(index, status)`` of the first ``state`` from index ``after`` on."""
+        with self.lock:
+            return next(((k, dict(s)) for k, s in self.states
+                         if s.get('state') == state and k >= after), (None, None))
 
     def event(self, n_before, timeout_s=5.0):
-        """
-        Return the sample index of the first state published after ``n_before`` states.
-
-        A service answer of the sequencer publishes its new state first; this waits for it
-        (bounded, s) and falls back to :meth:`samples` when none came.
-        """
+        """Return the sample index of the first state published after ``n_before`` states."""
         end = time.monotonic() + timeout_s
         while time.monotonic() < end:
             with self.lock:
@@ -166,11 +264,6 @@ class Runner:
                     return self.states[n_before][0]
             time.sleep(0.002)
         return self.samples
-
-    def state(self):
-        """Return the latest ``alignment_state`` status dict (``{}`` before the first)."""
-        with self.lock:
-            return dict(self.states[-1][1]) if self.states else {}
 
     def call(self, client, request, timeout, alive=lambda: None):
         """Call a service with a bounded wait (s); ``alive()`` may raise meanwhile."""
@@ -190,84 +283,57 @@ class Runner:
                                % (client.srv_name, timeout))
         return fut.result()
 
-    def wait_nodes(self, names, timeout, alive=lambda: None):
-        """Wait until every node in ``names`` is on the graph (bounded, s)."""
+    def wait(self, cond, timeout, alive, what):
+        """Wait (bounded, s wall) until ``cond()``; ``alive()`` may raise meanwhile."""
         end = time.monotonic() + timeout
-        want = {(n, self.ns or '/') for n in names}
-        while True:
+        while not cond():
             alive()
-            have = set(self.node.get_node_names_and_namespaces())
-            if want <= have:
-                return
             if time.monotonic() > end:
-                missing = sorted(n for n, _ in want - have)
-                raise BringupError('nodes not up within %g s: %s' % (timeout, ', '.join(missing)))
-            time.sleep(0.05)
+                raise BringupError('%s not reached within %g s (at sample %d; %s)'
+                                   % (what, timeout, self.samples, self.status or '-'))
+            time.sleep(0.005)
 
-    def count_nodes(self, name):
-        """Return how many nodes called ``name`` are in this graph's namespace."""
-        return sum(1 for n, ns in self.node.get_node_names_and_namespaces()
-                   if n == name and ns == (self.ns or '/'))
+    def node_names(self):
+        """Return the (name, namespace) pairs of every node on the graph."""
+        return set(self.node.get_node_names_and_namespaces())
 
-    def activate_driver(self, timeout, alive=lambda: None):
-        """Configure and activate the driver through lifecycle_msgs/srv/ChangeState."""
-        from lifecycle_msgs.msg import State, Transition
-        from lifecycle_msgs.srv import ChangeState, GetState
-        for tid, label in ((Transition.TRANSITION_CONFIGURE, 'configure'),
-                           (Transition.TRANSITION_ACTIVATE, 'activate')):
-            req = ChangeState.Request()
-            req.transition.id = tid
-            if not self.call(self.change, req, timeout, alive).success:
-                raise BringupError('actuator_driver refused to %s' % label)
-        st = self.call(self.get_state, GetState.Request(), timeout)
-        if st.current_state.id != State.PRIMARY_STATE_ACTIVE:
-            raise BringupError('actuator_driver is %s, not active' % st.current_state.label)
+    def active_nodes(self, names, alive):
+        """Return True when every lifecycle node in ``names`` (relative) is active."""
+        from lifecycle_msgs.msg import State
+        from lifecycle_msgs.srv import GetState
+        return all(self.call(self.client(GetState, n + '/get_state'), GetState.Request(),
+                             5.0, alive).current_state.id == State.PRIMARY_STATE_ACTIVE
+                   for n in names)
 
     def endpoint_counts(self, topic):
         """Return ``(publishers, subscribers)`` of ``topic`` on the graph."""
         name = self.node.resolve_topic_name(topic)
         return self.node.count_publishers(name), self.node.count_subscribers(name)
 
-    def wait_matched(self, topics, timeout, alive=lambda: None):
-        """Wait until each topic has at least ``(publishers, subscribers)`` (bounded, s)."""
-        end = time.monotonic() + timeout
-        while True:
-            alive()
-            short = []
-            for topic, (np_, ns_) in topics.items():
-                have = self.endpoint_counts(topic)
-                if have[0] < np_ or have[1] < ns_:
-                    short.append('%s (%d/%d publishers, %d/%d subscribers)'
-                                 % (topic, have[0], np_, have[1], ns_))
-            if not short:
-                return
-            if time.monotonic() > end:
-                raise BringupError('topics not connected within %g s: %s'
-                                   % (timeout, ', '.join(short)))
-            time.sleep(0.05)
+    def short_endpoints(self, topics):
+        """Return the topics with fewer than their ``(publishers, subscribers)``."""
+        out = []
+        for topic, (np_, ns_) in topics.items():
+            have = self.endpoint_counts(topic)
+            if have[0] < np_ or have[1] < ns_:
+                out.append('%s (%d/%d publishers, %d/%d subscribers)'
+                           % (topic, have[0], np_, have[1], ns_))
+        return out
 
     def foreign_publishers(self, topics):
         """Return the topics that have more publishers than ``topics`` allows (exactly)."""
-        out = []
-        for topic, (np_, _) in topics.items():
-            n = self.endpoint_counts(topic)[0]
-            if np_ and n > np_:
-                out.append('%s (%d publishers, expected %d)' % (topic, n, np_))
-        return out
-
-    def set_running(self, on, timeout=5.0):
-        """Start (True) or hold (False) the plant's sample clock."""
-        from std_srvs.srv import SetBool
-        return self.call(self.run_cli, SetBool.Request(data=bool(on)), timeout)
+        return ['%s (%d publishers, expected %d)' % (t, n, p) for t, (p, _) in topics.items()
+                for n in [self.endpoint_counts(t)[0]] if p and n > p]
 
     def start(self):
-        """Mark the start of the run (the stall clocks start now)."""
+        """Mark the start of the run (recording and the stall clocks start now)."""
         self.active = True
         self.progress = self.started = time.monotonic()
+        self.watch.run_from = self.started
 
     def check_stall(self):
         """
-        Raise when the graph stopped answering.
+        Raise when the graph stopped answering (the clock stream only).
 
         :raises StartStall: lockstep, the first sample not answered within
             ``start_stall_s`` (s wall).
@@ -283,40 +349,35 @@ class Runner:
             raise BringupError('the graph stalled at sample %d: no displacement for %.1f s'
                                % (self.samples, quiet))
 
-    def wait_samples(self, n, wall_limit_s, alive=lambda: None, stop=None):
+    def wait_samples(self, n, wall_limit_s, alive=lambda: None, stop=lambda: False):
         """Wait until ``n`` samples are recorded or ``stop()`` is true; bounded (s wall)."""
-        end = time.monotonic() + wall_limit_s
-        while self.samples < n:
+        def check():
             alive()
             self.check_stall()
-            if stop is not None and stop():
-                return
-            if time.monotonic() > end:
-                raise BringupError('the scenario did not reach sample %d within %g s (at %d)'
-                                   % (n, wall_limit_s, self.samples))
-            time.sleep(0.002)
+        self.wait(lambda: self.samples >= n or stop(), wall_limit_s, check, 'sample %d' % n)
 
     def trace(self):
-        """Return ``(t, r, y)`` arrays (s, m, m) of the samples seen (r NaN if unknown)."""
-        with self.lock:
-            n = len(self.t)
-            r = np.full(n, np.nan)
-            m = min(n, len(self.r))
-            r[:m] = self.r[:m]
-            return np.array(self.t), r, np.array(self.y)
+        """Return ``(t, r, y)`` arrays (s, m, m) of the clock's samples (r NaN if unknown)."""
+        return np.array(self.t), self.series('r'), self.series(self.clock)
 
-    def series(self, name):
-        """Return the per-sample series ``v`` (V) or ``p`` (W) padded with NaN."""
+    def series(self, key):
+        """Return a stream (or ``r``) per sample, cut or padded with NaN to the samples."""
         with self.lock:
-            n = len(self.t)
+            n = len(self.t) if self.clock is not None else \
+                min((len(v) for v in self.data.values()), default=0)
+            src = self.r if key == 'r' else self.data[key]
             out = np.full(n, np.nan)
-            src = getattr(self, name)
             m = min(n, len(src))
             out[:m] = src[:m]
             return out
 
     def destroy(self):
-        """Destroy both nodes."""
+        """Stop the threads, destroy the nodes, shut the context down."""
+        import rclpy
+        self.executor.shutdown(timeout_sec=0.5)
+        self.spin.join(timeout=2.0)
+        self.watch.close()
         self.cexec.shutdown(timeout_sec=0.5)
         self.cnode.destroy_node()
         self.node.destroy_node()
+        rclpy.try_shutdown(context=self.ctx)

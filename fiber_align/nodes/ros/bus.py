@@ -1,77 +1,13 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-Transport of the fiber_align nodes: the QoS profiles and in-process delivery.
+In-process delivery between the nodes of one process, and message stamps.
 
-The QoS is chosen so that nothing a publisher sent is lost silently and no control reader
-works through a backlog (docs/ros_interface.md, "Topics"). :class:`LocalBus` delivers
-messages between the nodes of one process (``control_graph``) by a direct call, while
-every message is still published to DDS.
+:class:`LocalBus` stands in for rclcpp's intra-process communication, which rclpy (a pip
+install of ROS 2) lacks: messages between the nodes of ``control_graph`` go by a direct
+call, while every message is still published to DDS for the readers outside.
 """
 
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-
-from fiber_align.nodes._cycle import Slack
-
-#: Seconds of history every per-sample publisher keeps (``displacement``,
-#: ``feedforward_voltage``, ``feedback_voltage``, ``drive_voltage``, ``reference``,
-#: ``optical_power``, ``controller_state``): a reader that falls behind (the recorder on a
-#: loaded machine) catches up from the writer's history instead of losing samples, and
-#: the writer never blocks on it (KEEP_LAST drops the oldest only after this long).
-SAMPLE_HISTORY_S = 5.0
-#: The same as a depth (messages) at the default 1 kHz; see :func:`sample_pub_qos`.
-SAMPLE_DEPTH = 5000
-#: Per-sample publishers: reliable, ``SAMPLE_HISTORY_S`` of history, transient local, so
-#: a reader that matched the writer a moment after a sample was published (multi-process
-#: lockstep start-up) still receives it: the first sample can no longer be lost in the
-#: discovery race that used to stall one lockstep start in four.
-CONTROL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAMPLE_DEPTH,
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-#: Lockstep readers of the per-sample topics: reliable, deep and transient local (index
-#: pairing needs every message, including one published before the match completed).
-LOCKSTEP_QOS = CONTROL_QOS
-#: ``/clock``: reliable publisher, matched by the best-effort subscriber of rclpy's
-#: TimeSource; as deep as the control topics so a lagging recorder loses no tick, and
-#: transient local like them: under ``ros2 launch`` the plant starts without waiting for
-#: the recorder, which met a short lockstep run's /clock only after its last tick (seen
-#: with two CPU hogs: a bag without /clock).
-CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAMPLE_DEPTH,
-                       reliability=ReliabilityPolicy.RELIABLE,
-                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
-DIAG_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                      reliability=ReliabilityPolicy.RELIABLE)
-#: Realtime control readers of the per-sample topics: only the newest message matters,
-#: so a node that fell behind skips stale samples instead of working through a backlog.
-#: Best effort, as ROS's sensor-data profile: a reliable reader delivers in order, so one
-#: sample lost on the way would hold every newer one until its repair, and a newest-only
-#: reader has no use for the lost one. Volatile (no stale history on joining). Matches
-#: the reliable publishers.
-REALTIME_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                          reliability=ReliabilityPolicy.BEST_EFFORT,
-                          durability=DurabilityPolicy.VOLATILE)
-#: The realtime simulated plant's ``drive_voltage`` reader: the DAC it stands for sees
-#: every value the driver wrote, so after a stall of its process it can replay the ones
-#: written meanwhile (:mod:`fiber_align.plant.dac`); best effort and volatile as
-#: :data:`REALTIME_QOS`, but as deep as the per-sample history.
-DAC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAMPLE_DEPTH,
-                     reliability=ReliabilityPolicy.BEST_EFFORT,
-                     durability=DurabilityPolicy.VOLATILE)
-#: State topics published on change only (``drive_held``): a late joiner (e.g. a restarted
-#: controller) gets the present state at once.
-LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-#: The user's ``setpoint`` (one consumer: ``hysteresis_compensator``): reliable, volatile,
-#: deep (every setpoint is checked, so each bad one is reported); a default rclpy or
-#: ``ros2 topic pub`` publisher (reliable, volatile, depth 10) matches it.
-SETPOINT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAMPLE_DEPTH,
-                          reliability=ReliabilityPolicy.RELIABLE,
-                          durability=DurabilityPolicy.VOLATILE)
-#: ``reference`` as the realtime controller reads it: the newest accepted setpoint,
-#: latched, so a restarted controller takes the present setpoint without a re-send.
-REFERENCE_LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                                   reliability=ReliabilityPolicy.RELIABLE,
-                                   durability=DurabilityPolicy.TRANSIENT_LOCAL)
+from fiber_align.control.cycle import Slack
 
 
 class LocalBus:
@@ -96,14 +32,14 @@ class LocalBus:
         self._subs = {}
         self._last = {}
         self.depth = 0          # in-process deliveries on the stack
-        self.deferred = []      # (publisher, message) DDS publishes made inside them
+        self.deferred = []      # (Pub, message) DDS publishes made inside them
         self.slack = Slack()    # the process's housekeeping, after each answered sample
 
     def flush(self):
         """Hand the DDS publishes deferred by nested deliveries to DDS, in order."""
         while self.deferred:
             pub, msg = self.deferred.pop(0)
-            pub.publish(msg)
+            pub.send(msg)
 
     def provide(self, *topics):
         """Mark ``topics`` (relative names) as published inside this process."""
@@ -129,16 +65,22 @@ class LocalBus:
 class Pub:
     """A publisher that also delivers to the in-process subscribers of a :class:`LocalBus`."""
 
-    __slots__ = ('pub', 'topic', 'topic_name', '_local', '_bus', '_latched', '_slack')
+    __slots__ = ('pub', 'topic', 'topic_name', '_local', '_bus', '_latched', '_slack',
+                 '_volatile')
 
     def __init__(self, node, msg_type, topic, qos, bus=None, latched=False, slack=None):
         """
         Create the DDS publisher of ``topic`` (relative name) with ``qos``.
 
-        :param slack: the :class:`~fiber_align.nodes._cycle.Slack` of a node's per-sample
+        :param slack: the :class:`~fiber_align.control.cycle.Slack` of a node's per-sample
             output: told after each outermost publish that a cycle's work is done.
         """
+        from rclpy.qos import DurabilityPolicy
         self.pub = node.create_publisher(msg_type, topic, qos)
+        # a volatile writer with no matched reader delivers to nobody, now or later: its
+        # publish is skipped (serialising and queueing it is the larger part of a
+        # publish); a transient-local one keeps history for late readers, so it publishes
+        self._volatile = qos.durability == DurabilityPolicy.VOLATILE
         self.topic = topic
         self.topic_name = self.pub.topic_name
         self._bus = bus if bus is not None and bus.local(topic) else None
@@ -160,7 +102,7 @@ class Pub:
         """
         bus = self._bus
         if bus is None:
-            self.pub.publish(msg)
+            self.send(msg)
             if self._slack is not None:
                 self._slack.after_cycle()
             return
@@ -173,12 +115,18 @@ class Pub:
         finally:
             bus.depth -= 1
         if bus.depth:
-            bus.deferred.append((self.pub, msg))
+            bus.deferred.append((self, msg))
         else:
-            self.pub.publish(msg)
+            self.send(msg)
             bus.flush()
             if self._slack is not None:
                 self._slack.after_cycle()
+
+    def send(self, msg):
+        """Publish ``msg`` to DDS (volatile and no reader matched: nobody to send it to)."""
+        pub = self.pub
+        if not self._volatile or pub.get_subscription_count():
+            pub.publish(msg)
 
     def get_subscription_count(self):
         """Return the DDS subscription count (in-process readers not included)."""
@@ -234,11 +182,13 @@ def unsubscribe(node, sub):
         node.destroy_subscription(sub)
 
 
-def sample_qos(lockstep):
-    """
-    Return the subscription QoS of a per-sample topic for the sync mode.
+def stamp_to_s(stamp):
+    """Return a builtin_interfaces/Time as float seconds."""
+    return stamp.sec + 1e-9 * stamp.nanosec
 
-    :param lockstep: True in lockstep (deep queue: index pairing needs every message),
-        False in realtime (newest message only, see :data:`REALTIME_QOS`).
-    """
-    return LOCKSTEP_QOS if lockstep else REALTIME_QOS
+
+def s_to_stamp(t_s):
+    """Return float seconds as a builtin_interfaces/Time (nanosecond exact for t >= 0)."""
+    from builtin_interfaces.msg import Time
+    ns = int(round(t_s * 1e9))
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)

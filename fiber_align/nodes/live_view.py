@@ -1,0 +1,369 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+``live_view``: the graph's topics served to Foxglove over its WebSocket protocol.
+
+A process of its own (never inside ``control_graph``): the Foxglove SDK's server
+(``foxglove-sdk``, subprotocol ``foxglove.sdk.v1``) on ``ws://host:port``, fed from
+raw subscriptions, so a message goes from DDS to the client as the CDR bytes it was
+published as (no decode in Python). Docs: docs/live_view.md.
+
+Channels (topics absolute, as the graph's):
+
+- each topic of ``topics`` and ``extra_topics`` once a publisher shows its type: its ROS 2
+  type as a ``ros2msg`` schema (the ``.msg`` with its dependencies, as foxglove_bridge
+  sends it), ``cdr`` messages. A per-sample topic is decimated for the UI: its newest
+  message at most ``ui_rate_hz`` times a second (the channel's ``decimation`` metadata
+  says so; every message still goes to DDS and the recorder). A topic of
+  ``state_topics`` is served message by message, and again to a client that subscribes;
+- ``<view>/optical_power_dbm`` (JSON): the decimated optical power in W and dBm;
+- ``<view>/alignment`` (JSON, structured): the sequencer's ``alignment_state`` fields
+  and ``state_index``;
+- with ``power_map``: ``<view>/power_map`` (``foxglove.Grid``, JSON): the brightest
+  power (dBm) per cell of the 2-D search so far, from the rig's ``x/displacement``,
+  ``y/displacement`` and ``optical_power`` paired as the realtime 2-D sequencer pairs
+  them; a new search (``SEARCHING``) starts a new map.
+
+How it costs the loop nothing: the subscriptions live on a node no executor spins, best
+effort and shallow (the newest messages only, kept by DDS in C); a timer at ``ui_rate_hz``
+takes what arrived, so the Python side wakes ``ui_rate_hz`` times a second whatever the
+loop's rate. The SDK queues at most ``message_backlog`` messages per client and drops
+the oldest for a slow one; a vanished client costs nothing. The process runs at
+``niceness`` below the control processes. A port in use or a host that does not resolve:
+one line, exit code 2 (the graph runs on); a client's garbage or an unknown channel: the
+server answers that client with a status message.
+
+Parameters (``config/live_view.yaml``, read-only): ``host``, ``port``, ``topics``,
+``state_topics``, ``extra_topics``, ``ui_rate_hz`` (Hz), ``discovery_period_s`` (s),
+``power_map``, ``power_map_cell_m`` (m), ``power_map_period_s`` (s),
+``power_map_queue_depth``, ``message_backlog``, ``niceness``, and the map's range
+``range_x_min_m`` .. ``range_y_max_m`` (m; defaults: the 2-D sequencer's, in
+``config/sequencer2d.yaml``).
+"""
+
+import os
+import sys
+import threading
+import time
+
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from fiber_align.analysis import liveview as lv
+from fiber_align.config import ConfigError, load_params
+from fiber_align.nodes._msgtypes import message_class
+from fiber_align.nodes.ros.params import declare, node_defaults
+from fiber_align.nodes.ros.runtime import run_node
+
+NODE_NAME = 'live_view'
+AREA_FILES = ('live_view.yaml',)
+#: The map's range: the 2-D sequencer's reachable square (its params file and node).
+RANGE_FILE, RANGE_NODE = 'sequencer2d.yaml', 'alignment_sequencer_2d'
+RANGE_KEYS = ('range_x_min_m', 'range_x_max_m', 'range_y_min_m', 'range_y_max_m')
+#: The rig's topics the map is made of (relative names).
+MAP_TOPICS = ('x/displacement', 'y/displacement', 'optical_power')
+
+PARAMS = {  # name: (description, low, high)
+    'host': ('address to listen on (127.0.0.1: this machine only; 0.0.0.0: every '
+             'interface)', None, None),
+    'port': ('TCP port of ws://host:port', 1, 65535),
+    'topics': ('topics served as ROS 2 channels (relative names resolve in the '
+               'namespace)', None, None),
+    'state_topics': ('topics served message by message (the others: decimated)', None,
+                     None),
+    'extra_topics': ('further topics served when something publishes them', None, None),
+    'ui_rate_hz': ('largest rate of each per-sample channel (Hz)', 0.1, 1000.0),
+    'discovery_period_s': ('period of the look for new publishers (s)', 0.01, 60.0),
+    'power_map': ('serve the 2-D power map of the search (the rig; bool)', None, None),
+    'power_map_cell_m': ('power map cell side (m)', 1e-9, 1e-3),
+    'power_map_period_s': ('period of the power map (s)', 0.01, 60.0),
+    'power_map_queue_depth': ('messages queued per map topic between two looks', 1,
+                              100000),
+    'message_backlog': ('messages queued per client (oldest dropped)', 1, 1000000),
+    'niceness': ('CPU niceness added to the process (os.nice; 0: none)', 0, 19),
+}
+
+
+def _qos(depth, reliable):
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                      reliability=ReliabilityPolicy.RELIABLE if reliable
+                      else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if reliable
+                      else DurabilityPolicy.VOLATILE)
+
+
+def read_msg(package, name):
+    """
+    Return the ``.msg`` text of ``package/msg/name``.
+
+    From the prefixes of ``AMENT_PREFIX_PATH`` (a sourced workspace), then this
+    interpreter's prefix (the pip route: the ROS wheels install ``share/`` there).
+
+    :raises FileNotFoundError: no prefix has it.
+    """
+    prefixes = [p for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
+    for prefix in prefixes + [sys.prefix]:
+        path = os.path.join(prefix, 'share', package, 'msg', name + '.msg')
+        if os.path.isfile(path):
+            with open(path, encoding='utf-8') as f:
+                return f.read()
+    raise FileNotFoundError('%s/msg/%s.msg is in none of %s' % (
+        package, name, ', '.join(prefixes + [sys.prefix])))
+
+
+class _Listener:
+    """The server's callbacks (its own threads): note which channels to send again."""
+
+    def __init__(self):
+        self.lock = threading.Lock()
+        self.resend = set()
+
+    def on_subscribe(self, client, channel):
+        with self.lock:
+            self.resend.add(channel.id)
+
+    def on_unsubscribe(self, client, channel):
+        pass
+
+    def on_client_advertise(self, client, channel):
+        pass
+
+    def on_client_unadvertise(self, client, client_channel_id):
+        pass
+
+    def on_message_data(self, client, client_channel_id, data):
+        pass
+
+    def take(self):
+        with self.lock:
+            out, self.resend = self.resend, set()
+        return out
+
+
+class Tap:
+    """One served topic: its raw subscription, its channel, its decimation."""
+
+    __slots__ = ('topic', 'msgtype', 'sub', 'channel', 'state', 'decimator', 'last',
+                 'map_key')
+
+    def __init__(self, topic, msgtype, sub, channel, state, decimator, map_key):
+        """Keep the parts (``map_key``: its role in the power map, or ``None``)."""
+        self.topic, self.msgtype, self.sub, self.channel = topic, msgtype, sub, channel
+        self.state, self.decimator, self.map_key = state, decimator, map_key
+        self.last = None
+
+
+class LiveViewNode(Node):
+    """Serve the graph's topics, the power map and the alignment state to Foxglove."""
+
+    def __init__(self, **kwargs):
+        """Declare the parameters, start the server (or refuse: one line), start looking."""
+        super().__init__(NODE_NAME, **kwargs)
+        d = node_defaults(NODE_NAME, AREA_FILES)
+        rng = load_params(RANGE_FILE, RANGE_NODE)
+        d.update({k: float(rng[k]) for k in RANGE_KEYS if k not in d})
+        p = {name: declare(self, d, name, text, lo, hi, True)
+             for name, (text, lo, hi) in PARAMS.items()}
+        for k in RANGE_KEYS:
+            p[k] = declare(self, d, k, 'power map range (m)', -1e-2, 1e-2, True)
+        self.p = p
+        if p['niceness']:
+            os.nice(int(p['niceness']))
+        import foxglove
+        self.fg = foxglove
+        self.listener = _Listener()
+        try:
+            self.server = foxglove.start_server(
+                name='fiber_align %s' % self.get_fully_qualified_name(), host=p['host'],
+                port=int(p['port']), message_backlog_size=int(p['message_backlog']),
+                server_listener=self.listener)
+        except RuntimeError as exc:
+            raise ConfigError('cannot serve ws://%s:%d: %s (another live view or program '
+                              'on that port? choose live_port / port)'
+                              % (p['host'], p['port'], str(exc).replace(
+                                  'FoxgloveError: ', ''))) from None
+        self.url = 'ws://%s:%d' % (p['host'], self.server.port)
+        # the taps live on a node no executor spins: DDS keeps the newest messages and
+        # the timer below takes them, ui_rate_hz times a second
+        self.taps_node = Node(NODE_NAME + '_taps', namespace=self.get_namespace(),
+                              context=self.context, start_parameter_services=False,
+                              use_global_arguments=False, enable_rosout=False)
+        names = list(p['topics']) + [t for t in p['extra_topics'] if t not in p['topics']]
+        self.wanted = list(dict.fromkeys(self.resolve_topic_name(t) for t in names))
+        self.state_topics = {self.resolve_topic_name(t) for t in p['state_topics']}
+        self.map_topics = {self.resolve_topic_name(t): k for t, k in zip(
+            MAP_TOPICS, ('x', 'y', 'p'))} if p['power_map'] else {}
+        self.align_topic = self.resolve_topic_name('alignment_state')
+        self.power_topic = self.resolve_topic_name('optical_power')
+        self.taps = {}
+        self.skipped = set()
+        self.schemas = {}
+        own = self.get_fully_qualified_name()
+        self.ch_align = self._json_channel(own + '/alignment', lv.ALIGNMENT_SCHEMA, 'every '
+                                           'alignment_state message, as structured data')
+        self.ch_dbm = self._json_channel(own + '/optical_power_dbm', lv.POWER_DBM_SCHEMA,
+                                         lv.Decimator(p['ui_rate_hz']).describe())
+        self.last_align = None
+        self.map = self.pairer = self.ch_map = None
+        if p['power_map']:
+            self.map = lv.PowerMap(p['range_x_min_m'], p['range_x_max_m'],
+                                   p['range_y_min_m'], p['range_y_max_m'],
+                                   p['power_map_cell_m'])
+            self.pairer = lv.SamplePairer()
+            self.ch_map = self._json_channel(
+                own + '/power_map', lv.GRID_SCHEMA, 'every %g s: the brightest reading per '
+                '%g m cell since the search began' % (p['power_map_period_s'],
+                                                      p['power_map_cell_m']))
+            self.map_state = None
+            self.t_map = 0.0
+        self.sent = {}
+        self.timer = self.create_timer(1.0 / p['ui_rate_hz'], self.poll)
+        self.create_timer(p['discovery_period_s'], self.discover)
+        self.discover()
+        self.get_logger().info('serving %s (Foxglove: Open connection, %s); topics: %s'
+                               % (self.url, self.url, ', '.join(self.wanted)))
+
+    def _json_channel(self, topic, schema, decimation):
+        return self.fg.Channel(topic, schema=schema, message_encoding='json',
+                               metadata={'decimation': decimation})
+
+    # -- discovery ------------------------------------------------------------------
+    def schema(self, msgtype):
+        """Return the ``ros2msg`` schema text of ``msgtype`` (cached)."""
+        if msgtype not in self.schemas:
+            self.schemas[msgtype] = lv.ros2msg_schema(msgtype, read_msg)
+        return self.schemas[msgtype]
+
+    def discover(self):
+        """Advertise every wanted topic whose type a publisher now shows."""
+        types = dict(self.get_topic_names_and_types())
+        for topic in self.wanted + sorted(set(self.map_topics) - set(self.wanted)):
+            if topic in self.taps or topic in self.skipped or topic not in types:
+                continue
+            if not self.get_publishers_info_by_topic(topic):
+                continue
+            msgtype = types[topic][0]
+            try:
+                self._tap(topic, msgtype)
+            except Exception as exc:  # noqa: BLE001 - one topic we cannot serve: say so
+                self.skipped.add(topic)
+                self.get_logger().warning('cannot serve %s (%s): %s' % (topic, msgtype, exc))
+
+    def _tap(self, topic, msgtype):
+        p = self.p
+        state = topic in self.state_topics
+        dec = None if state else lv.Decimator(p['ui_rate_hz'])
+        map_key = self.map_topics.get(topic)
+        depth = 10 if state else (int(p['power_map_queue_depth']) if map_key else 1)
+        channel = None
+        if topic in self.wanted:
+            channel = self.fg.Channel(
+                topic, message_encoding='cdr',
+                schema=self.fg.Schema(name=msgtype, encoding='ros2msg',
+                                      data=self.schema(msgtype).encode('utf-8')),
+                metadata={'ros_type': msgtype, 'decimation': 'every message' if state
+                          else dec.describe()})
+        sub = self.taps_node.create_subscription(
+            message_class(msgtype), topic, lambda msg: None, _qos(depth, state), raw=True)
+        self.taps[topic] = Tap(topic, msgtype, sub, channel, state, dec, map_key)
+        self.sent[topic] = 0
+        self.get_logger().info('serving %s (%s)' % (topic, msgtype))
+
+    # -- the UI tick ----------------------------------------------------------------
+    @staticmethod
+    def _take_all(sub, limit):
+        out = []
+        with sub.handle:
+            for _ in range(limit):
+                got = sub.handle.take_message(sub.msg_type, True)
+                if got is None:
+                    break
+                out.append(got)
+        return out
+
+    def poll(self):
+        """Take what arrived on every tap; send the UI frames that are due."""
+        now = time.monotonic()
+        now_ns = time.time_ns()
+        resend = self.listener.take()
+        map_events = []
+        for tap in tuple(self.taps.values()):
+            got = self._take_all(tap.sub, tap.sub.qos_profile.depth)
+            if tap.map_key and got:
+                map_events += [(info.get('source_timestamp', 0), tap.map_key, data)
+                               for data, info in got]
+            ch = tap.channel
+            if tap.state:
+                for data, _ in got:
+                    tap.last = data
+                    if ch is not None:
+                        ch.log(data, log_time=now_ns)
+                        self.sent[tap.topic] += 1
+                    if tap.topic == self.align_topic:
+                        self._on_alignment(data, now_ns)
+                if ch is not None and ch.id() in resend and tap.last is not None and not got:
+                    ch.log(tap.last, log_time=now_ns)
+                continue
+            if got:
+                tap.last = got[-1][0]
+            if tap.last is not None and (got or ch is not None and ch.id() in resend) \
+                    and tap.decimator.due(now):
+                if ch is not None:
+                    ch.log(tap.last, log_time=now_ns)
+                    self.sent[tap.topic] += 1
+                if tap.topic == self.power_topic:
+                    self.ch_dbm.log(lv.json_bytes(lv.power_dbm_view(
+                        lv.float64_value(tap.last))), log_time=now_ns)
+        if self.ch_align.id() in resend and self.last_align is not None:
+            self.ch_align.log(self.last_align, log_time=now_ns)
+        if self.map is not None:
+            self._map(map_events, now, now_ns, self.ch_map.id() in resend)
+
+    def _on_alignment(self, data, now_ns):
+        try:
+            view = lv.alignment_view(lv.string_value(data))
+        except ValueError as exc:
+            self.get_logger().warning('alignment_state not shown: %s' % exc)
+            return
+        if self.map is not None:
+            if view.get('state') == 'SEARCHING' and self.map_state != 'SEARCHING':
+                self.map.reset()        # a new search: a new map
+            self.map_state = view.get('state')
+        self.last_align = lv.json_bytes(view)
+        self.ch_align.log(self.last_align, log_time=now_ns)
+
+    def _map(self, events, now, now_ns, resend):
+        events.sort(key=lambda e: e[0])
+        for _, key, data in events:
+            if key == 'p':
+                self.pairer.power(lv.float64_value(data))
+            elif key == 'y':
+                self.pairer.y(lv.joint_position(data))
+            else:
+                got = self.pairer.x(lv.joint_position(data))
+                if got is not None:
+                    self.map.add(*got)
+        if resend or now - self.t_map >= self.p['power_map_period_s']:
+            self.t_map = now
+            if self.map.count or resend:
+                self.ch_map.log(lv.json_bytes(self.map.grid(now_ns, 'rig')),
+                                log_time=now_ns)
+
+    def destroy_node(self):
+        """Stop the server and destroy the taps (the UI frames sent go to the log)."""
+        # not an exit report of ``sent`` counts: the view publishes nothing on ROS
+        self.get_logger().info('UI frames sent: %s' % ', '.join(
+            '%s %d' % kv for kv in sorted(self.sent.items())))
+        try:
+            self.server.stop()
+        finally:
+            self.taps_node.destroy_node()
+        return super().destroy_node()
+
+
+def main(args=None):
+    """Run the view (a port in use, a bad host, bad parameters: one line, exit 2)."""
+    return run_node(LiveViewNode, NODE_NAME, args, realtime=lambda node: False)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

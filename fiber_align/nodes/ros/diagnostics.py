@@ -1,0 +1,188 @@
+# SPDX-License-Identifier: Apache-2.0
+"""A node's health on ``/diagnostics`` (diagnostic_msgs), with the status levels."""
+
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+from fiber_align.graph.endpoints import foreign_publishers, type_name
+from fiber_align.nodes.ros.qos import DIAG_QOS
+
+#: DiagnosticStatus levels as ints (the message field is a byte).
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
+
+
+class Health:
+    """
+    Publish the node's health on ``/diagnostics`` (diagnostic_msgs/DiagnosticArray).
+
+    One DiagnosticStatus named after the node's fully qualified name. ``warn``/``error``
+    latch their level for ``hold_s`` seconds (wall time) so a short event is seen by
+    every subscriber; ``condition`` sets a standing WARN (a protection turned off) that
+    lasts until cleared; ``set_values`` adds key/value pairs (units in the key names).
+    Each periodic report also looks for publishers of another type on the node's
+    subscribed topics (their messages never arrive): a standing WARN naming them, and
+    one log line each time the set changes.
+    """
+
+    #: the condition key of the publishers of a wrong type
+    FOREIGN = 'foreign_publishers'
+
+    def __init__(self, node, period_s=0.5, hold_s=2.0, hardware_id='fiber_align', slack=None,
+                 update=None, name=None):
+        """
+        Create the publisher and a wall-clock timer (period in s).
+
+        :param slack: a :class:`~fiber_align.control.cycle.Slack`: the periodic report
+            then runs right after a cycle of the node's process, never just before one.
+        :param update: called before each publish (a node's fresh status and values).
+        :param name: the status name; ``None``: the node's fully qualified name (a node
+            that reports several parts gives each its own, ``<node>/<part>``).
+        """
+        from rclpy.clock import Clock, ClockType
+        self._node = node
+        self._name = name
+        self._pub = node.create_publisher(DiagnosticArray, '/diagnostics', DIAG_QOS)
+        self._hold_s = float(hold_s)
+        self._hw = hardware_id
+        self._level = OK
+        self._message = 'ok'
+        self._until = 0.0
+        self._base_level = OK
+        self._base_message = 'ok'
+        self.values = {}
+        self._conditions = {}
+        self._update = update
+        self.sent = 0
+        #: a :class:`~fiber_align.control.cycle.CycleStats` whose window is reported with
+        #: every publish (per-sample nodes set it), or ``None``
+        self.cycle = None
+        report = self._report if slack is None else (lambda: slack.submit(self._report))
+        self._timer = node.create_timer(float(period_s), report,
+                                        clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def status(self, level, message):
+        """
+        Set the steady level (``OK``, ``WARN``, ``ERROR``: int) and message.
+
+        A status at least as severe as a latched event replaces it: the newer news wins
+        (a device lost right after a refused configure reported the refusal for 2 s).
+        """
+        self._base_level, self._base_message = level, message
+        if level >= self._level:
+            self._until = 0.0
+
+    def resolve(self):
+        """
+        End a latched event now: the state it reported no longer holds.
+
+        A configure that succeeds resolves the refusal before it; the steady status is
+        then what the next publish reports.
+        """
+        self._until = 0.0
+
+    @property
+    def message(self):
+        """Steady status text (str) of the node."""
+        return self._base_message
+
+    def _latch(self, level, message):
+        self._level, self._message = level, message
+        self._until = time.monotonic() + self._hold_s
+        self.publish()
+
+    def warn(self, message):
+        """Report a WARN now and keep it for ``hold_s`` s."""
+        self._latch(WARN, message)
+
+    def error(self, message):
+        """Report an ERROR now and keep it for ``hold_s`` s."""
+        self._latch(ERROR, message)
+
+    def condition(self, key, message=None):
+        """
+        Set (``message``) or clear (``None``) the standing WARN ``key``; publish at once.
+
+        While any is set the status is at least WARN and its message ends with theirs.
+        """
+        if message is None:
+            if self._conditions.pop(key, None) is None:
+                return
+        elif self._conditions.get(key) == message:
+            return
+        else:
+            self._conditions[key] = message
+        self.publish()
+
+    def set_values(self, **values):
+        """Set key/value pairs reported with the status."""
+        self.values.update(values)
+
+    def check_endpoints(self):
+        """
+        Set or clear the WARN of publishers of a wrong type on the node's topics.
+
+        :returns: the lines of :func:`~fiber_align.graph.endpoints.foreign_publishers`.
+        """
+        node = self._node
+        try:
+            expected = {s.topic_name: type_name(s.msg_type) for s in node.subscriptions}
+            pubs = {t: [(_fqn(i), i.topic_type)
+                        for i in node.get_publishers_info_by_topic(t)] for t in expected}
+        except Exception:  # noqa: BLE001 - the context is shutting down
+            return []
+        lines = foreign_publishers(expected, pubs)
+        text = ('publisher of a wrong type: ' + '; '.join(lines)) if lines else None
+        if text != self._conditions.get(self.FOREIGN):
+            if text is None:
+                self._conditions.pop(self.FOREIGN, None)
+                node.get_logger().info('no publisher of a wrong type on my topics now')
+            else:
+                self._conditions[self.FOREIGN] = text
+                node.get_logger().warning(text)
+        return lines
+
+    def _report(self):
+        """Check the endpoints, then publish the status (the periodic report)."""
+        self.check_endpoints()
+        self.publish()
+
+    def publish(self):
+        """Publish the current status once (with the node's fresh ``sent.<topic>`` counts)."""
+        if self._update is not None:
+            self._update()
+        counts = getattr(self._node, 'sent_counts', None)
+        if counts is not None:
+            self.values.update({'sent.' + k.lstrip('/'): v for k, v in counts().items()})
+        if self.cycle is not None:
+            self.values.update(self.cycle.window(time.monotonic_ns()))
+        if time.monotonic() < self._until and self._level >= self._base_level:
+            level, message = self._level, self._message
+        else:
+            level, message = self._base_level, self._base_message
+        if self._conditions:
+            level = max(level, WARN)
+            message = '; '.join([message] + list(self._conditions.values()))
+        name = self._name or self._node.get_fully_qualified_name()
+        st = DiagnosticStatus(level=bytes([level]), name=name,
+                              message=message, hardware_id=self._hw)
+        st.values = [KeyValue(key=str(k), value=_fmt(v)) for k, v in self.values.items()]
+        arr = DiagnosticArray(status=[st])
+        arr.header.stamp = self._node.get_clock().now().to_msg()
+        try:
+            self._pub.publish(arr)
+            self.sent += 1
+        except Exception:  # noqa: BLE001 - context already shut down at exit
+            pass
+
+
+def _fqn(info):
+    """Return the fully qualified node name of a TopicEndpointInfo."""
+    ns = info.node_namespace.rstrip('/')
+    return '%s/%s' % (ns, info.node_name)
+
+
+def _fmt(v):
+    if isinstance(v, float):
+        return repr(v)
+    return str(v)

@@ -1,0 +1,307 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+Runtime of a fiber_align node process: init, executor, realtime priority, spin, exit.
+
+Every executable's ``main()`` is :func:`run_node`, the demo_nodes_py idiom (:func:`init`,
+:func:`spin`, :func:`finish`; bad parameters: :func:`refuse`, one line, exit 2).
+"""
+
+import json
+import signal
+import sys
+
+from rclpy.exceptions import ParameterException
+
+from fiber_align import lifeline
+from fiber_align.config import ConfigError
+
+#: The signals that stop a node in order: Ctrl-C, ``kill`` and launch's escalation, and
+#: the hang-up of a closed or crashed terminal (sent to the launcher's whole group).
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+#: Exit report prefix of the line ``FIBER_ALIGN_SENT {json}`` (bringup collects them).
+SENT_PREFIX = 'FIBER_ALIGN_SENT '
+
+
+def report_sent(node, counts):
+    """Print the exit report: ``counts`` (topic -> messages published), one JSON line."""
+    print(SENT_PREFIX + json.dumps({'node': node.get_fully_qualified_name(),
+                                    'sent': dict(counts)}), flush=True)
+
+
+def make_executor(realtime=False, threads=1):
+    """
+    Return the executor for a node process.
+
+    ``threads`` > 1: a ``MultiThreadedExecutor`` (a node that waits on services from its
+    own callbacks); realtime: rclpy's C++ ``EventsExecutor`` when this rclpy has it (far
+    less overhead per callback); else the ``SingleThreadedExecutor``.
+    """
+    from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+    if threads > 1:
+        return MultiThreadedExecutor(num_threads=threads)
+    if realtime:
+        try:
+            from rclpy.experimental import EventsExecutor
+            return EventsExecutor()
+        except ImportError:
+            pass
+    return SingleThreadedExecutor()
+
+
+def set_realtime_priority(priority, lock=False):
+    """
+    Run this process's threads (the executor's and the DDS threads) under ``SCHED_FIFO``.
+
+    Threads started afterwards inherit it (as ros2_control's controller manager does).
+    Without the right to (not root, no ``rtprio`` limit in
+    ``/etc/security/limits.conf``) it changes nothing and says why.
+
+    :param priority: 1..99 (``SCHED_FIFO``), 0: leave the normal policy.
+    :param lock: also lock the process's memory (:func:`lock_memory`) when the policy
+        was set.
+    :returns: a short text for the log and ``/diagnostics`` (``SCHED_FIFO 50``, or
+        ``SCHED_OTHER (...)`` with the reason).
+    """
+    import os
+    priority = int(priority)
+    if priority <= 0:
+        return 'SCHED_OTHER (realtime_priority 0)'
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (AttributeError, OSError) as exc:
+        return 'SCHED_OTHER (SCHED_FIFO %d refused: %s)' % (priority, exc)
+    # the other threads too: the DDS threads would queue behind busy normal processes
+    for tid in os.listdir('/proc/self/task'):
+        try:
+            os.sched_setscheduler(int(tid), os.SCHED_FIFO, os.sched_param(priority))
+        except (OSError, ValueError):
+            pass
+    if not lock:
+        return 'SCHED_FIFO %d' % priority
+    return 'SCHED_FIFO %d, %s' % (priority, 'memory locked' if lock_memory()
+                                  else 'memory not locked (mlockall refused)')
+
+
+def lock_memory():
+    """
+    Lock the process's pages in RAM (``mlockall``), as realtime ROS 2 loops do.
+
+    The cost is resident memory (every mapped page, each DDS thread's stack). Needs root
+    or a large enough ``memlock`` limit; returns False (nothing changed) when refused.
+    """
+    import ctypes
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        return libc.mlockall(1 | 2) == 0        # MCL_CURRENT | MCL_FUTURE
+    except (OSError, AttributeError):
+        return False
+
+
+#: Errors of a node's construction that are bad input: one line, exit code 2.
+NODE_ERRORS = (ConfigError, ParameterException, ValueError, TypeError, KeyError)
+
+
+class StopFlag:
+    """
+    Set by a signal handler, read by a loop: a plain attribute, no lock.
+
+    A handler runs between two bytecodes of whatever it interrupted; an
+    ``threading.Event.set`` there takes the event's non-reentrant lock, so a second
+    signal arriving inside the first handler would deadlock the process.
+    """
+
+    __slots__ = ('_set', 'again')
+
+    def __init__(self):
+        """Start unset."""
+        self._set = False
+        #: the number of a signal that came after the flag was set (0: none)
+        self.again = 0
+
+    def set(self):
+        """Set the flag (safe in a signal handler, any number of times, nested)."""
+        self._set = True
+
+    def note(self, signum):
+        """Set the flag for signal ``signum``; one after the first is kept in ``again``."""
+        if self._set:
+            self.again = int(signum)
+        self._set = True
+
+    def exit_code(self, code=0):
+        """
+        Return ``code``, or ``128 + signal`` when a second signal came during the stop.
+
+        The first SIGINT or SIGTERM is the ordinary request to stop: the node stops in
+        order and exits ``code`` (0: ``ros2 launch`` reports it finished cleanly). A
+        second one while stopping does not cut the stop short (the recorder still
+        finalises its bag) but is reported the shell's way, as a process ended by that
+        signal: 130 for SIGINT, 143 for SIGTERM.
+        """
+        return 128 + self.again if self.again else code
+
+    def is_set(self):
+        """Return True once set."""
+        return self._set
+
+    def clear(self):
+        """Unset the flag."""
+        self._set = False
+
+
+def init(args=None):
+    """
+    Initialise rclpy with this process's own stop-signal handlers; return the flag.
+
+    rclpy's handlers shut the context down at once, while a callback may still publish
+    on it. Here a signal only sets the returned flag: the spin loop ends, then the nodes
+    are destroyed and the context shut down in order; a second signal during that stop
+    changes only the exit code (:meth:`StopFlag.exit_code`). The handlers are installed
+    whatever the inherited disposition (a background job inherits SIGINT ignored), for
+    :data:`STOP_SIGNALS`. The process stops the same way when the process that started
+    it dies (:func:`fiber_align.lifeline.watch_parent`: ``SIGTERM``).
+    """
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+    stop = StopFlag()
+
+    def on_signal(signum, frame):
+        stop.note(signum)
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, on_signal)
+    lifeline.watch_parent(lifeline.PARENT_PID, signal.SIGTERM)
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    return stop
+
+
+def refuse(name, exc):
+    """Print one line for a node that cannot start (bad input); return exit code 2."""
+    print('%s: error: %s' % (name, exc), file=sys.stderr, flush=True)
+    return 2
+
+
+def finish(nodes):
+    """
+    Print each node's exit report, destroy the nodes, shut rclpy down (idempotent).
+
+    The contexts are destroyed and the frozen objects collected here too, so the
+    middleware's teardown (the DDS participants) runs under this process's handlers:
+    in the interpreter's exit SIGINT and SIGTERM have their default action again, and a
+    second signal there would kill the process (exit -2, no bag report, no clean code).
+    """
+    import gc
+
+    import rclpy
+    contexts = []
+    for node in nodes if isinstance(nodes, (list, tuple)) else [nodes]:
+        if node is None:
+            continue
+        if hasattr(node, 'sent_counts'):
+            report_sent(node, node.sent_counts())
+        if node.context not in contexts:
+            contexts.append(node.context)
+        node.destroy_node()
+    rclpy.try_shutdown()
+    for context in contexts:
+        context.try_shutdown()
+        context.destroy()
+    gc.unfreeze()
+    gc.collect()
+
+
+def exit_code(stop, code=0):
+    """
+    Return the process's exit code (:meth:`StopFlag.exit_code`); ignore signals from now.
+
+    Called once the nodes are finished: what is left is the interpreter's exit, where a
+    signal's default action would end the process by that signal instead of ``code``.
+    """
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, signal.SIG_IGN)
+    return stop.exit_code(code)
+
+
+def spin(nodes, realtime=False, priority=0, stop=None, threads=1, then=None):
+    """
+    Spin ``nodes`` (one node or a list) until the context shuts down.
+
+    Ctrl-C, SIGTERM or ``rclpy.shutdown`` end it (the loop wakes every 0.1 s). The
+    objects built so far are frozen out of the garbage collector's reach first
+    (``gc.freeze``), so a full collection cannot stall a control period.
+
+    :param realtime: choose the events executor when available (:func:`make_executor`).
+    :param priority: ``SCHED_FIFO`` priority of the executor thread
+        (:func:`set_realtime_priority`; 0: normal).
+    :param stop: the :class:`StopFlag` of :func:`init`; set, it ends the spin.
+    :param threads: executor threads (:func:`make_executor`); :param then: called with
+        the executor once the loop ended (e.g. a drain).
+    """
+    import gc
+    nodes = list(nodes) if isinstance(nodes, (list, tuple)) else [nodes]
+    # lockstep runs as fast as the messages go: a realtime policy would starve the graph
+    priority = priority if realtime else 0
+    lock = any(n.has_parameter('lock_memory') and n.get_parameter('lock_memory').value
+               for n in nodes)
+    sched = set_realtime_priority(priority, lock)
+    for node in nodes:
+        if priority:
+            lg = node.get_logger()
+            (lg.info if sched.startswith('SCHED_FIFO') else lg.warn)('scheduling: %s' % sched)
+        health = getattr(node, 'health', None)
+        if health is not None:
+            health.set_values(scheduling=sched)
+    executor = make_executor(realtime, threads)
+    for node in nodes:
+        executor.add_node(node)
+    gc.collect()
+    gc.freeze()
+    try:
+        while executor.context.ok() and not (stop is not None and stop.is_set()):
+            executor.spin_once(timeout_sec=0.1)
+        if then is not None:
+            then(executor)
+    finally:
+        for node in nodes:
+            try:
+                executor.remove_node(node)
+            except Exception:  # noqa: BLE001 - context already shut down
+                pass
+        executor.shutdown(timeout_sec=1.0)
+
+
+def run_node(factory, name, args=None, realtime=None, threads=1, then=None):
+    """
+    Run one node in this process: the demo_nodes_py ``main()`` (init, spin, finish).
+
+    :param factory: returns the node (called after :func:`init`).
+    :param name: the node's name for the one-line refusal of bad parameters.
+    :param realtime: ``node -> bool``, spin with the realtime executor (``None``: the
+        node's ``sync_mode`` parameter is ``realtime``).
+    :param threads: executor threads (:func:`make_executor`).
+    :param then: ``(executor, node)`` called once the spin ended (:func:`spin`).
+    :returns: the exit code: 0, 2 for bad parameters, 130 (143) when a second SIGINT
+        (SIGTERM) came during the stop (:meth:`StopFlag.exit_code`).
+    """
+    from rclpy.executors import ExternalShutdownException
+    stop = init(args)
+    node = None
+    try:
+        node = factory()
+        rt = realtime(node) if realtime is not None else \
+            node.get_parameter('sync_mode').value == 'realtime'
+        spin(node, realtime=rt, priority=node_priority(node), stop=stop, threads=threads,
+             then=None if then is None else (lambda executor: then(executor, node)))
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except NODE_ERRORS as exc:
+        return refuse(name, exc)
+    finally:
+        finish(node)
+    return exit_code(stop)
+
+
+def node_priority(nodes):
+    """Return the largest ``realtime_priority`` parameter of ``nodes`` (0 if none)."""
+    nodes = nodes if isinstance(nodes, (list, tuple)) else [nodes]
+    return max([int(n.get_parameter('realtime_priority').value) for n in nodes
+                if n.has_parameter('realtime_priority')], default=0)
