@@ -10,14 +10,14 @@ STAMP := $(VENV)/.installed
 # writes only into .venv and TMPDIR, never into ../shared.
 ROS2_TOOLS ?= ../shared/ros2-tools
 
-.PHONY: venv ros2-tools demo test bench lint clean
+.PHONY: venv ros2-tools demo test test-fast bench lint clean
 
 venv: $(STAMP) ros2-tools
 
 $(STAMP): setup.py setup.cfg package.xml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[ros,test,bench,hardware]'
+	$(PY) -m pip install --quiet -e '.[ros,test,bench,hardware,live]'
 	touch $(STAMP)
 
 ros2-tools: $(STAMP)
@@ -35,8 +35,14 @@ ros2-tools: $(STAMP)
 demo: $(STAMP)
 	$(PY) -m fiber_align.demo
 
+# Everything: the pure tests and the `ros` ones (rclpy nodes, graphs, any child process).
 test: venv
 	$(PY) -m pytest -q test
+
+# The pure tests only: no rclpy, no process (test/conftest.py fails a test that starts one
+# without the `ros` marker), so no ROS graph and no lock.
+test-fast: $(STAMP)
+	$(PY) -m pytest -q -m "not ros" test
 
 bench: $(STAMP)
 	$(PY) -m bench

@@ -8,6 +8,9 @@ from setuptools import find_packages, setup
 
 package_name = 'fiber_align'
 
+# The Foxglove live view (live_view, docs/live_view.md): the SDK's WebSocket server; the
+# tests' client is written on websockets.
+LIVE = ['foxglove-sdk>=0.30', 'websockets']
 # The real devices (docs/hardware.md): the MDT693B piezo amplifier over pyserial, the PM100
 # power meter over pyvisa with the pure-Python pyvisa-py backend.
 HARDWARE = ['pyserial', 'pyvisa', 'pyvisa-py']
@@ -26,7 +29,9 @@ NODES = [
     'control_graph',
     'scenario_runner',
     'power_meter',
+    'mdt693b_driver',
     'lifecycle_manager',
+    'live_view',
 ]
 
 setup(
@@ -42,6 +47,8 @@ setup(
          glob('config/models/*.yaml')),
         (os.path.join('share', package_name, 'launch'),
          glob('launch/*.launch.py') + glob('launch/*.launch.xml')),
+        # Foxglove layouts of the live view (docs/live_view.md)
+        (os.path.join('share', package_name, 'foxglove'), glob('layouts/*.json')),
     ],
     python_requires='>=3.10',
     # The ROS 2 client libraries are deliberately not here: a real Jazzy workspace
@@ -66,9 +73,10 @@ setup(
             'colcon-core',
             'colcon-ros',
             'mdt69x',           # an outside MDT693B client, run against the emulator
-        ] + HARDWARE,
+        ] + HARDWARE + LIVE,
         'bench': ['scikit-fuzzy', 'pyswarms', 'networkx'],
         'hardware': HARDWARE,
+        'live': LIVE,
     },
     zip_safe=True,
     maintainer='fiber_align maintainers',
