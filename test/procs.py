@@ -2,20 +2,15 @@
 """Bounded subprocess runs for the integration tests (a hanging test is a failing test)."""
 
 import os
-import signal
 import subprocess
 import time
+
+from fiber_align.hardware.process import stop_process
 
 
 def stop(proc, grace_s=10.0):
     """SIGINT ``proc`` if it still runs, then SIGKILL after ``grace_s`` (s)."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=grace_s)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=5)
+    stop_process(proc, grace_s)
 
 
 def run_bounded(cmd, timeout, grace_s=10.0):
@@ -36,13 +31,23 @@ def run_bounded(cmd, timeout, grace_s=10.0):
 
 
 def spin_until(executor, cond, bound_s, slice_s=0.01):
-    """Spin ``executor`` until ``cond()`` holds or ``bound_s`` (s) pass; return ``cond()``."""
+    """
+    Spin ``executor`` until ``cond()`` holds or ``bound_s`` (s) pass; return ``cond()``.
+
+    ``cond`` is checked once a ``slice_s`` (s), the callbacks that came in between all
+    taken first: a check after each callback, when it scans what a 1 kHz stream has
+    gathered, makes the client fall behind its streams and read a growing backlog.
+    """
     end = time.monotonic() + bound_s
-    while time.monotonic() < end:
-        executor.spin_once(timeout_sec=slice_s)
+    while True:
+        now = time.monotonic()
+        if now >= end:
+            return bool(cond())
+        stop_at = min(end, now + slice_s)
+        while time.monotonic() < stop_at:
+            executor.spin_once(timeout_sec=max(0.0, min(0.002, stop_at - time.monotonic())))
         if cond():
             return True
-    return False
 
 
 def level(status):

@@ -29,7 +29,8 @@ def test_spiral_pitch_leaves_no_gap_larger_than_the_capture_radius():
     p = seq.p
     rc = seq.capture_radius_m
     assert rc == pytest.approx(W * math.sqrt(p['spiral_capture_db'] * math.log(10) / 10))
-    chord = (p['confirm_samples'] + 1) * p['search_speed_m_per_s'] * p['control_period_s']
+    assert seq.period_s == pytest.approx(1e-3)     # 1 / rate_hz of config/plant.yaml
+    chord = (p['confirm_samples'] + 1) * p['search_speed_m_per_s'] * seq.period_s
     assert seq.pitch_m == pytest.approx(2 * math.sqrt(rc ** 2 - (chord / 2) ** 2))
     path = seq.spiral(seq.park).points(0.25e-6)
     path = np.clip(path, seq.lo, seq.hi)           # the setpoints are clipped to the square

@@ -135,6 +135,7 @@ def test_cli_json_has_the_keys(capsys):
     assert out['baseline']['method'] == 'hillclimb'
 
 
+@pytest.mark.ros  # starts a process
 def test_run_cli_plot(tmp_path, capsys):
     png = tmp_path / 'switch2d.png'
     ns = argparse.Namespace(scenario='switch2d', seed=1, json=False, plot=str(png), cycles=2,

@@ -8,9 +8,10 @@ The node is driven through its ``align`` and ``switch`` services; its setpoints 
 equal those of the pure core run offline on the same inputs.
 """
 
-import time
 
 import pytest
+
+from procs import spin_until
 
 import rclpy  # noqa: E402 - a hard dependency of the node tests
 
@@ -23,7 +24,8 @@ from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
 from fiber_align.simulation import alignment_bench as ab  # noqa: E402
 from fiber_align.alignment import sequencer as sq  # noqa: E402
-from fiber_align.nodes import _common as c  # noqa: E402
+from fiber_align.nodes.ros.bus import s_to_stamp, stamp_to_s  # noqa: E402
+from fiber_align.nodes.ros.qos import CONTROL_QOS  # noqa: E402
 
 pytestmark = pytest.mark.ros
 SLOT = 30e-6
@@ -37,9 +39,9 @@ class Harness(Node):
         """Wire the topics and service clients."""
         super().__init__('align_harness')
         self.bench = bench
-        self.pub_y = self.create_publisher(JointState, 'displacement', c.CONTROL_QOS)
-        self.pub_p = self.create_publisher(Float64, 'optical_power', c.CONTROL_QOS)
-        self.create_subscription(Float64, 'setpoint', self._on_sp, c.CONTROL_QOS)
+        self.pub_y = self.create_publisher(JointState, 'displacement', CONTROL_QOS)
+        self.pub_p = self.create_publisher(Float64, 'optical_power', CONTROL_QOS)
+        self.create_subscription(Float64, 'setpoint', self._on_sp, CONTROL_QOS)
         self.create_subscription(String, 'alignment_state', self._on_state, 10)
         self.cli_align = self.create_client(Trigger, 'align')
         self.cli_switch = self.create_client(SetBool, 'switch')
@@ -53,7 +55,7 @@ class Harness(Node):
         t = self.k * PERIOD
         p = b.link.measure(t, b.loop.position_m, PERIOD)
         msg = JointState(name=['bimorph_tip'], position=[b.loop.y_meas])
-        msg.header.stamp = c.s_to_stamp(t)
+        msg.header.stamp = s_to_stamp(t)
         self.inputs.append((t, b.loop.y_meas, p))
         self.pub_y.publish(msg)
         self.pub_p.publish(Float64(data=p))
@@ -69,13 +71,6 @@ class Harness(Node):
         self.states.append(msg.data)
 
 
-def _spin_until(ex, cond, timeout_s):
-    end = time.monotonic() + timeout_s
-    while not cond() and time.monotonic() < end:
-        ex.spin_once(timeout_sec=0.05)
-    return cond()
-
-
 def test_node_lockstep_matches_offline_core():
     from fiber_align.nodes.alignment_sequencer import AlignmentSequencerNode
     rclpy.init()
@@ -89,18 +84,18 @@ def test_node_lockstep_matches_offline_core():
         harness.inputs = []
         ex.add_node(node)
         ex.add_node(harness)
-        assert _spin_until(ex, lambda: harness.cli_align.service_is_ready()
-                           and harness.pub_y.get_subscription_count() > 0
-                           and harness.pub_p.get_subscription_count() > 0, 10.0)
+        assert spin_until(ex, lambda: harness.cli_align.service_is_ready()
+                          and harness.pub_y.get_subscription_count() > 0
+                          and harness.pub_p.get_subscription_count() > 0, 10.0)
         # 20 idle samples, then align, then run to 150 samples
         harness.n_target = 20
         harness.publish_sample()
-        assert _spin_until(ex, lambda: len(harness.setpoints) >= 20, 20.0)
+        assert spin_until(ex, lambda: len(harness.setpoints) >= 20, 20.0)
         fut = harness.cli_align.call_async(Trigger.Request())
-        assert _spin_until(ex, fut.done, 10.0) and fut.result().success
+        assert spin_until(ex, fut.done, 10.0) and fut.result().success
         harness.n_target = 150
         harness.publish_sample()
-        assert _spin_until(ex, lambda: len(harness.setpoints) >= 150, 60.0)
+        assert spin_until(ex, lambda: len(harness.setpoints) >= 150, 60.0)
         assert node.seq.state == sq.TRACKING, node.seq.fault_reason
         assert any('"TRACKING"' in s for s in harness.states)
         assert bench.link.loss_db(harness.k * PERIOD, bench.loop.position_m) < 0.1
@@ -112,7 +107,7 @@ def test_node_lockstep_matches_offline_core():
         for i, (t, y, p) in enumerate(harness.inputs[:150]):
             if i == 20:
                 core.align()
-            offline.append(core.update(c.stamp_to_s(c.s_to_stamp(t)), y, p))
+            offline.append(core.update(stamp_to_s(s_to_stamp(t)), y, p))
         assert offline == harness.setpoints[:150]
     finally:
         for n in (node, harness):

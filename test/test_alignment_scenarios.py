@@ -56,6 +56,7 @@ def test_broken_fiber_composite(loop):
     assert r['state'] == sq.FAULT and 'no light found' in r['fault_reason']
 
 
+@pytest.mark.ros  # starts a process
 def test_run_cli_json_and_plot(tmp_path, capsys):
     png = tmp_path / 'align.png'
     ns = argparse.Namespace(scenario='switch', seed=2, json=True, plot=str(png),

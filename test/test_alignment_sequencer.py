@@ -109,7 +109,14 @@ def test_driver_inactive_flag_and_actuator_that_does_not_move():
     seq.update(0.0, 0.0, 1e-10)
     seq.align()
     seq.update(1e-3, 0.0, 1.2e-10, driver_active=False)
+    assert seq.state == sq.HELD and 'driver down' in seq.status()['hold_reason']
+    t_down = seq.p['driver_down_timeout_s']
+    k = 2
+    while seq.state == sq.HELD and k * 1e-3 < t_down + 0.01:
+        seq.update(k * 1e-3, 0.0, 1.2e-10, driver_active=False)
+        k += 1
     assert seq.state == sq.FAULT and 'driver inactive' in seq.fault_reason
+    assert k * 1e-3 == pytest.approx(1e-3 + t_down, abs=3e-3)
 
     class Dead(ab.FirstOrderLoop):
         def step(self, r_m):

@@ -128,6 +128,7 @@ def test_missing_topic_is_named_and_rest_analysed(tmp_path, sim, capsys):
     assert 'max_loop_width_m' in res['metrics']['hysteresis']
 
 
+@pytest.mark.ros  # starts a process
 def test_corrupt_and_foreign_bags_exit_2_without_traceback(tmp_path):
     """A truncated bag and a bag without graph topics fail with one line and exit 2."""
     n = 20000
@@ -147,6 +148,7 @@ def test_corrupt_and_foreign_bags_exit_2_without_traceback(tmp_path):
     assert code == 2
 
 
+@pytest.mark.ros  # starts a process
 def test_plots_and_reports(tmp_path, sim, capsys):
     """--plots writes the figures, --report a Markdown or HTML page that shows them."""
     series = _lockstep_series(sim)

@@ -71,8 +71,9 @@ def step_runs(tmp_path_factory):
     """Two multi-process lockstep step runs, the first recorded."""
     tmp = tmp_path_factory.mktemp('step')
     a = run_bringup(tmp, 'a', '--scenario', 'step', '--duration', str(STEP_S),
-                    '--record', str(tmp / 'bag_a'))
-    b = run_bringup(tmp, 'b', '--scenario', 'step', '--duration', str(STEP_S))
+                    '--record', str(tmp / 'bag_a'), '--multi-process')
+    b = run_bringup(tmp, 'b', '--scenario', 'step', '--duration', str(STEP_S),
+                    '--multi-process')
     return tmp, a, b
 
 
@@ -116,17 +117,18 @@ def test_composed_in_a_namespace_equals_multi_process(step_runs, tmp_path):
 RETRY = """
 import sys
 from fiber_align.nodes import bringup as b
-check, injected = b.Runner.check_stall, []
+from fiber_align.nodes.bringup.observer import Observer, StartStall
+check, injected = Observer.check_stall, []
 
 
 def stall_once(self):
     if not injected:
         injected.append(1)
-        raise b.StartStall('injected stall')
+        raise StartStall('injected stall')
     return check(self)
 
 
-b.Runner.check_stall = stall_once
+Observer.check_stall = stall_once
 sys.exit(b.main(sys.argv[1:]))
 """
 

@@ -74,9 +74,9 @@ def test_sigint_mid_scenario_stops_cleanly_and_finalises_the_bag(tmp_path):
         code = proc.wait(timeout=STOP_LIMIT_S + 5)
         stop_s = time.monotonic() - t0
         reader.join(timeout=2)
-        # the recorder and the control_graph process
+        # the recorder, the control_graph process and lifecycle_manager
         pids = _pids(lines)
-        assert len(pids) == 2, ''.join(lines)
+        assert len(pids) == 3, ''.join(lines)
         left = [p for p in pids if _alive(p)]
         assert stop_s <= STOP_LIMIT_S, 'bringup took %.2f s to exit' % stop_s
         assert code == 130, ''.join(lines)

@@ -226,3 +226,24 @@ def test_driver_watchdog_restarts_at_activation():
     d.command(12.0, 0.0, 1.001)
     d.tick(1.06)
     assert d.tripped and d.watchdog_count == 1      # from the next command on, as ever
+
+
+def test_driver_hold_takes_the_input_but_ramps_on_to_safe():
+    """An axis held for another's trip: its input is back (not tripped), output ramps to safe."""
+    d = DriverCore(v_min=0.0, v_max=100.0, watchdog_timeout_s=0.05,
+                   safe_ramp_rate_v_per_s=100.0, ramp_period_s=0.01)
+    d.command(50.0, 0.0, 0.0)
+    d.tick(0.1)
+    assert d.tripped and d.watchdog_count == 1
+    v = d.hold(0.11)
+    assert not d.tripped and v < 50.0 and d.v == v
+    assert d.tick(0.12) == v and not d.tripped and d.watchdog_count == 1
+    assert d.hold(0.13) < v                                 # still on its way to 0 V
+    assert d.command(50.0, 0.0, 0.14) > d.safe              # the other is back: follow
+    # a latched watchdog stays latched whatever a hold says
+    d2 = DriverCore(v_min=0.0, v_max=100.0, watchdog_timeout_s=0.05, latch_trips=1)
+    d2.command(50.0, 0.0, 0.0)
+    d2.tick(0.1)
+    assert d2.latched
+    d2.hold(0.11)
+    assert d2.latched and d2.command(50.0, 0.0, 0.12) == 0.0

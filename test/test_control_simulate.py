@@ -73,6 +73,7 @@ def test_unreachable_reference_is_clamped_and_reported():
     assert res.r.max() == pytest.approx(res.metrics['reachable_m'])
 
 
+@pytest.mark.ros  # starts a process
 def test_cli_json_and_error():
     """The CLI prints the required JSON keys; a bad name exits 2 with one line."""
     exe = [sys.executable, '-c', 'import sys; from fiber_align.cli import main; '

@@ -51,6 +51,7 @@ def test_default_voltage_is_v_max_and_table_is_readable(capsys):
     assert '72.0 V' in out and 'blocked force trapezoid' in out and 'um' in out
 
 
+@pytest.mark.ros  # starts a process
 def test_plots_are_written(tmp_path, capsys):
     d = tmp_path / 'plots'
     assert main(['design', '--plots', str(d)]) == 0

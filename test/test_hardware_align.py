@@ -9,6 +9,8 @@ import subprocess
 import sys
 import time
 
+import pytest
+
 from fiber_align.alignment import sequencer as sq
 from fiber_align.hardware.bench import align_trial, emulated, SensorlessBench
 
@@ -54,6 +56,7 @@ def _run_cli(*args):
                             env=env, cwd=ROOT)
 
 
+@pytest.mark.ros  # starts a process
 def test_emulate_cli_serves_until_sigterm():
     proc = _run_cli('--slot', '25e-6', '--seed', '3')
     try:
@@ -78,6 +81,7 @@ def test_emulate_cli_serves_until_sigterm():
             proc.communicate(timeout=5)
 
 
+@pytest.mark.ros  # starts a process
 def test_emulate_cli_bad_option_is_one_line_and_exit_2():
     proc = _run_cli('--v-limit', '120')
     out, err = proc.communicate(timeout=30)

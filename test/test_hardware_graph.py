@@ -1,9 +1,12 @@
 # SPDX-License-Identifier: Apache-2.0
 """The sensorless hardware graph (processes of ``build_hardware``) on the emulators."""
 
+import pytest
+
 from fiber_align.nodes.bringup.hardware import graph_trial
 
 
+@pytest.mark.ros  # starts a process
 def test_sensorless_graph_aligns_on_the_emulators():
     r = graph_trial(seed=5, slot_m=41e-6)
     assert r['aligned'], r['status']
@@ -20,8 +23,8 @@ def test_hardware_graph_description(tmp_path):
     import pytest
     import yaml
 
-    from fiber_align.nodes import graph
-    from fiber_align.nodes.graph_hardware import build_hardware
+    from fiber_align.graph import description as graph
+    from fiber_align.graph.hardware import build_hardware
     g = build_hardware(port='/dev/ttyUSB7', visa_resource='TCPIP::h::1::SOCKET',
                        composed='false', record=str(tmp_path / 'bag'))
     assert [p.name for p in g.processes] == [
@@ -33,7 +36,7 @@ def test_hardware_graph_description(tmp_path):
     assert (drv['backend'], drv['port'], drv['sensorless'], drv['v_min']) == (
         'mdt693b', '/dev/ttyUSB7', True, 0.0)
     assert g.node_params('power_meter')['resource'] == 'TCPIP::h::1::SOCKET'
-    assert g.node_params('alignment_sequencer')['control_period_s'] == 0.01
+    assert g.node_params('alignment_sequencer')['rate_hz'] == 100.0
     assert g.node_params('lifecycle_manager')['managed_nodes'] == ['actuator_driver']
     assert g.controller == 'feedforward' and g.managed_nodes == ('actuator_driver',)
     assert 'simulated_actuator' not in g.nodes and 'fuzzy_pid_controller' not in g.nodes
@@ -49,6 +52,7 @@ def test_hardware_graph_description(tmp_path):
         build_hardware(params_file=str(user))
 
 
+@pytest.mark.ros  # starts a process
 def test_unplugged_amplifier_errors_graph_runs_on_and_reconnects(tmp_path):
     import json
     import time
@@ -57,7 +61,7 @@ def test_unplugged_amplifier_errors_graph_runs_on_and_reconnects(tmp_path):
 
     from fiber_align.hardware.bench import emulated
     from fiber_align.nodes.bringup.hardware import HardwareRun
-    from fiber_align.nodes.graph_hardware import build_hardware
+    from fiber_align.graph.hardware import build_hardware
     bag = tmp_path / 'bag'
     with emulated(seed=2, slot_position_m=20e-6) as (bench, mdt, pm):
         hw = HardwareRun(build_hardware(port=mdt.port, visa_resource=pm.resource,
@@ -71,16 +75,20 @@ def test_unplugged_amplifier_errors_graph_runs_on_and_reconnects(tmp_path):
             assert time.monotonic() - t_unplug < 1.0
             msg = hw.diag['actuator_driver'][1]
             assert msg.startswith('device lost: MDT693B: ') and '\n' not in msg
-            hw.wait(lambda: hw.status.get('state') == 'FAULT', 1.0, 'sequencer FAULT')
+            # the driver holds its output: the sequencer holds its setpoint and waits
+            hw.wait(lambda: hw.status.get('state') == 'HELD', 1.0, 'sequencer HELD')
+            assert 'driver down during TRACKING' in hw.status['hold_reason'], hw.status
             n = len(hw.power)
             time.sleep(0.3)
             hw.alive()                              # every process runs on
             assert len(hw.power) > n + 10           # and the meter still reads
             mdt.plug()
-            startup = hw.node.create_client(Trigger, 'lifecycle_manager/startup')
+            startup = hw.obs.node.create_client(Trigger, 'lifecycle_manager/startup')
             assert hw.call(startup, Trigger.Request(), 10.0).success
             # OK once the loss's latched ERROR (Health.hold_s, 2 s) has run out
             hw.wait(lambda: hw.level('actuator_driver') == 0, 4.0, 'driver OK again')
+            # the re-armed driver: the sequencer re-peaks from the held point by itself
+            hw.wait(lambda: hw.status.get('state') == 'TRACKING', 5.0, 'TRACKING again')
             assert hw.align()[0], hw.status        # the reconnected bench aligns again
         finally:
             codes = hw.stop()
@@ -89,6 +97,7 @@ def test_unplugged_amplifier_errors_graph_runs_on_and_reconnects(tmp_path):
     assert counts['/optical_power'] > 100 and counts['/drive_voltage_readback'] > 5, counts
 
 
+@pytest.mark.ros  # starts a process
 def test_bringup_hardware_emulate_end_to_end(tmp_path):
     import json
     import os
@@ -110,13 +119,14 @@ def test_bringup_hardware_emulate_end_to_end(tmp_path):
     assert not os.path.exists(s['emulator']['serial_link'])
 
 
+@pytest.mark.ros  # starts a process
 def test_the_emulator_runs_at_the_graph_priority():
     """``bringup --hardware --emulate`` starts the emulator under SCHED_FIFO, as its nodes."""
     import os
     import subprocess
 
-    from fiber_align.nodes.bringup.hardware import (emulator_priority, start_emulator,
-                                                    stop_process)
+    from fiber_align.hardware.process import start_emulator, stop_process
+    from fiber_align.nodes.bringup.hardware import emulator_priority
     prio = emulator_priority()
     assert prio == 50                       # config/fiber_align.yaml realtime_priority
     probe = subprocess.Popen(['sleep', '10'])

@@ -4,6 +4,7 @@
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
+import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from std_msgs.msg import Float64
@@ -12,6 +13,8 @@ from fiber_align.hardware.emulators.physics import Bench
 from fiber_align.hardware.emulators.pm100 import PM100Emulator
 import procs
 from procs import level
+
+pytestmark = pytest.mark.ros
 
 
 def test_power_meter_node_reads_survives_a_lost_meter_and_recovers():

@@ -161,6 +161,7 @@ def test_voltage_range_leaving_operators_idle():
         identify(t, 0.5 * u, y, 'lsq', thresholds=np.arange(10) * 5.0)
 
 
+@pytest.mark.ros  # starts a process
 def test_cli_identify_writes_model_and_json(tmp_path, capsys):
     t, u, y = _data('dense-pi', n=801)
     csv = tmp_path / 'd.csv'

@@ -17,10 +17,13 @@ clean-clone run of ``test_hardware_driver_node.py`` with two CPU hogs, 2026-11-3
 
 import time
 
+import pytest
 from std_msgs.msg import Float64
 
 from fiber_align.nodes.actuator_driver import ActuatorDriverNode
 from test_nodes_parameters import ctx, make  # noqa: F401 (ctx: a fixture)
+
+pytestmark = pytest.mark.ros
 
 
 def test_pairs_before_activate_are_driven_at_activate_in_order(ctx):  # noqa: F811

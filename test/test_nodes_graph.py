@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: Apache-2.0
-"""The one description of the graph (fiber_align.nodes.graph): pure, no ROS needed."""
+"""The one description of the graph (fiber_align.graph.description): pure, no ROS needed."""
 
 from pathlib import Path
 import subprocess
@@ -8,7 +8,8 @@ import sys
 import pytest
 import yaml
 
-from fiber_align.nodes import graph
+from fiber_align.graph import description as graph
+from fiber_align.graph.params import GraphError
 
 ROOT = Path(__file__).resolve().parents[1]
 CONTROL = ('simulated_actuator', 'hysteresis_compensator', 'fuzzy_pid_controller',
@@ -23,8 +24,9 @@ def setup_py_nodes():
     return [line.strip().strip("',") for line in block.splitlines()[1:] if line.strip()]
 
 
+@pytest.mark.ros  # starts a process
 def test_graph_module_imports_no_rclpy():
-    code = ('import sys; import fiber_align.nodes.graph; '
+    code = ('import sys; import fiber_align.graph.description; '
             'sys.exit(1 if [m for m in sys.modules if m.startswith("rclpy")] else 0)')
     assert subprocess.run([sys.executable, '-c', code], timeout=60).returncode == 0
 
@@ -157,7 +159,7 @@ def test_namespace_keys_the_node_sections_and_remaps_the_processes(tmp_path):
     ({'model_file': '/nonexistent/m.yaml'}, ['model_file', 'does not exist']),
 ])
 def test_bad_arguments_get_one_clear_line(kwargs, words):
-    with pytest.raises(graph.GraphError) as err:
+    with pytest.raises(GraphError) as err:
         graph.build(**kwargs)
     msg = str(err.value)
     assert '\n' not in msg
@@ -166,7 +168,7 @@ def test_bad_arguments_get_one_clear_line(kwargs, words):
 
 
 def test_an_existing_record_directory_is_refused(tmp_path):
-    with pytest.raises(graph.GraphError, match='already exists'):
+    with pytest.raises(GraphError, match='already exists'):
         graph.build(record=str(tmp_path))
 
 
@@ -183,3 +185,44 @@ def test_the_launch_file_takes_its_graph_from_graph_py():
     assert 'graph.build(' in text
     for node in CONTROL + ('lifecycle_manager', 'bag_recorder'):
         assert "'%s'" % node not in text, 'node list written in the launch file: ' + node
+
+
+def test_the_registry_is_the_one_list_of_nodes():
+    """AREA_FILES and the hostable nodes come from the registry (graph.NODES)."""
+    assert graph.AREA_FILES == tuple(f for n in (
+        'simulated_actuator', 'fuzzy_pid_controller', 'hysteresis_compensator',
+        'actuator_driver', 'alignment_sequencer', 'bag_recorder', 'scenario_runner',
+        'lifecycle_manager') for f in graph.NODES[n].configs)
+    assert set(graph.HOSTABLE) >= set(graph.control_nodes('align'))
+    lifecycle = [n for n, s in graph.NODES.items() if s.lifecycle]
+    assert lifecycle == ['actuator_driver', 'mdt693b_driver']
+    for spec in graph.NODES.values():
+        for f in spec.configs:
+            assert (Path(graph.config_dir()) / f).is_file(), f
+
+
+def test_dds_environment_keeps_the_users_ros_environment():
+    env = graph.dds_environment({'ROS_DOMAIN_ID': '7'})
+    assert 'ROS_AUTOMATIC_DISCOVERY_RANGE' not in env and env['ROS_DOMAIN_ID'] == '7'
+    assert env['FASTRTPS_DEFAULT_PROFILES_FILE'].endswith('fastdds_profile.xml')
+    mine = graph.dds_environment({'FASTRTPS_DEFAULT_PROFILES_FILE': '/x.xml',
+                                  'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET'})
+    assert mine['FASTRTPS_DEFAULT_PROFILES_FILE'] == '/x.xml'
+    assert mine['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SUBNET'
+
+
+@pytest.mark.parametrize('text, words', [
+    ('actuator_driver:\n  ros__parameters:\n    v_maks: 80.0\n', "unknown parameter 'v_maks'"),
+    ('no_node:\n  ros__parameters:\n    x: 1\n', 'unknown node'),
+    ('actuator_driver:\n  ros__parameters:\n    v_max: fast\n', 'must be a number'),
+])
+def test_a_users_params_file_is_checked_against_the_shipped_files(tmp_path, text, words):
+    """The one check of user names and kinds, for ros2 launch and bringup alike."""
+    user = tmp_path / 'user.yaml'
+    user.write_text(text)
+    with pytest.raises(GraphError, match=words):
+        graph.build(params_file=str(user))
+    with pytest.raises(GraphError, match=words.split("'")[0]):
+        graph.build(overrides={'actuator_driver': {'v_maks': 80.0}} if 'v_maks' in text
+                    else {'no_node': {'x': 1}} if 'node' in words
+                    else {'actuator_driver': {'v_max': 'fast'}})

@@ -16,7 +16,7 @@ from rclpy.parameter import Parameter
 import yaml
 
 from fiber_align.config import ConfigError
-from fiber_align.nodes import graph
+from fiber_align.graph import description as graph
 from fiber_align.nodes.actuator_driver import ActuatorDriverNode
 from fiber_align.nodes.alignment_sequencer import AlignmentSequencerNode
 from fiber_align.nodes.bag_recorder import BagRecorder
@@ -25,6 +25,8 @@ from fiber_align.nodes.hysteresis_compensator import HysteresisCompensatorNode
 from fiber_align.nodes.lifecycle_manager import LifecycleManager
 from fiber_align.nodes.scenario_runner import ScenarioRunnerNode
 from fiber_align.nodes.simulated_actuator import SimulatedActuatorNode
+
+pytestmark = pytest.mark.ros
 
 #: What a node refuses at start-up: rclpy's range/type checks, or the node's own.
 REFUSED = (InvalidParameterValueException, ParameterException, ConfigError, ValueError,
@@ -81,29 +83,29 @@ def taps(shaper):
 
 
 def test_compensator_builds_from_its_parameters(ctx, tmp_path):
-    base = make(ctx, HysteresisCompensatorNode).ff
+    base = make(ctx, HysteresisCompensatorNode).step.ff
     assert base.lead is not None and base.shaper is not None
     ff = make(ctx, HysteresisCompensatorNode, 'delay_compensation:=false',
-              'shaping_damping_ratio:=0.2').ff
+              'shaping_damping_ratio:=0.2').step.ff
     assert ff.lead is None, '-p delay_compensation:=false reaches the feedforward'
     assert taps(ff.shaper) != pytest.approx(taps(base.shaper)), '-p shaping reaches it'
     w = [float(x) * 2 for x in base.model.weights]
     pf = params_file(tmp_path, {'hysteresis_compensator': {
         'weights_m_per_v': w, 'shaping': 'none'}})
-    ff = make(ctx, HysteresisCompensatorNode, params_file=pf).ff
+    ff = make(ctx, HysteresisCompensatorNode, params_file=pf).step.ff
     assert list(ff.model.weights) == pytest.approx(w)
     assert ff.shaper is None
 
 
 def test_controller_builds_from_its_parameters(ctx, tmp_path):
-    base = make(ctx, FuzzyPidControllerNode).ctl
-    ctl = make(ctx, FuzzyPidControllerNode, 'u_max:=40.0', 'shaping:=zvd').ctl
+    base = make(ctx, FuzzyPidControllerNode).step.ctl
+    ctl = make(ctx, FuzzyPidControllerNode, 'u_max:=40.0', 'shaping:=zvd').step.ctl
     assert ctl.pid.u_max == 40.0
     assert len(taps(ctl.reference_filter.shaper)) > len(taps(base.reference_filter.shaper))
     pf = params_file(tmp_path, {'fuzzy_pid_controller': {'u_min': -30.0,
                                                          'composite_feedback_reference':
                                                          'raw'}})
-    ctl = make(ctx, FuzzyPidControllerNode, params_file=pf).ctl
+    ctl = make(ctx, FuzzyPidControllerNode, params_file=pf).step.ctl
     assert ctl.pid.u_min == -30.0 and ctl.reference_filter is None
 
 
@@ -193,11 +195,11 @@ def test_bad_live_values_are_refused_with_the_reason(ctx):
 
 def test_shared_shaping_is_one_value_for_compensator_and_controller(ctx, tmp_path):
     """The defect: an override of one node's shaping split the composite loop's halves."""
-    default = taps(make(ctx, HysteresisCompensatorNode).ff.shaper)
+    default = taps(make(ctx, HysteresisCompensatorNode).step.ff.shaper)
     for node in ('hysteresis_compensator', 'fuzzy_pid_controller', '/**'):
         pf = graph_params(tmp_path, {node: {'shaping_damping_ratio': 0.2}})
-        comp = make(ctx, HysteresisCompensatorNode, params_file=pf).ff.shaper
-        ctl = make(ctx, FuzzyPidControllerNode, params_file=pf).ctl.reference_filter.shaper
+        comp = make(ctx, HysteresisCompensatorNode, params_file=pf).step.ff.shaper
+        ctl = make(ctx, FuzzyPidControllerNode, params_file=pf).step.ctl.reference_filter.shaper
         assert taps(comp) == pytest.approx(taps(ctl)), node
         assert taps(comp) != pytest.approx(default), node
 

@@ -67,7 +67,7 @@ class Client:
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Bool, Float64, Float64MultiArray
 
-        from fiber_align.nodes._common import LATCHED_QOS
+        from fiber_align.nodes.ros.qos import LATCHED_QOS
         self.rclpy = rclpy
         self.Float64 = Float64
         self.node = rclpy.create_node('outside_client')
@@ -113,12 +113,10 @@ class Client:
 
     def spin_for(self, seconds, until=None):
         """Spin up to ``seconds`` (s); return True as soon as ``until()`` holds."""
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            self.executor.spin_once(timeout_sec=0.005)
-            if until is not None and until():
-                return True
-        return until is None
+        if until is None:
+            procs.spin_until(self.executor, lambda: False, seconds)
+            return True
+        return procs.spin_until(self.executor, until, seconds)
 
     def call(self, client, request, timeout=10.0):
         """Call a service with a bounded wait; return the response."""
@@ -201,10 +199,15 @@ class Client:
         ys = self.ys_since(since)
         return sum(abs(y - TARGET_M) < TOL_M for y in ys) / max(1, len(ys))
 
-    def settled(self, since, n=100):
-        """Return True when the last ``n`` samples after ``since`` are within TOL_M."""
+    def settled(self, since, n=100, least=20):
+        """
+        Return True when the last ``n`` samples after ``since`` are within TOL_M.
+
+        At least ``least`` of them: this client shares the machine with four SCHED_FIFO
+        node processes and may read only a part of the 1 kHz samples of a window.
+        """
         tail = self.ys_since(since)[-n:]
-        return len(tail) == n and all(abs(y - TARGET_M) < TOL_M for y in tail)
+        return len(tail) >= least and all(abs(y - TARGET_M) < TOL_M for y in tail)
 
 
 @pytest.fixture(scope='module')
@@ -266,6 +269,40 @@ def test_outside_client_setpoint_settles(graph):
     assert share >= 0.5 or cl.tripped_since(t1)
 
 
+def test_a_reader_that_joins_sees_the_present_not_a_replay(graph):
+    """
+    A reader that joins as ``ros2 topic echo`` does sees the present, not a replay.
+
+    It takes the durability the publishers offer: they are volatile, and the first
+    sample it receives is from this moment, not seconds of history.
+    """
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
+    cl, _, _ = graph
+    node = cl.node
+    for topic in ('/displacement', '/feedforward_voltage', '/feedback_voltage',
+                  '/drive_voltage'):
+        infos = node.get_publishers_info_by_topic(topic)
+        assert infos, topic
+        assert all(i.qos_profile.durability == DurabilityPolicy.VOLATILE for i in infos), \
+            (topic, [i.qos_profile.durability for i in infos])
+    offered = node.get_publishers_info_by_topic('/displacement')[0].qos_profile
+    got = []
+    t_join = time.time()
+    sub = node.create_subscription(
+        JointState, 'displacement',
+        lambda m: got.append(m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec),
+        QoSProfile(depth=10000, reliability=ReliabilityPolicy.RELIABLE,
+                   durability=offered.durability))
+    try:
+        assert cl.spin_for(5.0, lambda: len(got) >= 10)
+        # the stamps are the samples' system-clock times: the first one is from after the
+        # join (less one publish-to-receive delay), not the writer's 5 s of history
+        assert got[0] > t_join - 0.2, (got[0] - t_join)
+    finally:
+        node.destroy_subscription(sub)
+
+
 def test_bad_setpoints_rejected_actuator_stays(graph):
     """NaN, +inf, 1 m and -1 um: each rejected with its reason and a WARN; no motion."""
     cl, _, _ = graph
@@ -299,9 +336,10 @@ def test_wrong_type_publisher_burst_and_odd_service_calls_crash_nothing(graph):
     """
     A wrong-type publisher, a setpoint burst and odd service calls crash no node.
 
-    The burst: 1,000 setpoints at 1 kHz, a tenth of them invalid. Every node keeps
-    running, the drive stays within the driver's limits, and the loop settles at the last
-    valid setpoint.
+    The wrong-type publisher is named in the compensator's WARN on ``/diagnostics``
+    until it goes. The burst: 1,000 setpoints at 1 kHz, a tenth of them invalid. Every
+    node keeps running, the drive stays within the driver's limits, and the loop settles
+    at the last valid setpoint.
     """
     import rclpy
     from std_msgs.msg import String
@@ -315,6 +353,14 @@ def test_wrong_type_publisher_burst_and_odd_service_calls_crash_nothing(graph):
     wrong = odd.create_publisher(String, 'setpoint', 10)
     for _ in range(20):
         wrong.publish(String(data='fifty micrometres'))
+
+    def named():
+        return [m for t, n, lv, m in cl.diags if t > t0 and n.endswith('hysteresis_compensator')
+                and lv == WARN and '/wrong_type_client publishes std_msgs/msg/String' in m]
+    # the compensator, which reads /setpoint, names the publisher it never hears from
+    assert cl.spin_for(5.0, lambda: named()), [
+        (n, m) for t, n, lv, m in cl.diags if t > t0 and lv != OK][-5:]
+    print('named on /diagnostics: %s' % named()[-1])
     for i in range(1000):                   # 1 kHz: 10..80 um, every tenth NaN or 1 m
         v = (math.nan if i % 20 == 0 else 1.0) if i % 10 == 0 else (10 + 70 * (i % 7) / 6) * 1e-6
         cl.publish(v)
@@ -328,11 +374,20 @@ def test_wrong_type_publisher_burst_and_odd_service_calls_crash_nothing(graph):
         assert cl.call(cl.node.create_client(srv, name), req) is not None, name
     odd.destroy_node()
     rclpy.shutdown(context=other)
+    # and the WARN ends once that publisher is gone
+    t_gone = time.monotonic()
+    assert cl.spin_for(5.0, lambda: any(
+        t > t_gone and n.endswith('hysteresis_compensator') and 'wrong type' not in m
+        for t, n, lv, m in cl.diags))
     cl.publish(TARGET_M)
-    assert cl.spin_for(8.0, lambda: cl.settled(time.monotonic() - 0.2)), cl.ys_since(t0)[-5:]
+    assert cl.spin_for(8.0, lambda: cl.settled(time.monotonic() - 0.2)), (
+        cl.ys_since(t0)[-5:], len(cl.ys_since(time.monotonic() - 1.0)), 'samples in 1 s')
     assert all(p.poll() is None for p in procs.values()), 'a node died'
     drives = [v for t, v in cl.drives if t > t0]
-    assert drives and min(drives) >= -1e-9 and max(drives) <= 100.0 + 1e-9
+    from fiber_align.config import config_path, load_params
+    limits = load_params(config_path('driver.yaml'), 'actuator_driver')
+    assert drives and min(drives) >= limits['v_min'] - 1e-9, (min(drives), limits['v_min'])
+    assert max(drives) <= limits['v_max'] + 1e-9, (max(drives), limits['v_max'])
 
 
 def test_live_gain_update_accepted_and_rejected(graph):

@@ -1,16 +1,21 @@
 # SPDX-License-Identifier: Apache-2.0
-"""The nodes' signal handling (``nodes._runtime``): a nested signal cannot deadlock a stop."""
+"""The nodes' signal handling (``nodes.ros.runtime``): a nested signal cannot deadlock a stop."""
 
 import subprocess
 import sys
 import textwrap
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
 
 #: A child that takes SIGTERM with a handler calling ``stop.set()``, and sends itself a
 #: second SIGTERM while the first handler is inside ``set`` (where ``threading.Event``
 #: holds its lock: at ``notify_all``): as a parent-death SIGTERM that comes twice.
 CHILD = textwrap.dedent('''
     import os, signal, sys, threading
-    from fiber_align.nodes._runtime import StopFlag
+    from fiber_align.nodes.ros.runtime import StopFlag
     stop = threading.Event() if sys.argv[1] == 'event' else StopFlag()
     inside = {'event': 'notify_all', 'flag': 'set'}[sys.argv[1]]
     fired = []

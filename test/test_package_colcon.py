@@ -31,6 +31,7 @@ def test_setup_cfg_puts_scripts_in_lib_package():
     assert cfg['install']['install_scripts'] == '$base/lib/fiber_align'
 
 
+@pytest.mark.ros
 @pytest.mark.slow
 def test_colcon_build_installs_every_executable(colcon_workspace):
     ws, proc = colcon_workspace      # conftest.py: one colcon build per session
@@ -50,3 +51,4 @@ def test_colcon_build_installs_every_executable(colcon_workspace):
     assert (share / 'fiber_align' / 'package.xml').is_file()
     assert any((share / 'fiber_align' / 'config').glob('*.yaml'))
     assert (share / 'fiber_align' / 'launch' / 'fiber_align.launch.py').is_file()
+    assert (share / 'fiber_align' / 'foxglove' / 'fiber_align.json').is_file()

@@ -9,9 +9,10 @@ every sample, also one with an empty displacement and a NaN power.
 """
 
 import math
-import time
 
 import pytest
+
+from procs import spin_until
 
 import rclpy  # noqa: E402 - a hard dependency of the node tests
 
@@ -21,7 +22,7 @@ from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 
-from fiber_align.nodes import _common as c  # noqa: E402
+from fiber_align.nodes.ros.qos import CONTROL_QOS  # noqa: E402
 from fiber_align.plant import optics2d as o2  # noqa: E402
 
 pytestmark = pytest.mark.ros
@@ -30,13 +31,6 @@ LOCKSTEP = [Parameter('sync_mode', value='lockstep')]
 
 def _js(*position):
     return JointState(name=['bimorph_tip'], position=list(position))
-
-
-def _spin_until(ex, cond, timeout_s):
-    end = time.monotonic() + timeout_s
-    while not cond() and time.monotonic() < end:
-        ex.spin_once(timeout_sec=0.05)
-    return cond()
 
 
 @pytest.fixture()
@@ -63,18 +57,18 @@ def rig():
 
 def test_bad_tip_positions_give_nan_readings_and_do_not_poison_the_detector(rig):
     ex, (optics, _, h) = rig
-    pub = {a: h.create_publisher(JointState, a + '/tip_position', c.CONTROL_QOS)
+    pub = {a: h.create_publisher(JointState, a + '/tip_position', CONTROL_QOS)
            for a in 'xy'}
     got = []
     h.create_subscription(Float64, 'optical_power', lambda m: got.append(m.data),
-                          c.CONTROL_QOS)
-    assert _spin_until(ex, lambda: all(p.get_subscription_count() for p in pub.values()),
-                       10.0)
+                          CONTROL_QOS)
+    assert spin_until(ex, lambda: all(p.get_subscription_count() for p in pub.values()),
+                      10.0)
     samples = [(math.nan, 30e-6), (None, 30e-6), (31e-6, 29e-6)]
     for x, y in samples:
         pub['x'].publish(_js() if x is None else _js(x))
         pub['y'].publish(_js(y))
-    assert _spin_until(ex, lambda: len(got) == 3, 10.0), got
+    assert spin_until(ex, lambda: len(got) == 3, 10.0), got
     assert math.isnan(got[0]) and math.isnan(got[1])
     # the third reading is the offline link's first: the bad ones never reached it
     link = o2.OpticalLink2D.from_params(None, None, seed=optics.get_parameter('seed').value)
@@ -84,18 +78,18 @@ def test_bad_tip_positions_give_nan_readings_and_do_not_poison_the_detector(rig)
 
 def test_sequencer_answers_every_sample_also_empty_and_nan_ones(rig):
     ex, (_, seq, h) = rig
-    pub = {t: h.create_publisher(JointState if 'disp' in t else Float64, t, c.CONTROL_QOS)
+    pub = {t: h.create_publisher(JointState if 'disp' in t else Float64, t, CONTROL_QOS)
            for t in ('x/displacement', 'y/displacement', 'optical_power')}
     sp = {a: [] for a in 'xy'}
     for a in 'xy':
         h.create_subscription(Float64, a + '/setpoint', lambda m, a=a: sp[a].append(m.data),
-                              c.CONTROL_QOS)
-    assert _spin_until(ex, lambda: all(p.get_subscription_count() for p in pub.values()),
-                       10.0)
+                              CONTROL_QOS)
+    assert spin_until(ex, lambda: all(p.get_subscription_count() for p in pub.values()),
+                      10.0)
     for x, p in ((None, 1e-10), (0.0, math.nan), (math.inf, -1.0), (0.0, 1e-10)):
         pub['x/displacement'].publish(_js() if x is None else _js(x))
         pub['y/displacement'].publish(_js(0.0))
         pub['optical_power'].publish(Float64(data=p))
-    assert _spin_until(ex, lambda: len(sp['x']) == 4 and len(sp['y']) == 4, 10.0), sp
+    assert spin_until(ex, lambda: len(sp['x']) == 4 and len(sp['y']) == 4, 10.0), sp
     assert seq.n == 4 and seq.seq.state == 'IDLE'
     assert sp['x'] == [0.0] * 4 == sp['y']          # parked at (0, 0) while IDLE

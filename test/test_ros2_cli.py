@@ -46,6 +46,10 @@ STOP_WITHIN_S = 5.0
 #: 9 of 15 ``ros2 lifecycle get`` calls missed the node on the launched graph, with 5 s
 #: none of 10 (``ros2 node list``: 5 of 15 and 0 of 10).
 NO_DAEMON = ('--no-daemon', '--spin-time', '5')
+#: On the launched graph the ``ros2`` verbs use a daemon of this module's own (started
+#: before the launch, so it knows every node; stopped with the graph): a verb then takes
+#: about 2 s, where each of its two direct nodes waits the whole spin time without one.
+ON_GRAPH = ()
 INSTALL_HINT = ('the ros2 command line is not installed: run `make venv` (builds '
                 '../shared/ros2-tools into .venv) or source a ROS 2 Jazzy install')
 
@@ -331,6 +335,29 @@ class Listener:
             time.sleep(0.02)
         return until()
 
+    def rearm(self):
+        """
+        ``actuator_driver/enable`` true: clear a latched watchdog; return its trip count.
+
+        The loop still stalls for about 0.33 s now and then when a new participant joins
+        (issue 20, open): three such trips within 10 s latch the driver, which would make
+        the next test's motion a test of that, not of what it is about. The trips are
+        printed, so they stay visible.
+        """
+        from std_srvs.srv import SetBool
+        cli = self.node.create_client(SetBool, 'actuator_driver/enable')
+        try:
+            assert cli.wait_for_service(timeout_sec=10.0)
+            fut = cli.call_async(SetBool.Request(data=True))
+            self.wait(10.0, fut.done)
+            assert fut.done() and fut.result().success, fut.result()
+        finally:
+            self.node.destroy_client(cli)
+        trips = [d for d in list(self.diags) if d[1] == 'actuator_driver'
+                 and 'watchdog' in d[3] and d[2] == b'\x02']
+        print('watchdog reports so far: %d' % len(trips))
+        return len(trips)
+
     def diag(self, node, text, since=0.0):
         """Return the diagnostics entries of ``node`` containing ``text`` after ``since``."""
         return [d for d in list(self.diags) if d[1] == node and text in d[3] and d[0] > since]
@@ -347,6 +374,16 @@ def launched(ros2_env, tmp_path_factory):
     d = tmp_path_factory.mktemp('launch')
     bag, log = d / 'bag', d / 'launch.log'
     t0 = time.monotonic()
+    rc, out = ros2(ros2_env, 'daemon', 'start', timeout=30)
+    assert rc == 0, out
+    try:
+        yield from _launch(ros2_env, bag, log, t0)
+    finally:
+        rc, out = ros2(ros2_env, 'daemon', 'stop', timeout=30)
+        assert rc == 0 and 'not running' not in out, out
+
+
+def _launch(ros2_env, bag, log, t0):
     proc = spawn(ros2_env, ['ros2', 'launch', 'fiber_align', 'fiber_align.launch.py',
                             'record:=%s' % bag], log)
     listener = Listener()
@@ -389,7 +426,7 @@ def graph_survived(request):
 def test_launch_runs_every_node_of_the_graph(launched, ros2_env):
     nodes = ('/simulated_actuator', '/hysteresis_compensator', '/fuzzy_pid_controller',
              '/actuator_driver', '/lifecycle_manager', '/bag_recorder')
-    rc, out = ros2_retry(ros2_env, 'node', 'list', *NO_DAEMON,
+    rc, out = ros2_retry(ros2_env, 'node', 'list', *ON_GRAPH,
                          until=lambda o: set(nodes) <= set(o.split()))
     assert set(nodes) <= set(out.split()), out
     assert len(launched['children']) >= 3
@@ -397,6 +434,7 @@ def test_launch_runs_every_node_of_the_graph(launched, ros2_env):
 
 def test_topic_pub_setpoint_is_reached_within_half_a_micrometre_in_2_s(launched, ros2_env):
     ls = launched['listener']
+    ls.rearm()
     ls.streams(True)
     # the README's command as it is: --once publishes when ONE subscriber has matched,
     # and the compensator is the only one (it passes the setpoint on as `reference`)
@@ -424,10 +462,42 @@ def test_topic_pub_setpoint_is_reached_within_half_a_micrometre_in_2_s(launched,
     ls.streams(False)
 
 
+def test_topic_echo_once_a_second_after_a_setpoint_prints_the_present(launched, ros2_env):
+    """
+    ``topic pub --once`` 30 um, then ``topic echo --once``: within 1 um of 30 um.
+
+    The echo takes the CLI's default QoS (it adapts to the publishers' offers): the
+    first sample it prints is the present, not the oldest of a writer's history.
+    """
+    def pub(um):
+        rc, out = ros2(ros2_env, 'topic', 'pub', '--once', '/setpoint', 'std_msgs/msg/Float64',
+                       '{data: %.1e}' % (um * 1e-6), timeout=30)
+        assert rc == 0, out
+    launched['listener'].rearm()
+    pub(30.0)
+    t_pub = time.monotonic()
+    time.sleep(0.5)
+    try:
+        # the type given and no daemon: a daemon spawned here would outlive the test
+        # (and, new, it knows no topic yet); 0.5 s for discovery, then the default QoS
+        rc, out = ros2(ros2_env, 'topic', 'echo', '--once', '--field', 'position',
+                       '--no-daemon', '--spin-time', '0.5', '/displacement',
+                       'sensor_msgs/msg/JointState', timeout=30)
+        assert rc == 0, out
+        values = [float(v) for v in re.findall(r'-?\d+\.\d+(?:e-?\d+)?', out)]
+        print('ros2 topic echo --once --field position, ended %.1f s after 30 um: %s'
+              % (time.monotonic() - t_pub, out.strip()))
+        assert len(values) == 1, out
+        assert abs(values[0] - 30e-6) <= 1e-6, out
+    finally:
+        pub(50.0)           # back where the next tests expect the tip
+        launched['listener'].wait(SETTLE_WITHIN_S, lambda: False)
+
+
 def test_param_set_accepted_and_refused(launched, ros2_env):
     def param(verb, *value):
         return ros2_retry(ros2_env, 'param', verb, '/actuator_driver', 'v_max', *value,
-                          *NO_DAEMON)[1]
+                          *ON_GRAPH)[1]
     ok = param('set', '95.0')
     assert 'Set parameter successful' in ok, ok
     out_of_range = param('set', '2000.0')
@@ -440,32 +510,43 @@ def test_param_set_accepted_and_refused(launched, ros2_env):
 
 
 def _safe_voltage_v():
-    from fiber_align.nodes import graph
+    from fiber_align.graph import description as graph
     return float(graph.build().node_params('actuator_driver')['safe_voltage_v'])
 
 
 def test_lifecycle_deactivate_holds_the_safe_voltage_and_activate_resumes(
         launched, ros2_env):
     ls = launched['listener']
+    ls.rearm()
     ls.streams(True)
     safe = _safe_voltage_v()
-    args = NO_DAEMON
+    args = ON_GRAPH
+    t_sub = time.monotonic()
+    # the listener's new readers matched: it sees the drive before the transition
+    assert ls.wait(10.0, lambda: [t for t, v in list(ls.drives) if t > t_sub])
     t0 = time.monotonic()
     rc, out = ros2_retry(ros2_env, 'lifecycle', 'set', '/actuator_driver', 'deactivate',
                          *args)
     assert 'Transitioning successful' in out, out
-    t_done = time.monotonic()
-    ls.wait(0.8, lambda: False)                      # watch the output for 0.8 s
+    # the listener may read its streams seconds behind on a loaded machine, so the check
+    # is on the order of the drives, not on when they came: the ramp ends at the safe
+    # voltage and nothing follows it
+    ls.wait(10.0, lambda: safe in [v for t, v in list(ls.drives) if t > t0])
+    ls.wait(0.8, lambda: False)
     after = [(t, v) for t, v in list(ls.drives) if t > t0]
-    late = [v for t, v in after if t > t_done + 0.1]
+    last_safe = max((k for k, (t, v) in enumerate(after) if v == safe), default=-1)
+    late = [v for t, v in after[last_safe + 1:]]
+    # and the safe voltage is sent once, as the ramp's last step, not again and again
+    n_safe = sum(v == safe for t, v in after)
     state = ros2_retry(ros2_env, 'lifecycle', 'get', '/actuator_driver', *args)[1]
     y_inactive = ls.ys[-1][1]
-    print('deactivate: last drive %r V (safe %g V), %d drives > 0.1 s after the call, '
+    print('deactivate: last drive %r V (safe %g V), %d drives after the safe one, '
           'y %.2f um while inactive, state %s'
           % (after[-1][1] if after else None, safe, len(late), y_inactive * 1e6,
              state.strip()))
     assert after and after[-1][1] == safe, 'the last drive was not the safe voltage'
     assert late == [], 'the driver kept publishing while inactive: %r' % late[:5]
+    assert n_safe == 1, 'the safe voltage was sent %d times while inactive' % n_safe
     assert 'inactive [2]' in state, state
     t1 = time.monotonic()
     out = ros2_retry(ros2_env, 'lifecycle', 'set', '/actuator_driver', 'activate', *args)[1]
