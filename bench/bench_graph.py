@@ -4,7 +4,7 @@ Realtime ROS graph benchmark: the 1 kHz loop as users run it, beside its baselin
 
 Each row is one ``bringup --scenario sine --sync realtime --duration S --record DIR``
 (the pip way to start the graph that ``ros2 launch`` starts, from the one graph
-description of ``fiber_align.nodes.graph``), in the composed layout (the default) and
+description of ``fiber_align.graph.description``), in the composed layout (the default) and
 with ``--multi-process``. Measured beside them in the same run:
 
 - the machine's floor: how late a bare Python loop (``time.sleep`` to each deadline,
@@ -19,7 +19,9 @@ ratio to lockstep, watchdog trips, whether the bag holds exactly what every publ
 sent, and CPU (s per s of run) and resident memory (MB) per process. ``--hogs N`` adds
 N busy loops (``python3 -c 'while True: pass'``) for the whole run.
 
-Usage: ``python -m bench.bench_graph [--seconds 60] [--hogs 2] [--json FILE]``.
+Usage: ``python -m bench.bench_graph [--seconds 60] [--hogs 2] [--baseline DIR]
+[--repeats N] [--json FILE]``; with ``--baseline`` every row is followed by the same run
+of the checkout ``DIR`` (an older commit), so the two share the machine's state.
 Goals (issue 10): >= 99.9 % cycles, RMS <= 2x lockstep, no trip, nothing lost,
 latency p99 <= 2x the bare loop's lateness p99.
 """
@@ -33,6 +35,8 @@ import tempfile
 import time
 
 import numpy as np
+
+from fiber_align.hardware.process import stop_process
 
 BRINGUP = [sys.executable, '-m', 'fiber_align.nodes.bringup']
 
@@ -88,17 +92,35 @@ def machine_floor(seconds=5.0, rate_hz=1000.0, priority=0, timer='sleep'):
             'timer': timer, 'ticks': int(lat.size)}
 
 
-def run_bringup(tmp, tag, seconds, sync, extra=()):
-    """Run one bringup; return its summary dict (``error`` set on a failure)."""
+def run_bringup(tmp, tag, seconds, sync, extra=(), tree=None):
+    """
+    Run one bringup; return its summary dict (``error`` set on a failure).
+
+    :param tree: a checkout whose ``fiber_align`` runs (``python -m`` takes it from the
+        working directory); ``None``: this one.
+    """
     bag = os.path.join(tmp, tag + '_bag')
     summary = os.path.join(tmp, tag + '.json')
     cmd = BRINGUP + ['--scenario', 'sine', '--sync', sync, '--duration', str(seconds),
                      '--quiet', '--summary', summary] + list(extra)
     if sync == 'realtime':
         cmd += ['--record', bag]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120 + 3 * seconds)
+    limit = 120 + 3 * seconds
+    log = os.path.join(tmp, tag + '.log')
+    with open(log, 'w', encoding='utf-8') as f:
+        proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, text=True, cwd=tree)
+    try:
+        proc.wait(timeout=limit)
+        timed_out = False
+    except subprocess.TimeoutExpired:
+        stop_process(proc, grace_s=20.0)        # bringup's own bounded stop first
+        timed_out = True
+    with open(log, encoding='utf-8') as f:
+        out = f.read()
+    if timed_out:
+        return {'error': 'no result within %g s (stopped): %s' % (limit, out[-300:])}
     if not os.path.isfile(summary):
-        return {'error': (proc.stdout + proc.stderr)[-500:]}
+        return {'error': out[-500:]}
     with open(summary, encoding='utf-8') as f:
         s = json.load(f)
     s['exit_code'] = proc.returncode
@@ -169,7 +191,13 @@ def main(argv=None):
     ap.add_argument('--json', default=None)
     ap.add_argument('--floor-seconds', type=float, default=10.0,
                     help='length of each bare-loop baseline (s)')
+    ap.add_argument('--baseline', default=None,
+                    help='a checkout of an older commit: each layout runs there too, '
+                         'right after this tree\'s run')
+    ap.add_argument('--repeats', type=int, default=1, help='runs of each layout (and tree)')
     a = ap.parse_args(argv)
+    trees = [('this', None)] + ([('baseline', os.path.abspath(a.baseline))]
+                                if a.baseline else [])
     hogs = [subprocess.Popen([sys.executable, '-c', 'while True: pass'])
             for _ in range(a.hogs)]
     try:
@@ -180,11 +208,15 @@ def main(argv=None):
                       machine_floor(a.floor_seconds, priority=50),
                       machine_floor(a.floor_seconds, priority=50, timer='rclpy')]
             rows = []
-            for layout in a.layouts.split(','):
-                extra = ['--multi-process'] if layout == 'multi-process' else []
-                s = run_bringup(tmp, layout, a.seconds, 'realtime', extra)
-                rows.append(row('%s, %d hog(s)' % (layout, a.hogs), s, lock_rms,
-                                floors[1].get('p99_s')))
+            for k in range(a.repeats):
+                for layout in a.layouts.split(','):
+                    extra = ['--multi-process'] if layout == 'multi-process' else []
+                    for name, tree in trees:
+                        tag = '%s-%s-%d' % (name, layout, k)
+                        s = run_bringup(tmp, tag, a.seconds, 'realtime', extra, tree)
+                        rows.append(row('%s%s, %d hog(s)' % (
+                            '' if len(trees) == 1 else name + ': ', layout, a.hogs), s,
+                            lock_rms, floors[1].get('p99_s')))
     finally:
         for h in hogs:
             h.kill()

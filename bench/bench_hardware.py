@@ -12,6 +12,13 @@ The sensorless hardware bench on the emulators (docs/hardware.md).
 - Unplug latency: amplifier pty closed / meter socket dropped to the typed error.
 
 ``python -m bench bench_hardware`` (``main(['--quick'])``: 5 seeds, 10 s of tracking).
+``python -m bench.bench_hardware --rig --slots N [--track S]``: the two-axis rig on one
+emulated MDT693B through the ROS graph (``bringup --rig --hardware``'s processes): the
+link's achieved command rate against the emulator's timing (separate and combined
+writes), N random targets in the reachable square aligned on fresh emulators (loss
+against the true peak, wall time from ``align`` to TRACKING, readings, link rate), the
+samples of the 2-D sequencer and of the hill climb at the same 100 Hz on ideal positioning,
+and optionally S s of tracking under a 0.2 um/s drift on both axes.
 ``python -m bench.bench_hardware --graph [--seeds N]``: the same 20 alignments through the
 ROS graph instead (``bringup --hardware``'s processes: sequencer, compensator and driver
 in one process, power_meter, lifecycle_manager), each on fresh emulators (about 6 s each).
@@ -26,8 +33,15 @@ import numpy as np
 
 from fiber_align.hardware import errors as er
 from fiber_align.hardware.bench import align_trial, emulated, SensorlessBench
-from fiber_align.nodes.bringup.hardware import graph_trial, HardwareRun
-from fiber_align.nodes.graph_hardware import build_hardware
+from fiber_align.alignment import hillclimb2d as hc, sequencer2d as s2d
+from fiber_align.config import load_params
+from fiber_align.graph.hardware import build_hardware
+from fiber_align.graph.hardware_rig import build_hardware_rig
+from fiber_align.hardware.mdt693b import MDT693BChannels
+from fiber_align.nodes.bringup.hardware import (graph_trial, HardwareRigRun, HardwareRun,
+                                                rig_graph_trial)
+from fiber_align.plant.optics2d import OpticalLink2D
+from fiber_align.simulation.alignment2d_scenarios import random_target
 
 
 def _rate(fn, n):
@@ -204,6 +218,134 @@ def unplug_latency():
     return out
 
 
+def link_rates(n=300):
+    """
+    Return the MDT693B link's achieved and modelled command rates (Hz) for two axes.
+
+    Modelled: the emulator's timing, ``10 * bytes / baud`` for the command and its
+    prompt plus the firmware turnaround, per transaction.
+    """
+    e = load_params('hardware.yaml', 'emulator')
+    byte_s, turn = 10.0 / float(e['baud']), float(e['turnaround_s'])
+    axes = {a: dict(channel=a, v_min=0.0, v_max=100.0, safe_voltage_v=0.0) for a in 'xy'}
+    out = {}
+    with emulated(seed=0, rig=True) as (bench, mdt, pm):
+        for combined in (False, True):
+            dev = MDT693BChannels(mdt.port, axes, combined=combined)
+            dev.configure()
+            vals = iter(np.linspace(0.0, 50.0, n))
+
+            def pair():
+                v = float(next(vals))
+                dev.write({'x': v, 'y': 50.0 - v})
+            name = 'xyzvoltage' if combined else 'xvoltage+yvoltage'
+            out[name + '_pairs_hz'] = _rate(pair, n)
+            cmds = (['xyzvoltage=12.345,23.456,0.000'] if combined
+                    else ['xvoltage=12.345', 'yvoltage=23.456'])
+            out[name + '_model_hz'] = 1.0 / sum((len(c) + 2) * byte_s + turn for c in cmds)
+            dev.ramp_to_safe()
+            dev.close()
+    return out
+
+
+def offline_samples(n, rate_hz=100.0):
+    """
+    Align ``n`` random targets with ideal positioning at ``rate_hz``; return the readings.
+
+    The 2-D sequencer (hardware parameters) and the hill climb, each position the
+    commanded one a period later (the sensorless loop with a perfect model).
+    """
+    base = dict(load_params(s2d.CONFIG_FILE, s2d.CONFIG_NODE))
+    base.update(load_params('sequencer2d_hardware.yaml', s2d.CONFIG_NODE))
+    period = 1.0 / rate_hz
+    out = {'sequencer': [], 'hillclimb': []}
+    for seed in range(n):
+        tx, ty = random_target(1000 + seed)
+        for method in out:
+            link = OpticalLink2D.from_params(seed=seed, position_x_m=tx, position_y_m=ty)
+            seq = (s2d.Sequencer2D(dict(base), period_s=period) if method == 'sequencer'
+                   else hc.HillClimb2D(dict(base), period_s=period))
+            x = y = 0.0
+            k0 = None
+            for k in range(int(20 * rate_hz)):
+                t = k * period
+                if k == 15:
+                    seq.align()
+                    k0 = k
+                x, y = seq.update(t, x, y, link.measure(t, x, y, period))
+                if k0 is not None and seq.status()['state'] in ('TRACKING', 'FAULT'):
+                    break
+            ok = seq.status()['state'] == 'TRACKING'
+            out[method].append((ok, k - k0, link.loss_db(t, x, y)))
+    return out
+
+
+def rig_track(track_s, drift=0.2e-6, seed=7, target=(30e-6, 30e-6)):
+    """Align the rig through the graph, then track a target drifting on both axes (dB)."""
+    with emulated(seed=seed, rig=True, position_x_m=target[0], position_y_m=target[1],
+                  drift_x_m_per_s=drift, drift_y_m_per_s=drift) as (bench, mdt, pm):
+        hw = HardwareRigRun(build_hardware_rig(port=mdt.port, visa_resource=pm.resource))
+        try:
+            hw.start()
+            ok, wall = hw.align()
+            losses = []
+            end = time.monotonic() + (track_s if ok else 0.0)
+            while time.monotonic() < end and hw.status.get('state') == 'TRACKING':
+                losses.append(bench.true_loss_db())
+                time.sleep(0.01)
+            return dict(aligned=ok, align_wall_s=wall, losses=losses,
+                        state=hw.status.get('state'), fault=hw.status.get('fault_reason'))
+        finally:
+            hw.stop()
+
+
+def rig_main(n_slots, track_s=0.0):
+    """Run the two-axis rig on the emulators through the graph; print tables; return 0."""
+    t0 = time.time()
+    r = link_rates()
+    print('MDT693B link, two axes a period (Hz): ' + ', '.join(
+        '%s %.0f' % (k, v) for k, v in r.items()))
+    print('\n| slot | target x, y (um) | state | loss (dB) | max loss (dB) | align wall (s) '
+          '| peak samples | link commands/s | watchdog trips x, y |')
+    print('|---|---|---|---|---|---|---|---|---|')
+    trials = []
+    for i in range(n_slots):
+        target = random_target(1000 + i)
+        t = rig_graph_trial(seed=i, target_m=target)
+        trials.append(t)
+        print('| %d | %.1f, %.1f | %s | %s | %s | %.3f | %s | %s | %s |' % (
+            i, target[0] * 1e6, target[1] * 1e6,
+            t['status'].get('state') if t['aligned'] else '%s (%s)' % (
+                t['status'].get('state'), t['status'].get('fault_reason')),
+            '-' if t['final_loss_db'] is None else '%.4f' % t['final_loss_db'],
+            '-' if t['max_loss_db'] is None else '%.4f' % t['max_loss_db'],
+            t['align_wall_s'], t['peak_samples'],
+            '-' if t['link_rate_hz'] is None else '%.1f' % t['link_rate_hz'],
+            t.get('trips', '-')), flush=True)
+    good = [t for t in trials if t['aligned'] and t['final_loss_db'] < 0.1]
+    walls = [t['align_wall_s'] for t in trials]
+    print('\nrig through the graph: %d/%d aligned within 0.1 dB of the true peak; align '
+          'wall median %.3f s, worst %.3f s; link commands/s median %.1f (%.0f s wall)'
+          % (len(good), len(trials), float(np.median(walls)), max(walls),
+             float(np.median([t['link_rate_hz'] or 0.0 for t in trials])), time.time() - t0))
+    off = offline_samples(max(n_slots, 5))
+    for m, rows in off.items():
+        ok = [k for a, k, loss in rows if a and loss < 0.1]
+        print('offline, ideal positioning, 100 Hz, %s: %d/%d within 0.1 dB; readings from '
+              'align to TRACKING median %s, worst %s' % (
+                  m, len(ok), len(rows), int(np.median(ok)) if ok else '-',
+                  max(ok) if ok else '-'))
+    if track_s > 0:
+        tr = rig_track(track_s)
+        ls = tr['losses']
+        print('rig: track %.0f s at 0.2 um/s on both axes: max loss %s dB, mean %s dB, '
+              'state %s %s' % (track_s, '%.4f' % max(ls) if ls else '-',
+                               '%.4f' % (sum(ls) / len(ls)) if ls else '-', tr['state'],
+                               tr['fault'] or ''))
+    print('(%.0f s wall)' % (time.time() - t0))
+    return 0
+
+
 def main(argv=None):
     """Run the checks and print tables; return 0."""
     ap = argparse.ArgumentParser(prog='bench_hardware')
@@ -211,7 +353,14 @@ def main(argv=None):
     ap.add_argument('--graph', action='store_true', help='the alignments through the ROS '
                     'graph (bringup --hardware) instead')
     ap.add_argument('--seeds', type=int, default=20, help='--graph: number of seeds')
+    ap.add_argument('--rig', action='store_true', help='the two-axis rig on one MDT693B '
+                    'through the ROS graph (bringup --rig --hardware)')
+    ap.add_argument('--slots', type=int, default=20, help='--rig: random targets')
+    ap.add_argument('--track', type=float, default=0.0, metavar='S',
+                    help='--rig: then track S s under a 0.2 um/s drift on both axes')
     args = ap.parse_args([] if argv is None else argv)
+    if args.rig:
+        return rig_main(args.slots, args.track)
     if args.graph:
         return graph_main(*((5, 10.0, 3) if args.quick else (args.seeds, 60.0, 10)))
     n_seeds, track_s = (5, 10.0) if args.quick else (20, 60.0)

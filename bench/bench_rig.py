@@ -2,7 +2,7 @@
 """
 The two-axis rig on the ROS graph: ``align2d`` in lockstep against the offline run.
 
-Each row is one ``bringup --rig --seed S`` (the rig of ``fiber_align.nodes.graph_rig``,
+Each row is one ``bringup --rig --seed S`` (the rig of ``fiber_align.graph.rig``,
 composed unless ``--multi-process``): in lockstep, the largest difference of every
 per-sample stream (both displacements and setpoints, m; the power, relative) from the
 offline ``align2d`` with ``align`` before the same sample, the time to peak and peak

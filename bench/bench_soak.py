@@ -10,13 +10,22 @@ actuator is. Reported: how many setpoints were missed by more than 1 um (median 
 miss), the driver's watchdog trips (``/diagnostics``), and each process's resident
 memory after the first minute and at the end (MB; the goal: within 5 MB).
 
-Usage: ``python -m bench.bench_soak [--minutes 10] [--hogs 0] [--json FILE]``.
+With ``--cli`` a user works beside it with the upstream ``ros2`` CLI: every ``--cli-period``
+s (2) one round of ``ros2 node list``, ``param list``, ``param get`` and ``param set`` (the
+current value again) of a live parameter of the next node in turn, ``topic echo --once
+displacement`` and ``lifecycle get /actuator_driver``; the CLI's daemon is stopped at the
+end. The driver's cycle figures (``cycle.*`` on ``/diagnostics``) are reported as the worst
+window and the run's share of missed periods.
+
+Usage: ``python -m bench.bench_soak [--minutes 10] [--interval 0.5] [--hogs 0] [--cli]
+[--json FILE]``.
 """
 
 import argparse
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -36,6 +45,8 @@ def main(argv=None):
     ap.add_argument('--check-after', type=float, default=0.3)
     ap.add_argument('--hogs', type=int, default=0)
     ap.add_argument('--seed', type=int, default=0)
+    ap.add_argument('--cli', action='store_true', help='run ros2 CLI commands beside it')
+    ap.add_argument('--cli-period', type=float, default=2.0)
     ap.add_argument('--json', default=None)
     a = ap.parse_args(argv)
     import rclpy
@@ -58,17 +69,21 @@ def main(argv=None):
         ys.append((time.monotonic(), m.position[0]))
         del ys[:-2000]
 
+    cycles = []
+
     def on_diag(m):
         for st in m.status:
             if st.name.endswith('actuator_driver'):
-                for kv in st.values:
-                    if kv.key == 'watchdog_count':
-                        trips['n'] = max(trips['n'], int(float(kv.value)))
+                vals = {kv.key: kv.value for kv in st.values}
+                if 'watchdog_count' in vals:
+                    trips['n'] = max(trips['n'], int(float(vals['watchdog_count'])))
+                if 'cycle.missed_share' in vals:
+                    cycles.append(float(vals['cycle.missed_share']))
     node.create_subscription(JointState, 'displacement', on_y, 100)
     node.create_subscription(DiagnosticArray, '/diagnostics', on_diag, 100)
     pub = node.create_publisher(Float64, 'setpoint', 10)
     rng = np.random.default_rng(a.seed)
-    misses, rss = [], {}
+    misses, rss, cli = [], {}, None
     try:
         end = time.monotonic() + 60
         while 'graph up' not in open(log.name).read() and time.monotonic() < end:
@@ -77,6 +92,7 @@ def main(argv=None):
             r'started (\w+) \(pid (\d+)\)', open(log.name).read())}
         while pub.get_subscription_count() < 1 and time.monotonic() < end:
             rclpy.spin_once(node, timeout_sec=0.1)
+        cli = CliUser(node, a.cli_period) if a.cli else None
         t_start = time.monotonic()
         t_end = t_start + 60.0 * a.minutes
         while time.monotonic() < t_end:
@@ -93,6 +109,8 @@ def main(argv=None):
                 rclpy.spin_once(node, timeout_sec=0.01)
         rss['end'] = {k: rss_bytes(p) / 1e6 for k, p in pids.items()}
     finally:
+        if cli is not None:
+            cli.stop()
         node.destroy_node()
         rclpy.try_shutdown()
         proc.send_signal(signal.SIGINT)
@@ -108,7 +126,12 @@ def main(argv=None):
     out = {'setpoints': int(m.size), 'missed_by_more_than_1um': int(bad.size),
            'median_miss_um': float(np.median(bad) * 1e6) if bad.size else 0.0,
            'worst_miss_um': float(m.max() * 1e6) if m.size else None,
-           'watchdog_trips': trips['n'], 'rss_mb': rss, 'minutes': a.minutes, 'hogs': a.hogs,
+           'watchdog_trips': trips['n'], 'rss_mb': rss,
+           'cycle_missed_share_windows': {
+               'n': len(cycles), 'worst': max(cycles) if cycles else None,
+               'median': float(np.median(cycles)) if cycles else None},
+           'cli_commands': cli.counts if cli is not None else None,
+           'minutes': a.minutes, 'hogs': a.hogs,
            'load_average': os.getloadavg()}
     growth = {k: rss['end'][k] - rss['minute1'][k] for k in rss.get('minute1', {})
               if k in rss.get('end', {})}
@@ -118,6 +141,118 @@ def main(argv=None):
         with open(a.json, 'w', encoding='utf-8') as f:
             json.dump(out, f, indent=1)
     return 0
+
+
+def ros2_env():
+    """Return the environment of the upstream ``ros2`` CLI (``../shared/ros2-tools/env.sh``)."""
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env_sh = os.path.join(here, '..', 'shared', 'ros2-tools', 'env.sh')
+    out = subprocess.run(['bash', '-c', '. "$0" "$1" >/dev/null && env -0', env_sh,
+                          sys.prefix], capture_output=True, timeout=60, check=True)
+    return dict(kv.split('=', 1) for kv in out.stdout.decode().split('\0') if '=' in kv)
+
+
+class CliUser:
+    """A user at the ``ros2`` CLI beside the graph: one round every ``period_s`` (s)."""
+
+    def __init__(self, client, period_s):
+        """Find each node's live parameters (through ``client``), start the thread."""
+        import threading
+        self.env = ros2_env() if shutil.which('ros2') is None else dict(os.environ)
+        self.period_s = float(period_s)
+        self.targets = live_parameters(client)
+        self.counts = {'rounds': 0, 'commands': 0, 'failed': 0, 'timeouts': 0,
+                       'live_parameters': len(self.targets)}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _ros2(self, *args):
+        self.counts['commands'] += 1
+        try:
+            p = subprocess.run(['ros2'] + list(args), env=self.env, capture_output=True,
+                               text=True, timeout=30)
+            if p.returncode != 0:
+                self.counts['failed'] += 1
+            return p.stdout
+        except subprocess.TimeoutExpired:
+            self.counts['timeouts'] += 1
+            return ''
+
+    def _run(self):
+        i = 0
+        while not self._stop.is_set():
+            t0 = time.monotonic()
+            self._ros2('node', 'list')
+            self._ros2('param', 'list')
+            if self.targets:
+                name, param, value = self.targets[i % len(self.targets)]
+                self._ros2('param', 'get', name, param)
+                self._ros2('param', 'set', name, param, value)
+            self._ros2('topic', 'echo', '--once', 'displacement')
+            self._ros2('lifecycle', 'get', '/actuator_driver')
+            self.counts['rounds'] += 1
+            i += 1
+            self._stop.wait(max(0.0, t0 + self.period_s - time.monotonic()))
+
+    def stop(self):
+        """End the rounds and stop the CLI's daemon."""
+        self._stop.set()
+        self._thread.join(timeout=60)
+        subprocess.run(['ros2', 'daemon', 'stop'], env=self.env, capture_output=True,
+                       timeout=30)
+
+
+def live_parameters(client, timeout_s=10.0):
+    """
+    Return ``(node, parameter, value text)`` of every settable scalar parameter of the graph.
+
+    Asked through the parameter services of each node the client sees; a parameter whose
+    descriptor is read-only, or that is not a bool, int, float or string, is left out.
+    """
+    import rclpy
+    from rcl_interfaces.msg import ParameterType
+    from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters
+    out = []
+    for name, ns in client.get_node_names_and_namespaces():
+        if name.startswith('_') or name == client.get_name():
+            continue
+        fq = (ns.rstrip('/') + '/' + name)
+        calls = {}
+        for srv, typ in (('list_parameters', ListParameters),
+                         ('describe_parameters', DescribeParameters),
+                         ('get_parameters', GetParameters)):
+            calls[srv] = client.create_client(typ, fq + '/' + srv)
+
+        def call(srv, req):
+            c = calls[srv]
+            if not c.wait_for_service(timeout_sec=timeout_s):
+                return None
+            fut = c.call_async(req)
+            rclpy.spin_until_future_complete(client, fut, timeout_sec=timeout_s)
+            return fut.result()
+        names = call('list_parameters', ListParameters.Request())
+        if names is None:
+            continue
+        names = [n for n in names.result.names if n != 'use_sim_time']
+        desc = call('describe_parameters', DescribeParameters.Request(names=names))
+        vals = call('get_parameters', GetParameters.Request(names=names))
+        for c in calls.values():
+            client.destroy_client(c)
+        if desc is None or vals is None:
+            continue
+        for n, d, v in zip(names, desc.descriptors, vals.values):
+            if d.read_only:
+                continue
+            text = {ParameterType.PARAMETER_BOOL: lambda: str(v.bool_value).lower(),
+                    ParameterType.PARAMETER_INTEGER: lambda: str(v.integer_value),
+                    ParameterType.PARAMETER_DOUBLE: lambda: repr(v.double_value),
+                    ParameterType.PARAMETER_STRING: lambda: v.string_value or "''",
+                    }.get(v.type)
+            if text is not None:
+                out.append((fq, n, text()))
+                break                   # one live parameter per node
+    return out
 
 
 if __name__ == '__main__':

@@ -1,0 +1,127 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+CPU per axis of the realtime graph: this tree beside a baseline tree, in one run.
+
+Each run is one ``bringup --sync realtime`` (the graph users start with ``ros2 launch``):
+the 1-D graph on a sine (``--scenario sine``, one axis), with or without a recorder, and
+the two-axis rig aligning, tracking and through its switch cycles (``--rig``, two
+axes). The trees alternate run by
+run (A, B, A, B, ...) so both see the same machine; every process of the graph is
+counted (CPU seconds per second of run, from bringup's summary), divided by the axes.
+Reported per case and tree: the median and the spread of CPU per axis and of the cycles
+kept (the worst axis), and the ratio of the medians (this tree over the baseline).
+
+Usage: ``python -m bench.bench_axis_cpu --baseline DIR [--repeats 3] [--seconds 20]
+[--cases one,one-recorded,rig] [--json FILE]``; ``DIR`` is a checkout of the baseline
+(e.g. ``git worktree add --detach /tmp/base <commit>``).
+"""
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+#: case -> (bringup arguments, axes, recorded); the rig runs its align2d to TRACKING and
+#: its switch cycles (no ``--duration``)
+CASES = {
+    'one': (['--scenario', 'sine', '--duration', '{seconds}'], 1, False),
+    'one-recorded': (['--scenario', 'sine', '--duration', '{seconds}'], 1, True),
+    'rig': (['--rig'], 2, False),
+}
+
+
+def run_once(tree, case, seconds, tmp):
+    """Run one case on ``tree``; return ``{cpu_per_axis, cycles_kept, ...}``."""
+    args, axes, recorded = CASES[case]
+    summary = os.path.join(tmp, 'summary-%s-%s.json' % (case, os.getpid()))
+    if os.path.exists(summary):
+        os.remove(summary)
+    cmd = [sys.executable, '-m', 'fiber_align.nodes.bringup'] + [
+        x.format(seconds=seconds) for x in args] + [
+        '--sync', 'realtime', '--quiet', '--summary', summary]
+    if recorded:
+        bag = tempfile.mkdtemp(dir=tmp)
+        os.rmdir(bag)
+        cmd += ['--record', bag]
+    env = dict(os.environ, PYTHONPATH=tree)
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=tree,
+                          timeout=180 + 3 * seconds)
+    if not os.path.isfile(summary):
+        return {'error': (proc.stdout + proc.stderr)[-400:]}
+    with open(summary, encoding='utf-8') as f:
+        s = json.load(f)
+    cpu = sum(p.get('cpu_per_s') or 0.0 for p in s.get('processes', {}).values())
+    shares = [a.get('missed_share') for a in _axes(s) if a.get('missed_share') is not None]
+    return {'cpu_per_axis': cpu / axes, 'cpu_total': cpu,
+            'cycles_kept': 1.0 - max(shares) if shares else None,
+            'processes': {k: v.get('cpu_per_s') for k, v in s.get('processes', {}).items()},
+            'exit_code': proc.returncode}
+
+
+def _axes(s):
+    """Return the realtime figures of each axis in a bringup summary."""
+    if 'axes' in s and isinstance(s['axes'], dict):
+        return [a.get('realtime', a) for a in s['axes'].values()]
+    return [s.get('realtime', {})]
+
+
+def summarise(runs):
+    """Return the median, min and max of each figure over ``runs``."""
+    out = {}
+    for key in ('cpu_per_axis', 'cycles_kept'):
+        v = [r[key] for r in runs if r.get(key) is not None]
+        out[key] = {'median': float(np.median(v)), 'min': min(v), 'max': max(v)} if v \
+            else None
+    out['errors'] = [r['error'] for r in runs if 'error' in r]
+    return out
+
+
+def main(argv=None):
+    """Run the comparison; print the table (and write JSON with ``--json``)."""
+    ap = argparse.ArgumentParser(description=__doc__.strip().split('\n')[0])
+    ap.add_argument('--baseline', required=True, help='checkout of the baseline tree')
+    ap.add_argument('--repeats', type=int, default=3)
+    ap.add_argument('--seconds', type=float, default=20.0)
+    ap.add_argument('--cases', default='one,one-recorded,rig')
+    ap.add_argument('--json', default=None)
+    a = ap.parse_args(argv)
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    trees = {'this': ROOT, 'baseline': os.path.abspath(a.baseline)}
+    cases = [c for c in a.cases.split(',') if c]
+    runs = {(c, t): [] for c in cases for t in trees}
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(a.repeats):
+            for c in cases:
+                for t in ('this', 'baseline'):
+                    runs[(c, t)].append(run_once(trees[t], c, a.seconds, tmp))
+    out = {'seconds': a.seconds, 'repeats': a.repeats, 'load_average': os.getloadavg(),
+           'cases': {}}
+    lines = ['| case | tree | CPU per axis (s/s) median [min, max] | cycles kept, worst axis '
+             '(median) |', '|---|---|---|---|']
+    for c in cases:
+        out['cases'][c] = {t: dict(summarise(runs[(c, t)]), runs=runs[(c, t)]) for t in trees}
+        for t in trees:
+            s = out['cases'][c][t]
+            cpu, cyc = s['cpu_per_axis'], s['cycles_kept']
+            lines.append('| %s | %s | %s | %s |' % (
+                c, t, '%.3f [%.3f, %.3f]' % (cpu['median'], cpu['min'], cpu['max'])
+                if cpu else 'error', '%.3f %%' % (100 * cyc['median']) if cyc else '-'))
+        a_, b_ = out['cases'][c]['this']['cpu_per_axis'], \
+            out['cases'][c]['baseline']['cpu_per_axis']
+        if a_ and b_:
+            out['cases'][c]['ratio_cpu'] = a_['median'] / b_['median']
+            lines.append('| %s | this / baseline | %.2f | |' % (c, out['cases'][c]['ratio_cpu']))
+    print('\n'.join(lines))
+    if a.json:
+        with open(a.json, 'w', encoding='utf-8') as f:
+            json.dump(out, f, indent=1)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
