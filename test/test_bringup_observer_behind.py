@@ -5,6 +5,8 @@ import threading
 import time
 from types import SimpleNamespace
 
+import pytest
+
 from fiber_align.nodes.bringup.observer import Observer
 
 
@@ -29,3 +31,41 @@ def test_not_behind_before_the_runner_is_done_or_once_the_record_is_complete():
 def test_lockstep_always_waits_for_its_own_record():
     # lockstep figures are compared sample for sample: its record must be whole
     assert not Observer.behind(state(lockstep=True, done_ago=60.0), 2.0)
+
+
+@pytest.mark.ros  # starts rclpy
+def test_every_node_of_bringup_that_offers_parameters_answers_them():
+    # `ros2 param list` asks every node that offers list_parameters and waits for each:
+    # a node of bringup's that offers the service but is spun only during its own calls
+    # (the service client) held the CLI for ever
+    import rclpy
+    from rcl_interfaces.srv import ListParameters
+    from rclpy.executors import SingleThreadedExecutor
+    obs = Observer('obsparams', {'y': 'displacement'})
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, args=[])
+    probe = rclpy.create_node('probe', context=ctx, start_parameter_services=False)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(probe)
+    try:
+        want = {'/obsparams/bringup', '/obsparams/bringup_client'}
+        end = time.monotonic() + 10.0
+        while time.monotonic() < end and not want <= {
+                '%s/%s' % (ns.rstrip('/'), n) for n, ns in probe.get_node_names_and_namespaces()}:
+            time.sleep(0.05)
+        names = probe.get_node_names_and_namespaces()
+        offered = [('%s/%s' % (ns.rstrip('/'), n)) for n, ns in names if ns.startswith(
+            '/obsparams') and any(s == '%s/%s/list_parameters' % (ns.rstrip('/'), n)
+                                  for s, _ in probe.get_service_names_and_types())]
+        assert '/obsparams/bringup' in offered and '/obsparams/bringup_client' not in offered
+        for name in offered:
+            cli = probe.create_client(ListParameters, name + '/list_parameters')
+            assert cli.wait_for_service(timeout_sec=5.0), name
+            fut = cli.call_async(ListParameters.Request())
+            ex.spin_until_future_complete(fut, timeout_sec=2.0)
+            assert fut.done(), '%s offers list_parameters and does not answer' % name
+    finally:
+        ex.shutdown(timeout_sec=1.0)
+        probe.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+        obs.destroy()

@@ -132,7 +132,10 @@ class Observer:
         rclpy.init(context=self.ctx, args=[])
         ns = namespace.strip('/') or None
         self.node = rclpy.create_node('bringup', namespace=ns, context=self.ctx)
-        self.cnode = rclpy.create_node('bringup_client', namespace=ns, context=self.ctx)
+        # spun only while a call of bringup's waits: parameter services there would go
+        # unanswered, and `ros2 param list` waits on every node that offers them
+        self.cnode = rclpy.create_node('bringup_client', namespace=ns, context=self.ctx,
+                                       start_parameter_services=False)
         self.cexec = SingleThreadedExecutor(context=self.ctx)
         self.cexec.add_node(self.cnode)
         self.source, self.lockstep, self.clock = source, lockstep, clock
