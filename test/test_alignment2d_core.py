@@ -137,3 +137,67 @@ def test_parameters_come_from_the_config_file_only():
     del p['dither_radius_m']
     with pytest.raises(ValueError, match='missing'):
         s2d.Sequencer2D(p)
+
+
+def _bench2d(seed=2, **seq):
+    from fiber_align.simulation import alignment2d_scenarios as sc
+    bench = sc.build(seed=seed, seq_overrides=seq)
+    for _ in range(20):
+        bench.step()
+    return bench
+
+
+def _run_until(bench, states, max_s=2.0):
+    for _ in range(int(max_s / bench.period_s)):
+        if bench.seq.state in states:
+            return True
+        bench.step()
+    return bench.seq.state in states
+
+
+@pytest.mark.parametrize('trip_in', [s2d.SEARCHING, s2d.TRACKING])
+def test_a_driver_held_mid_align_holds_the_setpoints_then_goes_on_to_tracking(trip_in):
+    # a watchdog trip of one axis (drive_held true for 50 ms) while searching or tracking:
+    # HELD with the setpoints kept, then a new search or a re-peak, and TRACKING at the peak
+    bench = _bench2d()
+    seq = bench.seq
+    assert seq.align()[0]
+    if trip_in == s2d.TRACKING:
+        assert _run_until(bench, (s2d.TRACKING,)), seq.fault_reason
+        for _ in range(50):
+            bench.step()
+    else:
+        for _ in range(30):
+            bench.step()
+    assert seq.state == trip_in
+    seq.driver_held(True, s2d.DRIVERS[1])
+    assert seq.state == s2d.HELD and 'y/actuator_driver' in seq.status()['hold_reason']
+    held = seq.setpoint
+    for _ in range(50):
+        bench.step()
+        assert seq.state == s2d.HELD and seq.setpoint == held
+    seq.driver_held(False, s2d.DRIVERS[1])
+    bench.step()
+    assert seq.state in (s2d.HELD, s2d.SEARCHING if trip_in == s2d.SEARCHING else s2d.PEAKING)
+    assert _run_until(bench, (s2d.TRACKING, s2d.FAULT)), seq.state
+    assert seq.state == s2d.TRACKING, seq.fault_reason
+    for _ in range(20):
+        bench.step()
+    assert bench.true_loss() < 0.1
+
+
+def test_a_driver_that_stays_down_ends_in_fault_with_the_reason():
+    bench = _bench2d(driver_down_timeout_s=0.1)
+    seq = bench.seq
+    assert seq.align()[0]
+    for _ in range(30):
+        bench.step()
+    seq.driver_held(True, s2d.DRIVERS[0])
+    assert seq.state == s2d.HELD
+    for _ in range(int(0.09 / bench.period_s)):
+        bench.step()
+    assert seq.state == s2d.HELD
+    assert _run_until(bench, (s2d.FAULT,), 0.05)
+    assert seq.fault_reason.startswith('driver inactive: a driver held its output for more '
+                                       'than 0.1 s'), seq.fault_reason
+    assert 'x/actuator_driver' in seq.fault_reason

@@ -121,7 +121,12 @@ def test_pure_core_faults_and_api():
     seq.release()
     seq.align()
     seq.update(0.2, 0.0, 0.0, 1e-10, driver_active=False)
-    assert seq.state == s2d.FAULT and 'driver inactive' in seq.fault_reason
+    assert seq.state == s2d.HELD                        # waits for the re-arm ...
+    down_s = seq.p['driver_down_timeout_s']
+    seq.update(0.2 + 0.5 * down_s, 0.0, 0.0, 1e-10, driver_active=False)
+    assert seq.state == s2d.HELD
+    seq.update(0.2 + 1.01 * down_s, 0.0, 0.0, 1e-10, driver_active=False)
+    assert seq.state == s2d.FAULT and 'driver inactive' in seq.fault_reason   # ... so long
 
 
 def test_cli_json_has_the_keys(capsys):

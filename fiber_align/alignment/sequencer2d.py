@@ -11,6 +11,7 @@ detector reading (W) and gets the two setpoints ``(x_m, y_m)`` back. Commands ``
     IDLE -> SEARCHING -> PEAKING -> TRACKING      (align)
     any  -> RELEASING -> IDLE                     (release, switch(False))
     IDLE -> PEAKING (re-peak) -> TRACKING         (switch(True): the last aligned point)
+    active -> HELD -> SEARCHING / PEAKING (re-peak) (a driver held its output, then back)
     any active state -> FAULT (reason)
 
 SEARCHING
@@ -23,6 +24,13 @@ PEAKING
     circular paraboloid (the Gaussian overlap makes it exact), moves the cross to the vertex
     and repeats until the vertex lies within ``converge_tolerance_m`` of the cross centre;
     then moves to the vertex and checks the reading against the fit.
+HELD
+    A driver holds its output (a watchdog trip, ``~/enable`` false, inactive): the
+    setpoints are held; once every driver drives again and both axes are back within
+    ``follow_error_m`` of them, at rest, a search starts again (held while SEARCHING, or
+    before any aligned point) or a re-peak around the last aligned point (PEAKING,
+    TRACKING). FAULT when a driver stays down, or an axis does not return, for longer
+    than ``driver_down_timeout_s``.
 TRACKING
     Circular dither of radius ``dither_radius_m`` at ``dither_frequency_hz``; the demodulated
     gradient of ``ln P`` moves the estimate at ``bandwidth * g / (2 k)`` (``k`` the fitted
@@ -40,8 +48,9 @@ from fiber_align.alignment.driver_state import DriverState
 from fiber_align.alignment.machine import Machine
 from fiber_align.alignment.multiaxis import MultiAxis
 from fiber_align.alignment.peak2d import AXES, dbm as _dbm, PeakFitMixin
-from fiber_align.alignment.states import (ACTIVE, FAULT, IDLE, PEAKING,  # noqa: F401
-                                          RELEASING, SEARCHING, STATES, TRACKING)
+from fiber_align.alignment.states import (ACTIVE, FAULT, HELD, IDLE,  # noqa: F401
+                                          PEAKING, RELEASING, SEARCHING, STATES,
+                                          TRACKING)
 from fiber_align.config import load_params
 
 CONFIG_FILE = 'sequencer2d.yaml'
@@ -118,6 +127,9 @@ class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
         self._prev_pos = None
         self._idle_buf = []
         self._phase = ''
+        self.hold_reason = ''
+        self._held_from = None
+        self._driver_active = None
         self.drivers = DriverState(DRIVERS)
         self._enter(IDLE)
 
@@ -133,7 +145,47 @@ class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
         return self.aligned
 
     def _driver_down(self, reason):
-        self._fault('driver inactive: %s' % reason)
+        self._hold(reason)
+
+    def _hold(self, why):
+        """Enter HELD from an active state: keep the setpoints, say why."""
+        self._held_from = self.state
+        self._enter(HELD)
+        self._phase = 'down'
+        self.hold_reason = ('driver down during %s at (%.2f, %.2f) um (%s): setpoints held, '
+                            'waiting for the re-arm, FAULT after %.1f s'
+                            % (self._held_from, self.sp[0] * 1e6, self.sp[1] * 1e6, why,
+                               self.p['driver_down_timeout_s']))
+        self._log(self.hold_reason)
+
+    def _do_held(self, t, pos, pw):
+        p = self.p
+        if self._driver_active is False:
+            if self._phase != 'down':               # down again while returning
+                self._phase, self._state_t = 'down', t
+            if self._elapsed(t) > p['driver_down_timeout_s']:
+                self._fault('driver inactive: a driver held its output for more than %.1f s '
+                            '(during %s) without a re-arm (~/enable true or a lifecycle '
+                            'cycle): %s' % (p['driver_down_timeout_s'], self._held_from,
+                                            self.drivers.reason or 'not driving'))
+            return
+        if self._phase == 'down':
+            self._log('driver back after %.0f ms' % (self._elapsed(t) * 1e3))
+            self._phase, self._state_t = 'return', t
+        if not (self._rest and np.all(np.abs(pos - self.sp) < p['follow_error_m'])):
+            if self._elapsed(t) > p['driver_down_timeout_s']:
+                self._fault('driver inactive or actuator stuck: (%.1f, %.1f) um did not '
+                            'return to the held setpoints (%.1f, %.1f) um within %.1f s'
+                            % (pos[0] * 1e6, pos[1] * 1e6, self.sp[0] * 1e6,
+                               self.sp[1] * 1e6, p['driver_down_timeout_s']))
+            return
+        self._resumed = True
+        if self._held_from == SEARCHING or self.aligned is None:
+            self._enter(SEARCHING)
+            self._start_search()
+        else:
+            self._enter(PEAKING)
+            self._log(self._start_repeak())
 
     def _start_repeak(self):
         self._start_pattern(self.aligned, self.p['repeak_pattern_radius_m'])
@@ -182,6 +234,7 @@ class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
             # pending: a re-activated driver whose drive_held false is still on its way
             # is no fault (a driver that stays held is caught by the follow check)
             driver_active = self.drivers.active
+        self._driver_active = driver_active
         if self.state in ACTIVE and self._unhealthy(t, pos, pw, driver_active):
             return self.setpoint
         if pos is None:
@@ -205,14 +258,14 @@ class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
                     aligned_x_m=None if al is None else float(al[0]),
                     aligned_y_m=None if al is None else float(al[1]),
                     threshold_w=self.threshold_w, peak_samples=self.peak_samples,
-                    search_samples=self.search_samples, iterations=self.iterations)
+                    search_samples=self.search_samples, iterations=self.iterations,
+                    **({'hold_reason': self.hold_reason} if self.state == HELD else {}))
 
     # ---- internals ------------------------------------------------------------------
     def _unhealthy(self, t, pos, pw, driver_active):
         """Return True (and fault) when a driver is down, a reading missing, an axis stuck."""
         if driver_active is False:
-            self._fault('driver inactive: %s' % (self.drivers.reason or 'a driver reports '
-                                                 'it is not driving its axis'))
+            self._hold(self.drivers.reason or 'a driver reports it is not driving its axis')
             return True
         return self._silent_or_stuck(t, pos)
 

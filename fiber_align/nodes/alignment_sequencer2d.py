@@ -15,13 +15,16 @@ Runs in the rig's namespace (``/rig``); topics and services (relative names, SI 
   ``sample``, the index of the next update, ``sample_time_s``, the time of the last one
   (s), and ``align_sample``, the index of the update the last accepted ``align`` acted
   before), latched, on every change of state or fault and after every command.
-- ``/diagnostics``: OK in IDLE, SEARCHING, PEAKING, TRACKING, RELEASING; ERROR in FAULT.
+- ``/diagnostics``: OK in IDLE, SEARCHING, PEAKING, TRACKING, RELEASING; WARN with the
+  reason in HELD; ERROR in FAULT.
 - the drivers' state (``_sequencer_node``): ``x/drive_held``, ``y/drive_held``
   (std_msgs/Bool, latched), ``x/actuator_driver/transition_event`` and
   ``y/actuator_driver/transition_event`` (lifecycle_msgs/TransitionEvent) and their
   statuses on ``/diagnostics`` go to the core (:mod:`fiber_align.alignment.
-  driver_state`): a driver that stops driving ends an active state in FAULT at once,
-  with the reason; ``align`` and ``switch`` true are refused while one is down. On the
+  driver_state`): a driver that stops driving puts an active state in HELD at once
+  (the setpoints held, the reason said; a new search or a re-peak once it drives
+  again, FAULT after ``driver_down_timeout_s``); ``align`` and ``switch`` true are
+  refused while one is down. On the
   hardware rig the axis statuses ``mdt693b_driver/x`` and ``mdt693b_driver/y`` stand for
   the drivers' on ``/diagnostics``.
 - srv ``align``, ``release`` (std_srvs/Trigger); ``switch`` (std_srvs/SetBool).
