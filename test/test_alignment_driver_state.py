@@ -4,7 +4,7 @@ The sequencers' view of their drivers (``alignment.driver_state``), pure.
 
 What a driver publishes (``drive_held``, its lifecycle transitions, ``/diagnostics``)
 decides whether the sequencer may move the light: an active state leaves at once (the
-1-D sequencer to HELD, the 2-D one to FAULT) with the driver's reason, a command that
+1-D and the 2-D sequencer to HELD) with the driver's reason, a command that
 moves the light is refused while a driver is down, and a re-activated driver whose
 ``drive_held`` false is still on its way does not refuse the first ``align``.
 """
@@ -187,7 +187,7 @@ def test_idle_and_release_are_not_refused_or_moved_by_a_down_driver():
     assert not ok and seq.state == sq.RELEASING and 'drive_held true' in why
 
 
-def test_sequencer2d_faults_on_the_message_and_refuses_align():
+def test_sequencer2d_holds_on_the_message_and_refuses_align():
     seq = s2d.Sequencer2D()
     for n in s2d.DRIVERS:
         seq.driver_held(False, n)
@@ -195,8 +195,8 @@ def test_sequencer2d_faults_on_the_message_and_refuses_align():
     seq.update(0.0, 0.0, 0.0, 1e-10)
     assert seq.align()[0] and seq.state == sq.SEARCHING
     assert seq.driver_lifecycle('inactive', 'x/actuator_driver')
-    assert seq.state == sq.FAULT
-    assert seq.fault_reason.startswith('driver inactive: x/actuator_driver inactive')
+    assert seq.state == sq.HELD
+    assert '(x/actuator_driver inactive' in seq.status()['hold_reason']
     seq.driver_held(True, 'x/actuator_driver')
     ok, why = seq.align()
     assert not ok and 'x/actuator_driver' in why
@@ -207,4 +207,4 @@ def test_sequencer2d_faults_on_the_message_and_refuses_align():
     seq.driver_held(False, 'x/actuator_driver')
     assert seq.drivers.active is True and seq.state == sq.SEARCHING
     seq.driver_held(True, 'x/actuator_driver')              # a trip after the activation
-    assert seq.state == sq.FAULT and 'drive_held true' in seq.fault_reason
+    assert seq.state == sq.HELD and 'drive_held true' in seq.status()['hold_reason']
