@@ -17,8 +17,12 @@ displacement`` and ``lifecycle get /actuator_driver``; the CLI's daemon is stopp
 end. The driver's cycle figures (``cycle.*`` on ``/diagnostics``) are reported as the worst
 window and the run's share of missed periods.
 
+With ``--baseline`` the same soak first runs with the DDS publishes on the control thread
+(``publish_thread: false``, the code before the publish thread), then as shipped: the two
+columns of one run.
+
 Usage: ``python -m bench.bench_soak [--minutes 10] [--interval 0.5] [--hogs 0] [--cli]
-[--json FILE]``.
+[--baseline] [--json FILE]``.
 """
 
 import argparse
@@ -47,17 +51,40 @@ def main(argv=None):
     ap.add_argument('--seed', type=int, default=0)
     ap.add_argument('--cli', action='store_true', help='run ros2 CLI commands beside it')
     ap.add_argument('--cli-period', type=float, default=2.0)
+    ap.add_argument('--baseline', action='store_true',
+                    help='first run with publish_thread false (DDS publishes on the '
+                    'control thread)')
     ap.add_argument('--json', default=None)
     a = ap.parse_args(argv)
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    runs = {}
+    if a.baseline:
+        with tempfile.NamedTemporaryFile('w', suffix='.yaml', delete=False) as f:
+            f.write('/**:\n  ros__parameters:\n    publish_thread: false\n')
+        try:
+            runs['publish_thread_false'] = soak(a, ['--params-file', f.name])
+        finally:
+            os.unlink(f.name)
+    runs['shipped'] = soak(a, [])
+    out = runs['shipped'] if len(runs) == 1 else runs
+    print(json.dumps(out, indent=1))
+    if a.json:
+        with open(a.json, 'w', encoding='utf-8') as f:
+            json.dump(out, f, indent=1)
+    return 0
+
+
+def soak(a, extra):
+    """Return the figures of one soak, ``bringup`` started with the arguments ``extra``."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     log = tempfile.NamedTemporaryFile('w+', suffix='.log', delete=False)
     proc = subprocess.Popen([sys.executable, '-m', 'fiber_align.nodes.bringup', '--scenario',
-                             'none', '--sync', 'realtime', '--quiet'], stdout=log,
+                             'none', '--sync', 'realtime', '--quiet'] + list(extra),
+                            stdout=log,
                             stderr=subprocess.STDOUT)
     hogs = [subprocess.Popen([sys.executable, '-c', 'while True: pass'])
             for _ in range(a.hogs)]
@@ -66,7 +93,10 @@ def main(argv=None):
     ys, trips = [], {'n': 0}
 
     def on_y(m):
-        ys.append((time.monotonic(), m.position[0]))
+        # the sample's own time (the plant's wall-clock stamp), not its arrival: outside
+        # readers may get a sample late, and the check is about where the actuator was
+        st = m.header.stamp
+        ys.append((st.sec + 1e-9 * st.nanosec, m.position[0]))
         del ys[:-2000]
 
     cycles = []
@@ -97,15 +127,18 @@ def main(argv=None):
         t_end = t_start + 60.0 * a.minutes
         while time.monotonic() < t_end:
             r = float(rng.uniform(10e-6, 80e-6))
-            t0 = time.monotonic()
+            t0 = time.time()
             pub.publish(Float64(data=r))
-            while time.monotonic() < t0 + a.check_after + 0.02:
+            t_wait = time.monotonic() + a.check_after + 0.02
+            t_win = t0 + a.check_after + 0.02
+            while time.monotonic() < t_wait or (
+                    ys and ys[-1][0] < t_win and time.monotonic() < t_wait + 2.0):
                 rclpy.spin_once(node, timeout_sec=0.005)
             win = [y for t, y in ys if t0 + a.check_after <= t <= t0 + a.check_after + 0.02]
             misses.append(abs(np.mean(win) - r) if win else float('inf'))
             if 'minute1' not in rss and time.monotonic() - t_start >= 60.0:
                 rss['minute1'] = {k: rss_bytes(p) / 1e6 for k, p in pids.items()}
-            while time.monotonic() < t0 + a.interval:
+            while time.time() < t0 + a.interval:
                 rclpy.spin_once(node, timeout_sec=0.01)
         rss['end'] = {k: rss_bytes(p) / 1e6 for k, p in pids.items()}
     finally:
@@ -131,16 +164,13 @@ def main(argv=None):
                'n': len(cycles), 'worst': max(cycles) if cycles else None,
                'median': float(np.median(cycles)) if cycles else None},
            'cli_commands': cli.counts if cli is not None else None,
+           'cli_failures': cli.failures[:20] if cli is not None else None,
            'minutes': a.minutes, 'hogs': a.hogs,
            'load_average': os.getloadavg()}
     growth = {k: rss['end'][k] - rss['minute1'][k] for k in rss.get('minute1', {})
               if k in rss.get('end', {})}
     out['rss_growth_after_minute1_mb'] = growth
-    print(json.dumps(out, indent=1))
-    if a.json:
-        with open(a.json, 'w', encoding='utf-8') as f:
-            json.dump(out, f, indent=1)
-    return 0
+    return out
 
 
 def ros2_env():
@@ -163,6 +193,7 @@ class CliUser:
         self.targets = live_parameters(client)
         self.counts = {'rounds': 0, 'commands': 0, 'failed': 0, 'timeouts': 0,
                        'live_parameters': len(self.targets)}
+        self.failures = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -174,9 +205,12 @@ class CliUser:
                                text=True, timeout=30)
             if p.returncode != 0:
                 self.counts['failed'] += 1
+                self.failures.append('%s: %s' % (' '.join(args), (p.stderr or p.stdout)
+                                                 .strip().splitlines()[-1:]))
             return p.stdout
         except subprocess.TimeoutExpired:
             self.counts['timeouts'] += 1
+            self.failures.append('%s: timed out (30 s)' % ' '.join(args))
             return ''
 
     def _run(self):

@@ -31,7 +31,7 @@ from fiber_align.control.realtime import DriverStep
 from fiber_align.nodes._driver_device import DeviceBackend
 from fiber_align.nodes._driver_loop import DriverLoop
 from fiber_align.nodes._driver_params import declare_all, DriverParameters
-from fiber_align.nodes.ros.bus import Pub, slack_of, subscription, unsubscribe
+from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription, unsubscribe
 from fiber_align.nodes.ros.diagnostics import ERROR, Health, OK, WARN
 from fiber_align.nodes.ros.lifecycle import guard_change_state
 from fiber_align.nodes.ros.params import node_defaults
@@ -86,7 +86,7 @@ class ActuatorDriverNode(DriverParameters, DeviceBackend, DriverLoop, LifecycleN
         self.pub_held = Pub(self, Bool, 'drive_held', LATCHED_QOS, bus, latched=True)
         self._set_held(True, 'unconfigured')
         self.health = Health(self, self.get_parameter('diagnostics_period_s').value,
-                             slack=self.slack)
+                             slack=self.slack, sender=sender_of(bus))
         self.health.status(WARN, 'unconfigured: output 0 V')
         self._report_protections(self._core_params())
         self.refused_transitions = 0

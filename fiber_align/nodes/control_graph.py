@@ -27,6 +27,7 @@ from rclpy.utilities import remove_ros_args
 from fiber_align.graph import description as graph
 from fiber_align.nodes.ros import runtime as c
 from fiber_align.nodes.ros.bus import LocalBus
+from fiber_align.nodes.ros.sender import Sender
 
 #: Nodes a composed process can host: ``--nodes`` name -> (module, class), in build
 #: order (the order of in-process delivery): the graph description's registry.
@@ -84,21 +85,37 @@ def is_realtime(nodes):
     return True
 
 
+def publish_thread(nodes):
+    """Return True when a hosted node asks for the publish thread (``publish_thread``)."""
+    return any(n.has_parameter('publish_thread') and n.get_parameter('publish_thread').value
+               for n in nodes)
+
+
 def main(args=None):
     """Run the composed graph (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
     argv = sys.argv if args is None else ['control_graph'] + list(args)
     names = parse_nodes(remove_ros_args(argv)[1:])
     stop = c.init(argv)
     nodes = []
+    bus = LocalBus()
+    bus.sender = Sender()
     try:
-        nodes, _ = build(names)
-        c.spin(nodes, realtime=is_realtime(nodes), priority=c.node_priority(nodes),
-               stop=stop)
+        nodes, _ = build(names, bus)
+        realtime = is_realtime(nodes)
+        # realtime: the DDS publishes leave the control thread (ros/sender.py); lockstep
+        # has no deadline and keeps them on the executor's thread
+        if realtime and publish_thread(nodes) and not bus.sender.start():
+            nodes[0].get_logger().warn('DDS publishes stay on the control thread: %s'
+                                       % bus.sender.error)
+        c.spin(nodes, realtime=realtime, priority=c.node_priority(nodes), stop=stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except c.NODE_ERRORS as exc:
         return c.refuse('control_graph', exc)
     finally:
+        left = bus.sender.stop()
+        if left and nodes:
+            nodes[0].get_logger().error('%d messages not handed to DDS at exit' % left)
         c.finish(nodes)
     return c.exit_code(stop)
 

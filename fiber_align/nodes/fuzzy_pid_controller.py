@@ -34,7 +34,7 @@ from fiber_align.control.realtime import ControllerStep, extend_lead
 from fiber_align.control.trajectory import Setpoint, stamp_ns
 from fiber_align.graph import checks
 from fiber_align.graph.params import SHARED
-from fiber_align.nodes.ros.bus import Pub, slack_of, subscription
+from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import Health, OK
 from fiber_align.nodes.ros.params import declare, declare_graph_values, declare_shaping
 from fiber_align.nodes.ros.params import design_model, node_defaults, PRIORITY
@@ -113,7 +113,8 @@ class FuzzyPidControllerNode(Node):
             subscription(self, Float64, 'drive_voltage', self._on_drive, REALTIME_QOS,
                          bus)
         self.create_service(Trigger, '~/reset', self._on_reset)
-        self.health = Health(self, g['diagnostics_period_s'], slack=self.slack)
+        self.health = Health(self, g['diagnostics_period_s'], slack=self.slack,
+                             sender=sender_of(bus))
         self._stamp_ns = 0              # realtime: stamp (ns) of the sample being answered
         self.wired = self.lockstep      # realtime: the driver and compensator are heard
         if not self.lockstep:

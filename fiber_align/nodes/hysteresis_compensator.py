@@ -59,7 +59,7 @@ from fiber_align.control.realtime import CompensatorStep, extend_lead
 from fiber_align.control.trajectory import Setpoint, stamp_ns
 from fiber_align.graph import checks
 from fiber_align.hysteresis.pi import PIModel
-from fiber_align.nodes.ros.bus import Pub, slack_of, subscription
+from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import Health, OK
 from fiber_align.nodes.ros.params import declare, declare_graph_values, declare_shaping
 from fiber_align.nodes.ros.params import design_model, node_defaults, PRIORITY
@@ -131,7 +131,8 @@ class HysteresisCompensatorNode(Node):
                          bus)
         self.create_service(Trigger, '~/reload_model', self._on_reload)
         self.create_service(Trigger, '~/reset', self._on_reset)
-        self.health = Health(self, g['diagnostics_period_s'], slack=self.slack)
+        self.health = Health(self, g['diagnostics_period_s'], slack=self.slack,
+                             sender=sender_of(bus))
         self.health.cycle = CycleStats(self.rate_hz)
         self.n_ff = 0
         self.step = CompensatorStep(self.build(), 1.0 / self.rate_hz,

@@ -54,7 +54,7 @@ from std_srvs.srv import SetBool
 from fiber_align.control.cycle import CycleStats, LatencyHistogram
 from fiber_align.control.trajectory import MAX_CATCH_UP
 from fiber_align.nodes._plant_clock import PlantClock
-from fiber_align.nodes.ros.bus import Pub, slack_of, subscription
+from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import Health
 from fiber_align.nodes.ros.params import check_parameters, declare, declare_graph_values
 from fiber_align.nodes.ros.params import flatten_defaults, node_defaults, PRIORITY
@@ -143,7 +143,7 @@ class SimulatedActuatorNode(PlantClock, Node):
         subscription(self, Float64, 'drive_voltage', self._on_drive,
                      LOCKSTEP_QOS if self.sync_mode == 'lockstep' else DAC_QOS, bus)
         self.create_service(SetBool, '~/run', self._on_run)
-        self.health = Health(self, diag_period, slack=self.slack)
+        self.health = Health(self, diag_period, slack=self.slack, sender=sender_of(bus))
         if self.sync_mode == 'realtime':
             self.health.cycle = CycleStats(self.rate_hz)
 

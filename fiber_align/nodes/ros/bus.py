@@ -8,6 +8,7 @@ call, while every message is still published to DDS for the readers outside.
 """
 
 from fiber_align.control.cycle import Slack
+from fiber_align.nodes.ros.sender import Writer
 
 
 class LocalBus:
@@ -34,6 +35,9 @@ class LocalBus:
         self.depth = 0          # in-process deliveries on the stack
         self.deferred = []      # (Pub, message) DDS publishes made inside them
         self.slack = Slack()    # the process's housekeeping, after each answered sample
+        #: the process's :class:`~fiber_align.nodes.ros.sender.Sender` (DDS publishes off
+        #: the control thread once started), or ``None``: publishes made at once
+        self.sender = None
 
     def flush(self):
         """Hand the DDS publishes deferred by nested deliveries to DDS, in order."""
@@ -66,7 +70,7 @@ class Pub:
     """A publisher that also delivers to the in-process subscribers of a :class:`LocalBus`."""
 
     __slots__ = ('pub', 'topic', 'topic_name', '_local', '_bus', '_latched', '_slack',
-                 '_volatile')
+                 '_writer')
 
     def __init__(self, node, msg_type, topic, qos, bus=None, latched=False, slack=None):
         """
@@ -77,10 +81,8 @@ class Pub:
         """
         from rclpy.qos import DurabilityPolicy
         self.pub = node.create_publisher(msg_type, topic, qos)
-        # a volatile writer with no matched reader delivers to nobody, now or later: its
-        # publish is skipped (serialising and queueing it is the larger part of a
-        # publish); a transient-local one keeps history for late readers, so it publishes
-        self._volatile = qos.durability == DurabilityPolicy.VOLATILE
+        self._writer = writer_of(self.pub, qos.durability == DurabilityPolicy.VOLATILE,
+                                 bus)
         self.topic = topic
         self.topic_name = self.pub.topic_name
         self._bus = bus if bus is not None and bus.local(topic) else None
@@ -123,17 +125,17 @@ class Pub:
                 self._slack.after_cycle()
 
     def send(self, msg):
-        """Publish ``msg`` to DDS (volatile and no reader matched: nobody to send it to)."""
-        pub = self.pub
-        if not self._volatile or pub.get_subscription_count():
-            pub.publish(msg)
+        """Publish ``msg`` to DDS (:class:`~fiber_align.nodes.ros.sender.Writer`)."""
+        self._writer.publish(msg)
 
     def get_subscription_count(self):
         """Return the DDS subscription count (in-process readers not included)."""
         return self.pub.get_subscription_count()
 
     def destroy(self, node):
-        """Destroy the DDS publisher."""
+        """Destroy the DDS publisher (detached from the sender first)."""
+        if self._writer.sender is not None:
+            self._writer.sender.forget(self._writer)
         node.destroy_publisher(self.pub)
 
 
@@ -155,6 +157,23 @@ class LocalSub:
         cbs = self.bus.callbacks(self.topic)
         if self.callback in cbs:
             cbs.remove(self.callback)
+
+
+def writer_of(pub, volatile, bus=None):
+    """
+    Return the :class:`~fiber_align.nodes.ros.sender.Writer` of rclpy publisher ``pub``.
+
+    On the sender of ``bus`` when the process has one (its publishes leave the control
+    thread once the sender runs), else one that publishes at once. A volatile writer with
+    no matched reader delivers to nobody, now or later: its publish is skipped.
+    """
+    sender = bus.sender if bus is not None else None
+    return sender.writer(pub, volatile) if sender is not None else Writer(pub, volatile)
+
+
+def sender_of(bus):
+    """Return the :class:`~fiber_align.nodes.ros.sender.Sender` of a node's process, or None."""
+    return bus.sender if bus is not None else None
 
 
 def slack_of(bus):

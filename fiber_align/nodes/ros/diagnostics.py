@@ -29,7 +29,7 @@ class Health:
     FOREIGN = 'foreign_publishers'
 
     def __init__(self, node, period_s=0.5, hold_s=2.0, hardware_id='fiber_align', slack=None,
-                 update=None, name=None):
+                 update=None, name=None, sender=None):
         """
         Create the publisher and a wall-clock timer (period in s).
 
@@ -38,11 +38,15 @@ class Health:
         :param update: called before each publish (a node's fresh status and values).
         :param name: the status name; ``None``: the node's fully qualified name (a node
             that reports several parts gives each its own, ``<node>/<part>``).
+        :param sender: the process's :class:`~fiber_align.nodes.ros.sender.Sender`: the
+            reports then leave the control thread (and carry its ``sender.*`` counts).
         """
         from rclpy.clock import Clock, ClockType
         self._node = node
         self._name = name
         self._pub = node.create_publisher(DiagnosticArray, '/diagnostics', DIAG_QOS)
+        self._sender = sender
+        self._out = sender.writer(self._pub, False) if sender is not None else self._pub
         self._hold_s = float(hold_s)
         self._hw = hardware_id
         self._level = OK
@@ -156,6 +160,8 @@ class Health:
             self.values.update({'sent.' + k.lstrip('/'): v for k, v in counts().items()})
         if self.cycle is not None:
             self.values.update(self.cycle.window(time.monotonic_ns()))
+        if self._sender is not None and self._sender.running:
+            self.values.update(self._sender.stats())
         if time.monotonic() < self._until and self._level >= self._base_level:
             level, message = self._level, self._message
         else:
@@ -170,7 +176,7 @@ class Health:
         arr = DiagnosticArray(status=[st])
         arr.header.stamp = self._node.get_clock().now().to_msg()
         try:
-            self._pub.publish(arr)
+            self._out.publish(arr)
             self.sent += 1
         except Exception:  # noqa: BLE001 - context already shut down at exit
             pass

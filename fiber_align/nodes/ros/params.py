@@ -46,9 +46,12 @@ GRAPH_VALUES = {
     'realtime_priority': ('SCHED_FIFO priority of the executor thread (1..99); 0: normal '
                           'scheduling (needs root or an rtprio limit; refused: a WARN)', 0,
                           99, None, None),
+    'publish_thread': ('realtime, composed: DDS publishes made by a thread of their own, '
+                       'off the control thread (bool; docs/realtime.md)', None, None, None,
+                       None),
 }
 #: The process-wide scheduling values a node of the control loop declares.
-PRIORITY = ('lock_memory', 'realtime_priority')
+PRIORITY = ('lock_memory', 'publish_thread', 'realtime_priority')
 
 
 def declare_graph_values(node, defaults, *names):

@@ -1,0 +1,235 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+DDS publishes of a realtime process, made off its control thread (:class:`Sender`).
+
+Fast DDS holds a participant-wide lock while it builds the send resources of a newly
+discovered participant, and for a shared-memory port that existed before it sleeps in
+that lock (``port_wait_timeout_ms``, a third of a second). Every ``ros2`` command is a
+new participant. rclpy's ``publish`` keeps the GIL while it waits for that lock, so a
+publish on the control thread stopped the whole process for the length of that sleep.
+Here the control thread only serialises the message (a few microseconds, no DDS lock)
+and queues the bytes; one thread of the process hands them to DDS through
+``rcl_publish_serialized_message`` called by ``ctypes``, which releases the GIL for the
+length of the call, so a publish that waits holds up nobody but that thread.
+"""
+
+import collections
+import ctypes
+import threading
+import time
+
+
+class _Allocator(ctypes.Structure):
+    _fields_ = [('allocate', ctypes.c_void_p), ('deallocate', ctypes.c_void_p),
+                ('reallocate', ctypes.c_void_p), ('zero_allocate', ctypes.c_void_p),
+                ('state', ctypes.c_void_p)]
+
+
+class _Serialized(ctypes.Structure):
+    """``rcl_serialized_message_t`` (``rcutils_uint8_array_t``)."""
+
+    _fields_ = [('buffer', ctypes.c_char_p), ('buffer_length', ctypes.c_size_t),
+                ('buffer_capacity', ctypes.c_size_t), ('allocator', _Allocator)]
+
+
+class _Rcl:
+    """The two rcl calls of the sender thread, bound from the librcl rclpy loaded."""
+
+    def __init__(self):
+        """Find the loaded ``librcl.so`` and bind the calls (GIL released in each)."""
+        with open('/proc/self/maps') as f:
+            paths = [ln.split()[-1] for ln in f if ln.rstrip().endswith('/librcl.so')]
+        if not paths:
+            raise OSError('librcl.so is not loaded (import rclpy first)')
+        lib = ctypes.CDLL(paths[0])
+        self.publish = lib.rcl_publish_serialized_message
+        self.publish.argtypes = [ctypes.c_void_p, ctypes.POINTER(_Serialized),
+                                 ctypes.c_void_p]
+        self.publish.restype = ctypes.c_int
+        self.count = lib.rcl_publisher_get_subscription_count
+        self.count.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_size_t)]
+        self.count.restype = ctypes.c_int
+        ut = ctypes.CDLL(paths[0].replace('/librcl.so', '/librcutils.so'))
+        self.reset_error = ut.rcutils_reset_error
+        self.reset_error.argtypes = []
+        self.reset_error.restype = None
+
+
+class Writer:
+    """
+    One rclpy publisher as the control thread sees it: :meth:`publish` never waits on DDS.
+
+    While its :class:`Sender` runs, a message is serialised here and published by the
+    sender's thread; otherwise (lockstep, a process without a sender) it is published at
+    once by rclpy. A volatile writer with no matched reader delivers to nobody, now or
+    later, so its message is not serialised at all (the count is the sender thread's,
+    refreshed every :attr:`Sender.refresh_s`).
+    """
+
+    __slots__ = ('pub', 'volatile', 'readers', 'sender', 'ptr')
+
+    def __init__(self, pub, volatile, sender=None):
+        """Wrap rclpy publisher ``pub``; ``volatile``: its durability is volatile."""
+        self.pub = pub
+        self.volatile = bool(volatile)
+        self.sender = sender
+        self.readers = 1
+        self.ptr = pub.handle.pointer if sender is not None else None
+
+    def publish(self, msg):
+        """Publish ``msg`` (queued while the sender runs, else at once)."""
+        s = self.sender
+        if s is not None and s.running:
+            if self.readers or not self.volatile:
+                s.put(self, msg)
+        elif not self.volatile or self.pub.get_subscription_count():
+            self.pub.publish(msg)
+
+
+class Sender:
+    """
+    The DDS publishes of one process, made in order by one thread of their own.
+
+    Every :class:`Writer` of the sender goes through one FIFO, so the order of the
+    messages across topics is the order they were published in. The queue holds at most
+    ``max_queued`` messages; beyond that the oldest are dropped and counted
+    (:attr:`dropped`, on each node's ``/diagnostics`` as ``sender.dropped``), never lost
+    silently.
+
+    :param refresh_s: how often the thread refreshes the matched-reader counts (s).
+    """
+
+    def __init__(self, max_queued=200000, refresh_s=0.01):
+        """Create a stopped sender (:meth:`start` starts its thread)."""
+        from rclpy.serialization import serialize_message
+        self._serialize = serialize_message
+        self._q = collections.deque()
+        self._wake = threading.Event()
+        self._thread = None
+        self._stopping = False
+        self._writers = []
+        self._lock = threading.Lock()
+        self._rcl = None
+        self.max_queued = int(max_queued)
+        self.refresh_s = float(refresh_s)
+        self.running = False
+        self.published = 0
+        self.failed = 0
+        self.dropped = 0
+        self.backlog_max = 0
+        self.error = ''
+
+    def writer(self, pub, volatile):
+        """Return the :class:`Writer` of rclpy publisher ``pub`` on this sender."""
+        w = Writer(pub, volatile, self)
+        self._writers.append(w)
+        return w
+
+    def forget(self, writer):
+        """
+        Detach ``writer`` before its publisher is destroyed.
+
+        Its queued messages are dropped (counted); the thread holds :attr:`_lock` for the
+        length of each publish, so none is in flight on return.
+        """
+        with self._lock:
+            if writer in self._writers:
+                self._writers.remove(writer)
+            if writer.ptr is not None and writer.sender is self:
+                writer.sender = None
+                writer.ptr = None
+
+    def start(self):
+        """
+        Start the thread; from now on the writers queue their messages.
+
+        :returns: True when it runs; False (messages stay on the caller's thread, the
+            reason in :attr:`error`) when rcl could not be bound.
+        """
+        if self.running:
+            return True
+        try:
+            self._rcl = _Rcl()
+        except (OSError, AttributeError) as exc:
+            self.error = str(exc)
+            return False
+        self._refresh()
+        self._stopping = False
+        self._thread = threading.Thread(target=self._run, name='fiber_align.sender',
+                                        daemon=True)
+        self.running = True
+        self._thread.start()
+        return True
+
+    def stop(self, timeout_s=2.0):
+        """
+        Publish what is queued, then stop the thread (at most ``timeout_s`` s).
+
+        :returns: the number of messages still queued (0: everything went to DDS).
+        """
+        if not self.running:
+            return len(self._q)
+        self._stopping = True
+        self._wake.set()
+        self._thread.join(timeout_s)
+        self.running = False
+        # a thread still inside a publish: wait for it (bounded) and detach every writer,
+        # so the publishers can be destroyed under it
+        if self._lock.acquire(timeout=timeout_s):
+            for w in self._writers:
+                w.ptr = None
+            self._writers = []
+            self._lock.release()
+        return len(self._q)
+
+    def put(self, writer, msg):
+        """Serialise ``msg`` for ``writer`` and queue it (the control thread's side)."""
+        q = self._q
+        q.append((writer, self._serialize(msg)))
+        n = len(q)
+        if n > self.backlog_max:
+            self.backlog_max = n
+        if n > self.max_queued:
+            q.popleft()
+            self.dropped += 1
+        if not self._wake.is_set():
+            self._wake.set()
+
+    def stats(self):
+        """Return the sender's counters for ``/diagnostics`` (``sender.*`` keys)."""
+        return {'sender.published': self.published, 'sender.dropped': self.dropped,
+                'sender.failed': self.failed, 'sender.backlog_max': self.backlog_max}
+
+    def _refresh(self):
+        n = ctypes.c_size_t()
+        with self._lock:
+            for w in self._writers:
+                if w.volatile and self._rcl.count(w.ptr, ctypes.byref(n)) == 0:
+                    w.readers = n.value
+
+    def _run(self):
+        q, wake, rcl, lock = self._q, self._wake, self._rcl, self._lock
+        ser = _Serialized()
+        ref = ctypes.byref(ser)
+        t_refresh = time.monotonic()
+        while True:
+            wake.wait(self.refresh_s)
+            wake.clear()
+            while q:
+                w, data = q.popleft()
+                ser.buffer = data
+                ser.buffer_length = ser.buffer_capacity = len(data)
+                with lock:
+                    if w.ptr is None:
+                        self.dropped += 1
+                    elif rcl.publish(w.ptr, ref, None) == 0:
+                        self.published += 1
+                    else:
+                        rcl.reset_error()
+                        self.failed += 1
+            now = time.monotonic()
+            if now - t_refresh >= self.refresh_s:
+                t_refresh = now
+                self._refresh()
+            if self._stopping and not q:
+                return

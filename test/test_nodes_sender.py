@@ -1,0 +1,177 @@
+# SPDX-License-Identifier: Apache-2.0
+"""The publish thread (``nodes.ros.sender``): a publish that waits in DDS holds up nobody."""
+
+import ctypes
+import time
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+
+@pytest.fixture
+def node():
+    """Yield an rclpy node on its own context (shut down after the test)."""
+    import rclpy
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    n = rclpy.create_node('sender_test', context=ctx)
+    try:
+        yield n
+    finally:
+        n.destroy_node()
+        ctx.try_shutdown()
+
+
+def _reader(node, topic, depth=5000):
+    from std_msgs.msg import Float64
+    got = []
+    node.create_subscription(Float64, topic, lambda m: got.append(m.data), depth)
+    return got
+
+
+def _spin_until(node, cond, timeout_s):
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    ex = SingleThreadedExecutor(context=node.context)
+    ex.add_node(node)
+    end = time.monotonic() + timeout_s
+    while not cond() and time.monotonic() < end:
+        ex.spin_once(timeout_sec=0.01)
+    ex.remove_node(node)
+    assert rclpy.ok(context=node.context)
+    return cond()
+
+
+def _slow_publish(rcl, delay_s):
+    """
+    Wrap the thread's publish: the first call waits ``delay_s`` without the GIL.
+
+    As a publish that waits on Fast DDS's lock does inside rcl.
+    """
+    libc = ctypes.CDLL(None)
+    real = rcl.publish
+    state = {'slowed': 0}
+
+    def publish(ptr, ser, alloc):
+        if not state['slowed']:
+            state['slowed'] = 1
+            libc.usleep(int(delay_s * 1e6))
+        return real(ptr, ser, alloc)
+    rcl.publish = publish
+    return state
+
+
+def test_every_message_arrives_in_order_across_topics(node):
+    from std_msgs.msg import Float64
+
+    from fiber_align.nodes.ros.sender import Sender
+    from fiber_align.nodes.ros.qos import sample_pub_qos
+    qos = sample_pub_qos(False)
+    a, b = node.create_publisher(Float64, 'a', qos), node.create_publisher(Float64, 'b', qos)
+    got_a, got_b = _reader(node, 'a'), _reader(node, 'b')
+    s = Sender()
+    wa, wb = s.writer(a, True), s.writer(b, True)
+    assert s.start()
+    try:
+        assert _spin_until(node, lambda: wa.readers and wb.readers or s._refresh(), 5.0)
+        for i in range(2000):
+            (wa if i % 2 else wb).publish(Float64(data=float(i)))
+        assert _spin_until(node, lambda: len(got_a) + len(got_b) == 2000, 10.0)
+    finally:
+        assert s.stop() == 0
+    assert got_a == [float(i) for i in range(1, 2000, 2)]
+    assert got_b == [float(i) for i in range(0, 2000, 2)]
+    assert s.published == 2000 and s.dropped == 0 and s.failed == 0
+
+
+def test_a_publish_that_waits_in_dds_does_not_hold_up_the_publishing_loop(node):
+    """A 1 kHz loop publishing through a writer whose DDS publish waits 0.3 s."""
+    from std_msgs.msg import Float64
+
+    from fiber_align.nodes.ros.sender import Sender
+    from fiber_align.nodes.ros.qos import sample_pub_qos
+    pub = node.create_publisher(Float64, 'a', sample_pub_qos(False))
+    got = _reader(node, 'a')
+    s = Sender()
+    w = s.writer(pub, True)
+    assert s.start()
+    slowed = _slow_publish(s._rcl, 0.3)
+    gaps = []
+    try:
+        assert _spin_until(node, lambda: w.readers or s._refresh(), 5.0)
+        t_prev = time.monotonic()
+        for i in range(600):
+            w.publish(Float64(data=float(i)))
+            time.sleep(0.001)
+            t = time.monotonic()
+            gaps.append(t - t_prev)
+            t_prev = t
+        assert _spin_until(node, lambda: len(got) == 600, 10.0)
+    finally:
+        assert s.stop() == 0
+    assert slowed['slowed'] == 1
+    # the loop's own periods (1 ms sleep plus scheduling), never the 0.3 s of the wait
+    assert max(gaps) < 0.1, max(gaps)
+    assert got == [float(i) for i in range(600)]
+    assert s.backlog_max > 50        # the messages of the wait queued, none lost
+
+
+def test_without_the_thread_the_same_wait_holds_up_the_loop(node):
+    """The baseline of the test above: rclpy's publish on the loop's thread, same wait."""
+    from std_msgs.msg import Float64
+
+    from fiber_align.nodes.ros.sender import _Rcl, Writer
+    from fiber_align.nodes.ros.qos import sample_pub_qos
+    pub = node.create_publisher(Float64, 'a', sample_pub_qos(False))
+    rcl = _Rcl()
+    _slow_publish(rcl, 0.3)
+
+    class Direct(Writer):
+        __slots__ = ()
+
+        def publish(self, msg):
+            from rclpy.serialization import serialize_message
+
+            from fiber_align.nodes.ros.sender import _Serialized
+            data = serialize_message(msg)
+            ser = _Serialized(buffer=data, buffer_length=len(data),
+                              buffer_capacity=len(data))
+            rcl.publish(pub.handle.pointer, ctypes.byref(ser), None)
+    w = Direct(pub, False)
+    t0 = time.monotonic()
+    w.publish(Float64(data=1.0))
+    assert time.monotonic() - t0 >= 0.29
+
+
+def test_a_full_queue_drops_the_oldest_and_counts_them(node):
+    from std_msgs.msg import Float64
+
+    from fiber_align.nodes.ros.sender import Sender
+    pub = node.create_publisher(Float64, 'a', 10)
+    s = Sender(max_queued=100)
+    w = s.writer(pub, False)
+    s.running = True            # queue without a thread: nothing drains
+    for i in range(150):
+        w.publish(Float64(data=float(i)))
+    s.running = False
+    assert s.dropped == 50 and len(s._q) == 100
+    assert s.stats()['sender.dropped'] == 50
+
+
+def test_a_forgotten_writer_publishes_nothing_more(node):
+    from std_msgs.msg import Float64
+
+    from fiber_align.nodes.ros.sender import Sender
+    pub = node.create_publisher(Float64, 'a', 10)
+    s = Sender()
+    w = s.writer(pub, False)
+    s.running = True
+    w.publish(Float64(data=1.0))
+    s.forget(w)
+    s.running = False
+    assert w.ptr is None and w.sender is None
+    s._rcl = None
+    assert s.start()             # the queued message of the forgotten writer is dropped
+    assert s.stop() == 0
+    assert s.dropped == 1 and s.published == 0
