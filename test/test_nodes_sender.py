@@ -118,30 +118,47 @@ def test_a_publish_that_waits_in_dds_does_not_hold_up_the_publishing_loop(node):
 
 
 def test_without_the_thread_the_same_wait_holds_up_the_loop(node):
-    """The baseline of the test above: rclpy's publish on the loop's thread, same wait."""
+    """The baseline of the test above: the same publish on the loop's thread, same wait."""
     from std_msgs.msg import Float64
 
-    from fiber_align.nodes.ros.sender import _Rcl, Writer
+    from fiber_align.nodes.ros.sender import _Rcl, MessageType
     from fiber_align.nodes.ros.qos import sample_pub_qos
     pub = node.create_publisher(Float64, 'a', sample_pub_qos(False))
     rcl = _Rcl()
     _slow_publish(rcl, 0.3)
-
-    class Direct(Writer):
-        __slots__ = ()
-
-        def publish(self, msg):
-            from rclpy.serialization import serialize_message
-
-            from fiber_align.nodes.ros.sender import _Serialized
-            data = serialize_message(msg)
-            ser = _Serialized(buffer=data, buffer_length=len(data),
-                              buffer_capacity=len(data))
-            rcl.publish(pub.handle.pointer, ctypes.byref(ser), None)
-    w = Direct(pub, False)
+    ctype = MessageType(Float64)
+    msg = ctype.to_c(Float64(data=1.0))
     t0 = time.monotonic()
-    w.publish(Float64(data=1.0))
+    assert rcl.publish(pub.handle.pointer, msg, None) == 0
+    ctype.destroy(msg)
     assert time.monotonic() - t0 >= 0.29
+
+
+def test_the_bytes_on_the_wire_are_rclpys_and_strict_cdr_readers_take_them(node):
+    """A JointState through the sender: the same bytes as rclpy's publish, rosbags reads it."""
+    from rosbags.typesys import get_typestore, Stores
+    from sensor_msgs.msg import JointState
+
+    from fiber_align.nodes.ros.sender import Sender
+    pub = node.create_publisher(JointState, 'js', 10)
+    raw = []
+    node.create_subscription(JointState, 'js', raw.append, 10, raw=True)
+    js = JointState()
+    js.header.stamp.sec, js.header.stamp.nanosec = 12, 345
+    js.name, js.position, js.velocity = ['bimorph_tip'], [1.5e-5], [-2e-3]
+    s = Sender()
+    w = s.writer(pub, False)
+    assert _spin_until(node, lambda: pub.get_subscription_count() > 0, 5.0)
+    pub.publish(js)                       # rclpy on this thread
+    assert s.start()
+    try:
+        w.publish(js)                     # the sender's thread
+        assert _spin_until(node, lambda: len(raw) == 2, 5.0)
+    finally:
+        assert s.stop() == 0
+    assert raw[0] == raw[1]
+    back = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(raw[1], 'sensor_msgs/msg/JointState')
+    assert list(back.position) == [1.5e-5] and back.header.stamp.nanosec == 345
 
 
 def test_a_full_queue_drops_the_oldest_and_counts_them(node):

@@ -7,10 +7,13 @@ discovered participant, and for a shared-memory port that existed before it slee
 that lock (``port_wait_timeout_ms``, a third of a second). Every ``ros2`` command is a
 new participant. rclpy's ``publish`` keeps the GIL while it waits for that lock, so a
 publish on the control thread stopped the whole process for the length of that sleep.
-Here the control thread only serialises the message (a few microseconds, no DDS lock)
-and queues the bytes; one thread of the process hands them to DDS through
-``rcl_publish_serialized_message`` called by ``ctypes``, which releases the GIL for the
-length of the call, so a publish that waits holds up nobody but that thread.
+Here the control thread only converts the message to its C structure (rclpy's own
+conversion, a few microseconds, no DDS lock) and queues it; one thread of the process
+hands it to ``rcl_publish`` called by ``ctypes``, which releases the GIL for the length
+of the call, so a publish that waits holds up nobody but that thread. (Not
+``rcl_publish_serialized_message`` of ``serialize_message``'s bytes: those carry the
+middleware's size estimate, 4 bytes too long for a JointState, which strict CDR readers
+such as rosbags refuse.)
 """
 
 import collections
@@ -19,21 +22,8 @@ import threading
 import time
 
 
-class _Allocator(ctypes.Structure):
-    _fields_ = [('allocate', ctypes.c_void_p), ('deallocate', ctypes.c_void_p),
-                ('reallocate', ctypes.c_void_p), ('zero_allocate', ctypes.c_void_p),
-                ('state', ctypes.c_void_p)]
-
-
-class _Serialized(ctypes.Structure):
-    """``rcl_serialized_message_t`` (``rcutils_uint8_array_t``)."""
-
-    _fields_ = [('buffer', ctypes.c_char_p), ('buffer_length', ctypes.c_size_t),
-                ('buffer_capacity', ctypes.c_size_t), ('allocator', _Allocator)]
-
-
 class _Rcl:
-    """The two rcl calls of the sender thread, bound from the librcl rclpy loaded."""
+    """The rcl calls of the sender thread, bound from the librcl rclpy loaded."""
 
     def __init__(self):
         """Find the loaded ``librcl.so`` and bind the calls (GIL released in each)."""
@@ -42,9 +32,8 @@ class _Rcl:
         if not paths:
             raise OSError('librcl.so is not loaded (import rclpy first)')
         lib = ctypes.CDLL(paths[0])
-        self.publish = lib.rcl_publish_serialized_message
-        self.publish.argtypes = [ctypes.c_void_p, ctypes.POINTER(_Serialized),
-                                 ctypes.c_void_p]
+        self.publish = lib.rcl_publish
+        self.publish.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
         self.publish.restype = ctypes.c_int
         self.count = lib.rcl_publisher_get_subscription_count
         self.count.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_size_t)]
@@ -55,18 +44,56 @@ class _Rcl:
         self.reset_error.restype = None
 
 
+class MessageType:
+    """
+    The C side of a message type, as rclpy's ``publish`` uses it (from its metaclass).
+
+    :meth:`to_c` makes the C message of a Python one (the GIL held, it reads Python
+    objects); :meth:`destroy` frees it (no GIL needed).
+    """
+
+    _get = None
+
+    def __init__(self, msg_type):
+        """Bind the type support's create, convert and destroy functions."""
+        if MessageType._get is None:
+            get = ctypes.pythonapi.PyCapsule_GetPointer
+            get.restype = ctypes.c_void_p
+            get.argtypes = [ctypes.py_object, ctypes.c_char_p]
+            MessageType._get = get
+        meta = type(msg_type)
+        if getattr(meta, '_CONVERT_FROM_PY', None) is None:
+            msg_type.__class__.__import_type_support__()
+        get = MessageType._get
+        self._create = ctypes.CFUNCTYPE(ctypes.c_void_p)(get(meta._CREATE_ROS_MESSAGE, None))
+        self._convert = ctypes.PYFUNCTYPE(ctypes.c_bool, ctypes.py_object, ctypes.c_void_p)(
+            get(meta._CONVERT_FROM_PY, None))
+        self.destroy = ctypes.CFUNCTYPE(None, ctypes.c_void_p)(
+            get(meta._DESTROY_ROS_MESSAGE, None))
+
+    def to_c(self, msg):
+        """Return the address of a new C message equal to ``msg`` (free: :meth:`destroy`)."""
+        ptr = self._create()
+        if not ptr:
+            raise MemoryError('cannot allocate a %s' % type(msg).__name__)
+        if not self._convert(msg, ptr):
+            self.destroy(ptr)
+            raise TypeError('cannot convert a %s' % type(msg).__name__)
+        return ptr
+
+
 class Writer:
     """
     One rclpy publisher as the control thread sees it: :meth:`publish` never waits on DDS.
 
-    While its :class:`Sender` runs, a message is serialised here and published by the
+    While its :class:`Sender` runs, a message is converted here and published by the
     sender's thread; otherwise (lockstep, a process without a sender) it is published at
     once by rclpy. A volatile writer with no matched reader delivers to nobody, now or
-    later, so its message is not serialised at all (the count is the sender thread's,
+    later, so its message is not converted at all (the count is the sender thread's,
     refreshed every :attr:`Sender.refresh_s`).
     """
 
-    __slots__ = ('pub', 'volatile', 'readers', 'sender', 'ptr')
+    __slots__ = ('pub', 'volatile', 'readers', 'sender', 'ptr', 'ctype')
 
     def __init__(self, pub, volatile, sender=None):
         """Wrap rclpy publisher ``pub``; ``volatile``: its durability is volatile."""
@@ -75,6 +102,7 @@ class Writer:
         self.sender = sender
         self.readers = 1
         self.ptr = pub.handle.pointer if sender is not None else None
+        self.ctype = MessageType(pub.msg_type) if sender is not None else None
 
     def publish(self, msg):
         """Publish ``msg`` (queued while the sender runs, else at once)."""
@@ -101,8 +129,6 @@ class Sender:
 
     def __init__(self, max_queued=200000, refresh_s=0.01):
         """Create a stopped sender (:meth:`start` starts its thread)."""
-        from rclpy.serialization import serialize_message
-        self._serialize = serialize_message
         self._q = collections.deque()
         self._wake = threading.Event()
         self._thread = None
@@ -180,18 +206,28 @@ class Sender:
                 w.ptr = None
             self._writers = []
             self._lock.release()
-        return len(self._q)
+        left = len(self._q)
+        if not self._thread.is_alive():
+            while self._q:
+                w, msg = self._q.popleft()
+                w.ctype.destroy(msg)
+        return left
 
     def put(self, writer, msg):
-        """Serialise ``msg`` for ``writer`` and queue it (the control thread's side)."""
+        """Convert ``msg`` for ``writer`` and queue it (the control thread's side)."""
         q = self._q
-        q.append((writer, self._serialize(msg)))
+        q.append((writer, writer.ctype.to_c(msg)))
         n = len(q)
         if n > self.backlog_max:
             self.backlog_max = n
         if n > self.max_queued:
-            q.popleft()
-            self.dropped += 1
+            try:
+                w, ptr = q.popleft()
+            except IndexError:       # the thread took it meanwhile
+                pass
+            else:
+                w.ctype.destroy(ptr)
+                self.dropped += 1
         if not self._wake.is_set():
             self._wake.set()
 
@@ -209,24 +245,21 @@ class Sender:
 
     def _run(self):
         q, wake, rcl, lock = self._q, self._wake, self._rcl, self._lock
-        ser = _Serialized()
-        ref = ctypes.byref(ser)
         t_refresh = time.monotonic()
         while True:
             wake.wait(self.refresh_s)
             wake.clear()
             while q:
-                w, data = q.popleft()
-                ser.buffer = data
-                ser.buffer_length = ser.buffer_capacity = len(data)
+                w, msg = q.popleft()
                 with lock:
                     if w.ptr is None:
                         self.dropped += 1
-                    elif rcl.publish(w.ptr, ref, None) == 0:
+                    elif rcl.publish(w.ptr, msg, None) == 0:
                         self.published += 1
                     else:
                         rcl.reset_error()
                         self.failed += 1
+                w.ctype.destroy(msg)
             now = time.monotonic()
             if now - t_refresh >= self.refresh_s:
                 t_refresh = now
