@@ -167,7 +167,7 @@ def writer_of(pub, volatile, bus=None):
     thread once the sender runs), else one that publishes at once. A volatile writer with
     no matched reader delivers to nobody, now or later: its publish is skipped.
     """
-    sender = bus.sender if bus is not None else None
+    sender = sender_of(bus)
     return sender.writer(pub, volatile) if sender is not None else Writer(pub, volatile)
 
 

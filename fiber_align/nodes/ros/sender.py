@@ -61,9 +61,7 @@ class MessageType:
             get.restype = ctypes.c_void_p
             get.argtypes = [ctypes.py_object, ctypes.c_char_p]
             MessageType._get = get
-        meta = type(msg_type)
-        if getattr(meta, '_CONVERT_FROM_PY', None) is None:
-            msg_type.__class__.__import_type_support__()
+        meta = type(msg_type)         # its type support is imported by create_publisher
         get = MessageType._get
         self._create = ctypes.CFUNCTYPE(ctypes.c_void_p)(get(meta._CREATE_ROS_MESSAGE, None))
         self._convert = ctypes.PYFUNCTYPE(ctypes.c_bool, ctypes.py_object, ctypes.c_void_p)(
