@@ -10,6 +10,7 @@ finalises its bag) instead of running on as an orphan that keeps publishing on t
 domain.
 """
 
+import collections
 import json
 import math
 import os
@@ -19,7 +20,10 @@ import sys
 import threading
 import time
 
-from fiber_align.nodes.ros.runtime import SENT_PREFIX
+from fiber_align.nodes.ros.runtime import SENT_PREFIX, STACKS_SIGNAL
+
+#: lines of a child's output kept for the report of a stop that overran
+TAIL_LINES = 60
 
 
 class Child:
@@ -31,7 +35,11 @@ class Child:
         self.sent = {}               # node name -> {topic: count} (exit reports)
         self.quiet = quiet
         self.last_error = ''
+        self.tail = collections.deque(maxlen=TAIL_LINES)   # its latest output lines
         self.cpu0 = None             # (monotonic s, CPU s) at :meth:`mark`
+        self.t_interrupt = None      # monotonic s of the first SIGINT
+        self.stop_s = None           # s from the SIGINT to the exit (None: not stopped)
+        self.killed = False          # escalated to SIGKILL
         self.proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True, bufsize=1,
                                      start_new_session=True)
@@ -47,6 +55,7 @@ class Child:
                 except (ValueError, KeyError, AttributeError):
                     pass
                 continue
+            self.tail.append(line)
             if ': error: ' in line:
                 self.last_error = line.strip()
             if not self.quiet:
@@ -60,6 +69,8 @@ class Child:
     def interrupt(self):
         """Send SIGINT (the nodes' clean shutdown)."""
         if self.alive():
+            if self.t_interrupt is None:
+                self.t_interrupt = time.monotonic()
             self.proc.send_signal(signal.SIGINT)
 
     def wait(self, timeout):
@@ -67,10 +78,29 @@ class Child:
         try:
             self.proc.wait(timeout=max(0.0, timeout))
         except subprocess.TimeoutExpired:
+            self.killed = True
+            self._dump_stacks()
             self.proc.kill()
             self.proc.wait(timeout=5)
+        if self.t_interrupt is not None and self.stop_s is None:
+            self.stop_s = time.monotonic() - self.t_interrupt
         self.thread.join(timeout=1.0)
+        if self.killed:
+            print('bringup: %s did not exit %.1f s after SIGINT: killed (SIGKILL); its last'
+                  ' output:\n%s' % (self.name, self.stop_s or 0.0,
+                                    ''.join('  | ' + ln for ln in self.tail)), flush=True)
         return self.proc.returncode
+
+    def _dump_stacks(self, wait_s=0.3):
+        """Ask the overrunning child for its threads' stacks (it prints them)."""
+        try:
+            self.proc.send_signal(STACKS_SIGNAL)
+        except OSError:
+            return
+        try:
+            self.proc.wait(timeout=wait_s)
+        except subprocess.TimeoutExpired:
+            pass
 
     def mark(self):
         """Start the CPU count of :meth:`usage` (the run's start)."""
@@ -82,6 +112,27 @@ class Child:
         wall = time.monotonic() - t_a
         return {'cpu_per_s': (cpu_time_s(self.proc.pid) - c_a) / wall if wall > 0 else None,
                 'rss_mb': rss_bytes(self.proc.pid) / 1e6}
+
+
+def wait_all(children, timeout, poll_s=0.01):
+    """
+    Wait for every child to exit, each timed on its own; SIGKILL those left at ``timeout`` s.
+
+    Each child's ``stop_s`` is its own time from its SIGINT to its exit (a sequential
+    wait would time the later ones by the earlier ones). Return ``{name: exit code}``.
+    """
+    end = time.monotonic() + max(0.0, timeout)
+    left = list(children)
+    while left and time.monotonic() < end:
+        for ch in list(left):
+            if not ch.alive():
+                ch.wait(0.0)
+                left.remove(ch)
+        if left:
+            time.sleep(poll_s)
+    for ch in left:
+        ch.wait(0.0)
+    return {ch.name: ch.proc.returncode for ch in children}
 
 
 def cpu_time_s(pid):

@@ -26,7 +26,7 @@ from fiber_align.graph.params import effective, merge_params, PLANT, RECORDER, S
 from fiber_align.jsonout import json_default
 from fiber_align.nodes._recording import recorder_short
 from fiber_align.nodes.bringup import interrupt
-from fiber_align.nodes.bringup.children import Child
+from fiber_align.nodes.bringup.children import Child, wait_all
 from fiber_align.nodes.bringup.cli import expected_endpoints, TRACKING_SCENARIOS
 from fiber_align.nodes.bringup.observer import BadInput, BringupError, Observer, StartStall
 
@@ -168,8 +168,7 @@ class Harness:
                 s['recorder_short'] = {k: list(v) for k, v in short.items()}
         for ch in nodes:
             ch.interrupt()
-        for ch in nodes:
-            ch.wait(deadline - (1.5 if rec else 0.0) - time.monotonic())
+        wait_all(nodes, deadline - (1.5 if rec else 0.0) - time.monotonic())
         for ch in rec:
             ch.interrupt()
             # at least 4 s: the recorder drains while the graph still publishes, then
@@ -177,7 +176,8 @@ class Harness:
             ch.wait(max(deadline - time.monotonic(), 4.0))
         for ch in self.children:
             s.setdefault('sent', {}).update(ch.sent)
-        s['children'] = {ch.name: {'pid': ch.proc.pid, 'exit_code': ch.proc.returncode}
+        s['children'] = {ch.name: {'pid': ch.proc.pid, 'exit_code': ch.proc.returncode,
+                                   'stop_s': ch.stop_s}
                          for ch in self.children}
         s['stop_s'] = time.monotonic() - t_stop
         counts = Path(self.graph.record or '/nonexistent') / 'recorder_counts.json'

@@ -6,6 +6,7 @@ Every executable's ``main()`` is :func:`run_node`, the demo_nodes_py idiom (:fun
 :func:`spin`, :func:`finish`; bad parameters: :func:`refuse`, one line, exit 2).
 """
 
+import faulthandler
 import json
 import signal
 import sys
@@ -18,6 +19,10 @@ from fiber_align.config import ConfigError
 #: The signals that stop a node in order: Ctrl-C, ``kill`` and launch's escalation, and
 #: the hang-up of a closed or crashed terminal (sent to the launcher's whole group).
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+#: The signal that makes a node print every thread's Python stack (``faulthandler``),
+#: even inside a C call that holds the interpreter: ``bringup`` sends it to a process
+#: that overran its stop, before SIGKILL, so the log says where it was stuck.
+STACKS_SIGNAL = signal.SIGUSR1
 #: Exit report prefix of the line ``FIBER_ALIGN_SENT {json}`` (bringup collects them).
 SENT_PREFIX = 'FIBER_ALIGN_SENT '
 
@@ -169,6 +174,7 @@ def init(args=None):
         stop.note(signum)
     for signum in STOP_SIGNALS:
         signal.signal(signum, on_signal)
+    faulthandler.register(STACKS_SIGNAL, all_threads=True)
     lifeline.watch_parent(lifeline.PARENT_PID, signal.SIGTERM)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     return stop
