@@ -117,6 +117,37 @@ def test_lead_does_not_extrapolate_steps_but_predicts_smooth_references(rate):
                                                        rel=1e-9)
 
 
+@pytest.mark.parametrize('rate', [1000.0, 10000.0])
+def test_a_bounded_lead_never_predicts_past_the_target_of_the_path(rate):
+    """A rate-limited path to a target: predicted exactly mid-way, never past the target."""
+    t = 1.0 / rate
+    lead_s, speed = 3 * t, 2e-3     # the acceleration limit far off: the rate is followed
+    for lo, hi in ((0.0, 80e-6), (60e-6, 5e-6)):
+        ld = Lead(t, lead_s, 1e3)
+        ld.reset(lo)
+        ld.toward = hi
+        n = int(round(abs(hi - lo) / (speed * t)))
+        path = [lo + (hi - lo) * k / n for k in range(1, n)] + [hi] * 5
+        out = [ld.step(r) for r in path]
+        assert min(lo, hi) <= min(out) and max(out) <= max(lo, hi)
+        # away from the end, the ramp is predicted as without the bound
+        mid = n // 2
+        assert out[mid] == pytest.approx(path[mid] + lead_s * (hi - lo) / (n * t), rel=1e-6)
+        assert out[-1] == hi
+    # a path that reverses: the prediction turns at once and stays within the targets
+    ld = Lead(t, lead_s, 1e3)
+    ld.reset(40e-6)
+    ld.toward = 0.0
+    r, outs = 40e-6, []
+    for k in range(200):
+        ld.toward = 0.0 if (k // 7) % 2 == 0 else 80e-6
+        r = max(0.0, r - speed * t) if ld.toward == 0.0 else min(80e-6, r + speed * t)
+        outs.append(ld.step(r))
+    assert 0.0 <= min(outs) and max(outs) <= 80e-6
+    ld.toward = None                    # unbounded again: the plain prediction
+    assert ld.step(r + speed * t) == pytest.approx(r + speed * t + lead_s * speed, rel=1e-6)
+
+
 def test_unrolled_shaper_equals_the_tap_sum():
     """The unrolled three-tap shaper is bit-identical to the plain FIR sum over all taps."""
     wn, _ = design_dynamics(load_actuator())

@@ -2,6 +2,7 @@
 """The realtime step rules of the loop's nodes (``control.realtime``), without ROS."""
 
 import math
+import random
 from types import SimpleNamespace
 
 import pytest
@@ -13,6 +14,7 @@ from fiber_align.control.realtime import CompensatorStep, ControllerStep, Driver
 from fiber_align.control.realtime import RECOVERY_S
 from fiber_align.control.shaping import design, Lead, ReferenceModel, Shaper
 from fiber_align.control.trajectory import DRIVE_STALE_PERIODS, MAX_CATCH_UP
+from fiber_align.control.trajectory import SetpointTrajectory
 
 T = 1e-3
 T0_NS = 1_700_000_000_000_000_000
@@ -28,7 +30,10 @@ class FakeFeedforward:
     """Records calls; step(r) returns 1e6 * r V, start_at(y) returns -y V."""
 
     def __init__(self):
-        self.steps, self.starts = [], []
+        self.steps, self.starts, self.targets = [], [], []
+
+    def heading(self, target):
+        self.targets.append(target)
 
     def step(self, r):
         self.steps.append(r)
@@ -200,3 +205,50 @@ def test_driver_core_start_at_clamps_to_the_limits():
     core = DriverCore(0.0, 100.0)
     assert core.start_at(130.0) == 100.0 and core.v == 100.0
     assert core.start_at(-5.0) == 0.0 and core.start_at(42.0) == 42.0
+
+
+@pytest.mark.parametrize('accel', [0.4, 4.0])
+def test_the_trajectory_limits_speed_and_acceleration_and_stops_at_the_target(accel):
+    """A step: an S-shaped ramp within both limits that stops at the target, never past."""
+    rate = 2e-3
+    tr = SetpointTrajectory(T, rate, accel)
+    tr.reset(5e-6)
+    path = [5e-6] + [tr.advance(60e-6, 1)[0] for _ in range(200)]
+    speed = [(b - a) / T for a, b in zip(path, path[1:])]
+    assert max(path) == 60e-6 and path[-1] == 60e-6 and tr.speed == 0.0
+    assert max(speed) <= rate * (1 + 1e-9) and min(speed) >= 0.0
+    dv = [abs(b - a) for a, b in zip(speed, speed[1:])]
+    # every change of speed within the limit; the stop at the target (the fraction of a
+    # period left) within twice the limit
+    free = [x for k, x in enumerate(dv) if path[k + 2] != 60e-6]
+    assert max(free) <= accel * T * (1 + 1e-6)
+    assert max(dv) <= 2 * accel * T * (1 + 1e-6)
+
+
+def test_a_setpoint_reversed_every_period_cannot_reverse_the_motion_every_period():
+    """A flood 0 / 80 um at 1 kHz, then bursts: never past the targets, speed changes bounded."""
+    accel = 0.4
+    tr = SetpointTrajectory(T, 2e-3, accel)
+    tr.reset(40e-6)
+    path = [40e-6]
+    for k in range(10000):
+        path += tr.advance(0.0 if k % 2 else 80e-6, 1)
+    rng = random.Random(3)
+    for _ in range(2000):
+        target = rng.choice((0.0, 80e-6))
+        path += [tr.advance(target, 1)[0] for _ in range(rng.randint(1, 40))]
+    assert 0.0 <= min(path) and max(path) <= 80e-6
+    speed = [(b - a) / T for a, b in zip(path, path[1:])]
+    dv = [abs(b - a) for a, b in zip(speed, speed[1:])]
+    # every change of speed within the limit (twice it into a stop: the fraction of a
+    # period left before the target)
+    free = [x for k, x in enumerate(dv) if path[k + 1] not in (0.0, 80e-6)
+            and path[k + 2] not in (0.0, 80e-6)]
+    assert len(free) > 0.5 * len(dv) and max(free) <= accel * T * (1 + 1e-6)
+    assert max(dv) <= 2 * accel * T * (1 + 1e-6)
+
+
+def test_without_an_acceleration_limit_the_trajectory_is_the_plain_rate_limit():
+    tr = SetpointTrajectory(T, 2e-3)
+    assert tr.advance(5e-6, 4) == pytest.approx([2e-6, 4e-6, 5e-6, 5e-6], abs=1e-15)
+    assert tr.advance(0.0, 1) == pytest.approx([3e-6], abs=1e-15)

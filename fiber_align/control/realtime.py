@@ -44,12 +44,13 @@ class LoopClock:
 
     :param period_s: control period (s).
     :param rate_m_per_s: rate limit of the setpoint trajectory (m/s; <= 0: none).
+    :param accel_m_per_s2: its acceleration limit (m/s^2; <= 0: none).
     """
 
-    def __init__(self, period_s, rate_m_per_s):
+    def __init__(self, period_s, rate_m_per_s, accel_m_per_s2=0.0):
         """Start at rest at 0 m, the drive passed and never heard."""
         self.period_s = float(period_s)
-        self.traj = SetpointTrajectory(period_s, rate_m_per_s)
+        self.traj = SetpointTrajectory(period_s, rate_m_per_s, accel_m_per_s2)
         self.held = False           # the driver holds its output (``drive_held``)
         self.t_drive = None         # monotonic s of the newest ``drive_voltage``
         self.y_latest = 0.0         # newest measured position (m)
@@ -88,9 +89,9 @@ class CompensatorStep(LoopClock):
         ``start_at(y)``: V from m); :attr:`ff` may be replaced (a model reload).
     """
 
-    def __init__(self, ff, period_s, rate_m_per_s):
+    def __init__(self, ff, period_s, rate_m_per_s, accel_m_per_s2=0.0):
         """Wrap ``ff``; start at rest at 0 m with 0 V published."""
-        super().__init__(period_s, rate_m_per_s)
+        super().__init__(period_s, rate_m_per_s, accel_m_per_s2)
         self.ff = ff
         self.ff_last = 0.0
 
@@ -111,6 +112,7 @@ class CompensatorStep(LoopClock):
         elif self.drive_stale(now, never=False):
             v = self.ff_last
         else:
+            self.ff.heading(target)         # the path stops there: no lead past it
             v = self.ff.step(self.traj.advance(target, 1)[0])
         self.ff_last = v
         return v
@@ -140,9 +142,9 @@ class ControllerStep(LoopClock):
         ``pid``, ``reference_filter``) or ``None``; :attr:`ctl` may be replaced.
     """
 
-    def __init__(self, ctl, period_s, rate_m_per_s):
+    def __init__(self, ctl, period_s, rate_m_per_s, accel_m_per_s2=0.0):
         """Wrap ``ctl``; start parked, without a setpoint."""
-        super().__init__(period_s, rate_m_per_s)
+        super().__init__(period_s, rate_m_per_s, accel_m_per_s2)
         self.ctl = ctl
         self.r_prev = 0.0           # the trajectory's value one sample old (m)
         self.has_setpoint = False
@@ -200,6 +202,7 @@ class ControllerStep(LoopClock):
         self.r_prev = seq[-1]
         rf = getattr(self.ctl, 'reference_filter', None)
         if rf is not None:
+            rf.heading(target)              # as the compensator's lead (CompensatorStep)
             for r in seq[:-2]:
                 rf.step(r)
         return self.step(seq[-2], y)

@@ -159,6 +159,11 @@ class ReferenceModel:
             self.lead.reset(y)
         self.x, self.xd = y, 0.0
 
+    def heading(self, target):
+        """Bound the lead's prediction by ``target`` (m; None: unbounded), :class:`Lead`."""
+        if self.lead is not None:
+            self.lead.toward = target
+
     def step(self, r):
         """Return the predicted displacement (m) now, then advance with reference ``r`` (m)."""
         y = self.x
@@ -199,6 +204,13 @@ class Lead:
     cause of the 73 um overshoot of a 45 um step at 1 kHz of the first version, which
     gated on a fixed rate after the shaper).
 
+    A realtime reference is a rate-limited path to a known target (the setpoint it
+    heads for, :attr:`toward`, m): the prediction never passes that target, because the
+    path stops there. Without the bound a ramp that ends (or reverses) at the edge of the
+    commanded range was predicted ``lead_s * speed`` beyond it, and the bimorph went
+    there; ``toward`` ``None`` (lockstep, offline: references known sample by sample)
+    leaves the prediction unbounded.
+
     :param period_s: control period (s).
     :param lead_s: prediction horizon (s); :attr:`lead_s` may be changed between steps.
     :param max_accel_m_per_s2: largest growth of the predicted rate (m/s^2).
@@ -216,12 +228,13 @@ class Lead:
         self.reset()
 
     def reset(self, r=0.0):
-        """Rest at ``r`` (m): previous sample ``r``, predicted rate 0."""
+        """Rest at ``r`` (m): previous sample ``r``, predicted rate 0; no target bound."""
         self.prev = float(r)
         self.rate = 0.0
+        self.toward = None
 
     def step(self, r):
-        """Return the predicted reference (m) for ``r`` (m)."""
+        """Return the predicted reference (m) for ``r`` (m), never past :attr:`toward`."""
         d = (r - self.prev) * self._inv_t
         self.prev = r
         p = self.rate
@@ -231,7 +244,14 @@ class Lead:
         elif d < -lim:
             d = -lim
         self.rate = d
-        return r + self.lead_s * d
+        pred = r + self.lead_s * d
+        end = self.toward
+        if end is not None:
+            if d > 0.0 and pred > end:
+                pred = end if end > r else r
+            elif d < 0.0 and pred < end:
+                pred = end if end < r else r
+        return pred
 
 
 def shaper_delay_s(shaper, period_s):

@@ -33,29 +33,43 @@ class SetpointTrajectory:
     """
     Realtime setpoint trajectory, advanced by sample index (m, m/s, s).
 
-    A rate-limited path from the present value to the latest setpoint: each sample it
-    moves at most ``rate_m_per_s * period_s`` towards the target (a step becomes a ramp;
-    ``rate_m_per_s`` <= 0: no limit). The compensator and the controller run the same
-    trajectory. The controller advances it by the number of sample periods between the
-    stamps of the displacement samples it processes (:meth:`periods`), so its reference
-    model stays on the time line; the compensator advances it one period per sample
-    it answers: catching a stall up at once made its feedforward jump (the
-    ``hysteresis_compensator`` docstring). A ramp also keeps each missed cycle of a non-realtime OS
-    a small disturbance; a step through the resonance shaper is a 2-3 sample burst that
-    a missed cycle turns into an unshaped jump (the bending mode has 3 % damping).
+    A rate- and acceleration-limited path from the present value to the latest
+    setpoint: its speed is at most ``rate_m_per_s`` and changes by at most
+    ``accel_m_per_s2 * period_s`` a period, and it slows down in time to stop at the
+    target (never past it; a step becomes an S-shaped ramp; a limit <= 0: none). The
+    acceleration limit is what keeps a client that reverses the setpoint every period
+    (a flood) from reversing the path every period: at a reversal the inverse hysteresis
+    model swings the drive by the width of the hysteresis loop at a rate proportional to
+    the path's speed, and an abrupt reversal rang the bending mode by several
+    micrometres past the commanded range. The compensator and the controller run the
+    same trajectory. The controller advances it by the number of sample periods between
+    the stamps of the displacement samples it processes (:meth:`periods`), so its
+    reference model stays on the time line; the compensator advances it one period per
+    sample it answers: catching a stall up at once made its feedforward jump (the
+    ``hysteresis_compensator`` docstring). A ramp also keeps each missed cycle of a
+    non-realtime OS a small disturbance; a step through the resonance shaper is a 2-3
+    sample burst that a missed cycle turns into an unshaped jump (the bending mode has
+    3 % damping).
     """
 
-    def __init__(self, period_s, rate_m_per_s):
-        """Store the period (s) and the rate limit (m/s); start at rest at 0 m."""
-        self.period_ns = int(round(float(period_s) * 1e9))
-        rate = float(rate_m_per_s)
-        self.step_m = rate * float(period_s) if rate > 0 and math.isfinite(rate) else math.inf
+    def __init__(self, period_s, rate_m_per_s, accel_m_per_s2=0.0):
+        """Store the period (s), the rate (m/s) and acceleration (m/s^2) limits; rest at 0 m."""
+        self.period_s = float(period_s)
+        self.period_ns = int(round(self.period_s * 1e9))
+        rate, accel = float(rate_m_per_s), float(accel_m_per_s2)
+        self.rate = rate if rate > 0 and math.isfinite(rate) else math.inf
+        self.accel = accel if accel > 0 and math.isfinite(accel) else math.inf
+        self.step_m = self.rate * self.period_s
         self.value = 0.0
+        self.speed = 0.0            # m/s, signed
+        self.bound = None           # m: the target the path last moved towards
         self.last_ns = None
 
     def reset(self, value):
-        """Rest at ``value`` (m)."""
+        """Rest at ``value`` (m), not moving."""
         self.value = float(value)
+        self.speed = 0.0
+        self.bound = None
 
     def periods(self, stamp):
         """Return how many sample periods, at least 1, lie between the last two stamps."""
@@ -73,20 +87,39 @@ class SetpointTrajectory:
         One value per period, at most :data:`MAX_CATCH_UP` (the last ones).
         """
         out = []
-        v, d = self.value, self.step_m
+        v = self.value
         if n > MAX_CATCH_UP:        # a long gap: jump over the first periods at once
-            gap = d * (n - MAX_CATCH_UP)
+            gap = self.step_m * (n - MAX_CATCH_UP)
             v = min(target, v + gap) if target >= v else max(target, v - gap)
             n = MAX_CATCH_UP
+        t, a, vmax, s = self.period_s, self.accel, self.rate, self.speed
+        dv = a * t
         for _ in range(n):
-            if target > v + d:
-                v += d
-            elif target < v - d:
-                v -= d
-            else:
-                v = target
+            d = target - v
+            if d == 0.0 and s == 0.0:
+                out.append(v)
+                continue
+            dist = d if d >= 0.0 else -d
+            # the fastest speed from which the path still stops at the target, slowing
+            # by ``dv`` a period: m periods of m dv, (m - 1) dv, ... cover dv t m (m + 1) / 2
+            want = dist / t if dv == math.inf else \
+                dv * (math.sqrt(0.25 + 2.0 * dist / (dv * t)) - 0.5)
+            if want > vmax:
+                want = vmax
+            want = want if d >= 0.0 else -want
+            s = min(max(want, s - dv), s + dv)
+            nv = v + s * t
+            if (d >= 0.0 and nv >= target) or (d <= 0.0 and nv <= target):
+                nv, s = target, 0.0     # arrived (or would pass): rest there
+            elif s * d >= 0.0:
+                self.bound = target
+            else:                       # still slowing down for the previous target
+                b = self.bound
+                if b is not None and (nv - b) * (v - b) <= 0.0:
+                    nv, s = b, 0.0      # never past it, whatever the rounding
+            v = nv
             out.append(v)
-        self.value = v
+        self.value, self.speed = v, s
         return out
 
 

@@ -40,7 +40,8 @@ SHAPING_KEYS = ('shaping', 'shaping_omega_n_rad_s', 'shaping_damping_ratio',
 #: file is refused.
 SHARED = dict(
     [(k, LOOP_NODES) for k in ('rate_hz', 'sync_mode', 'controller', 'setpoint_min_m',
-                               'setpoint_max_m', 'realtime_setpoint_rate_m_per_s')]
+                               'setpoint_max_m', 'realtime_setpoint_rate_m_per_s',
+                               'realtime_setpoint_accel_m_per_s2')]
     + [(k, (COMPENSATOR, CONTROLLER)) for k in SHAPING_KEYS]
     # no displacement sensor (the hardware graph, graph_hardware.py)
     + [('sensorless', (COMPENSATOR, DRIVER, SEQUENCER))])

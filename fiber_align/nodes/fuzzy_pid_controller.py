@@ -48,7 +48,8 @@ STATE_LABELS = ('error_m', 'error_rate_m_per_s', 'kp_v_per_m', 'ki_v_per_m_s',
                 'kd_v_s_per_m', 'output_v')
 #: The graph-wide values this node reads (read-only).
 GRAPH = ('controller', 'rate_hz', 'sync_mode', 'diagnostics_period_s', 'setpoint_min_m',
-         'setpoint_max_m', 'realtime_setpoint_rate_m_per_s') + PRIORITY
+         'setpoint_max_m', 'realtime_setpoint_rate_m_per_s',
+         'realtime_setpoint_accel_m_per_s2') + PRIORITY
 #: Topics this node publishes (relative names, delivered in-process on a LocalBus).
 PUBLISHES = ('feedback_voltage', 'controller_state')
 
@@ -90,7 +91,8 @@ class FuzzyPidControllerNode(Node):
         if why:
             raise ConfigError('fuzzy_pid_controller: %s' % why)
         self.step = ControllerStep(None, 1.0 / self.rate_hz,
-                                   g['realtime_setpoint_rate_m_per_s'])
+                                   g['realtime_setpoint_rate_m_per_s'],
+                                   g['realtime_setpoint_accel_m_per_s2'])
         self.step.ctl = self._make(self._core_params())
         self.add_on_set_parameters_callback(self._on_set)
 

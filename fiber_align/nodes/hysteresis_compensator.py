@@ -73,7 +73,8 @@ AREA_FILES = ('compensator.yaml', 'models/compensator_model.yaml')
 PUBLISHES = ('feedforward_voltage', 'reference')
 #: The graph-wide values this node reads (read-only).
 GRAPH = ('rate_hz', 'sync_mode', 'sensorless', 'diagnostics_period_s', 'setpoint_min_m',
-         'setpoint_max_m', 'controller', 'realtime_setpoint_rate_m_per_s') + PRIORITY
+         'setpoint_max_m', 'controller', 'realtime_setpoint_rate_m_per_s',
+         'realtime_setpoint_accel_m_per_s2') + PRIORITY
 #: The node's own parameters: name -> description (read-only but the model's).
 OWN = {'model_file': 'PI model params file; empty: the inline model',
        'model_source': 'where the inline model comes from',
@@ -136,7 +137,8 @@ class HysteresisCompensatorNode(Node):
         self.health.cycle = CycleStats(self.rate_hz)
         self.n_ff = 0
         self.step = CompensatorStep(self.build(), 1.0 / self.rate_hz,
-                                    g['realtime_setpoint_rate_m_per_s'])
+                                    g['realtime_setpoint_rate_m_per_s'],
+                                    g['realtime_setpoint_accel_m_per_s2'])
         self.health.status(OK, 'ready (%s)' % g['controller'])
         self.get_logger().info('compensator ready: %s, shaping %s, model %s' % (
             g['controller'], self.shaping['shaping'], self.model_name()))

@@ -41,6 +41,9 @@ GRAPH_VALUES = {
     'realtime_setpoint_rate_m_per_s': (
         'realtime: rate limit of the setpoint trajectory (m/s); <= 0: none', -1.0, 10.0,
         None, REALTIME_SETPOINT_RATE_M_PER_S),
+    'realtime_setpoint_accel_m_per_s2': (
+        'realtime: acceleration limit of the setpoint trajectory (m/s^2); <= 0: none', -1.0,
+        1e4, None, None),
     'lock_memory': ('with realtime_priority: lock the process memory in RAM (mlockall; '
                     'bool)', None, None, None, None),
     'realtime_priority': ('SCHED_FIFO priority of the executor thread (1..99); 0: normal '
