@@ -1,6 +1,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """bringup's child processes: a stop that overruns is killed and says where it hung."""
 
+import contextlib
 import os
 import sys
 import time
@@ -25,24 +26,26 @@ teardown_that_hangs()
 """
 
 
-def _start(code):
+@contextlib.contextmanager
+def started(code):
+    """Yield a :class:`Child` running ``code`` once it printed ``ready``; kill it after."""
     child = Child('stuck', [sys.executable, '-c', code], dict(os.environ), quiet=True)
     end = time.monotonic() + 10.0
     while time.monotonic() < end and not any('ready' in ln for ln in list(child.tail)):
         time.sleep(0.01)
-    return child
-
-
-def test_a_child_that_overruns_its_stop_is_killed_with_its_stacks_reported(capsys):
-    child = _start(STUCK)
     try:
-        assert any('ready' in ln for ln in child.tail), list(child.tail)
-        child.interrupt()
-        code = child.wait(0.5)
+        yield child
     finally:
         if child.alive():
             child.proc.kill()
             child.proc.wait(5)
+
+
+def test_a_child_that_overruns_its_stop_is_killed_with_its_stacks_reported(capsys):
+    with started(STUCK) as child:
+        assert any('ready' in ln for ln in child.tail), list(child.tail)
+        child.interrupt()
+        code = child.wait(0.5)
     assert code == -9 and child.killed
     assert 0.5 <= child.stop_s < 5.0
     out = capsys.readouterr().out
@@ -52,13 +55,8 @@ def test_a_child_that_overruns_its_stop_is_killed_with_its_stacks_reported(capsy
 
 
 def test_a_child_that_stops_in_time_reports_its_stop_time():
-    child = _start("import time; print('ready', flush=True); time.sleep(60)")
-    try:
+    with started("import time; print('ready', flush=True); time.sleep(60)") as child:
         child.interrupt()
         code = child.wait(5.0)
-    finally:
-        if child.alive():
-            child.proc.kill()
-            child.proc.wait(5)
     assert code != -9 and not child.killed
     assert 0.0 <= child.stop_s < 5.0
