@@ -30,10 +30,7 @@ class FakeFeedforward:
     """Records calls; step(r) returns 1e6 * r V, start_at(y) returns -y V."""
 
     def __init__(self):
-        self.steps, self.starts, self.targets = [], [], []
-
-    def heading(self, target):
-        self.targets.append(target)
+        self.steps, self.starts = [], []
 
     def step(self, r):
         self.steps.append(r)
@@ -252,3 +249,17 @@ def test_without_an_acceleration_limit_the_trajectory_is_the_plain_rate_limit():
     tr = SetpointTrajectory(T, 2e-3)
     assert tr.advance(5e-6, 4) == pytest.approx([2e-6, 4e-6, 5e-6, 5e-6], abs=1e-15)
     assert tr.advance(0.0, 1) == pytest.approx([3e-6], abs=1e-15)
+
+
+def test_the_compensators_lead_never_predicts_past_the_setpoint():
+    """The realtime step bounds the feedforward's lead by the path's target."""
+    from fiber_align.control.feedforward import Feedforward
+    ff = Feedforward(gain_v_per_m=1e6, lead=Lead(T, 3 * T, 1e3))
+    st = CompensatorStep(ff, T, 2e-3, 0.0)
+    st.drive(0.0)
+    refs = []
+    for k in range(60):
+        st.sample(stamp(k), 0.0, 50e-6, 0.0)
+        refs.append(ff.r_shaped)
+    assert max(refs) == pytest.approx(50e-6, abs=1e-15) and refs[-1] == 50e-6
+    assert refs[10] == pytest.approx(11 * 2e-6 + 3 * T * 2e-3, rel=1e-9)   # mid-ramp: led

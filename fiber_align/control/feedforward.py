@@ -76,11 +76,6 @@ class Feedforward:
         self.u = self.bank.step(r) if self.bank is not None else r * self.gain_v_per_m
         return self.u
 
-    def heading(self, target):
-        """Bound the lead's prediction by ``target`` (m; None: unbounded), :class:`Lead`."""
-        if self.lead is not None:
-            self.lead.toward = target
-
     def step(self, r):
         """Return the feedforward voltage (V) for reference ``r`` (m); NaN holds the last."""
         if r - r != 0.0:            # NaN or infinite

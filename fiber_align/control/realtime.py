@@ -33,6 +33,18 @@ def extend_lead(obj, period_s, periods=REALTIME_EXTRA_DELAY_PERIODS):
     return obj
 
 
+def head_lead(obj, target):
+    """
+    Bound the delay-compensation lead of ``obj`` by the path's ``target`` (m).
+
+    ``obj`` as in :func:`extend_lead`; the lead then never predicts past ``target``
+    (:attr:`~fiber_align.control.shaping.Lead.toward`), where the realtime path stops.
+    """
+    lead = getattr(obj, 'lead', None) if obj is not None else None
+    if lead is not None:
+        lead.toward = target
+
+
 def present(y):
     """Return a measured position ``y`` (m) usable as a rest position: finite, >= 0 m."""
     return max(0.0, float(y)) if math.isfinite(y) else 0.0
@@ -112,7 +124,7 @@ class CompensatorStep(LoopClock):
         elif self.drive_stale(now, never=False):
             v = self.ff_last
         else:
-            self.ff.heading(target)         # the path stops there: no lead past it
+            head_lead(self.ff, target)      # the path stops there: no lead past it
             v = self.ff.step(self.traj.advance(target, 1)[0])
         self.ff_last = v
         return v
@@ -202,7 +214,7 @@ class ControllerStep(LoopClock):
         self.r_prev = seq[-1]
         rf = getattr(self.ctl, 'reference_filter', None)
         if rf is not None:
-            rf.heading(target)              # as the compensator's lead (CompensatorStep)
+            head_lead(rf, target)           # as the compensator's lead (CompensatorStep)
             for r in seq[:-2]:
                 rf.step(r)
         return self.step(seq[-2], y)

@@ -159,11 +159,6 @@ class ReferenceModel:
             self.lead.reset(y)
         self.x, self.xd = y, 0.0
 
-    def heading(self, target):
-        """Bound the lead's prediction by ``target`` (m; None: unbounded), :class:`Lead`."""
-        if self.lead is not None:
-            self.lead.toward = target
-
     def step(self, r):
         """Return the predicted displacement (m) now, then advance with reference ``r`` (m)."""
         y = self.x
