@@ -11,7 +11,7 @@ from fiber_align.control.driver import DriverCore
 from fiber_align.control.fuzzy_pid import carry_state, PlainPid
 from fiber_align.control.pid import Pid
 from fiber_align.control.realtime import CompensatorStep, ControllerStep, DriverStep, PARKED
-from fiber_align.control.realtime import RECOVERY_S
+from fiber_align.control.realtime import INTEGRAL_SETTLE_PERIODS, RECOVERY_S
 from fiber_align.control.shaping import design, Lead, ReferenceModel, Shaper
 from fiber_align.control.trajectory import DRIVE_STALE_PERIODS, MAX_CATCH_UP
 from fiber_align.control.trajectory import SetpointTrajectory
@@ -94,10 +94,17 @@ def test_controller_parks_until_the_first_setpoint_and_while_held():
     st.drive(0.0)
     assert st.sample(stamp(1), 5e-6, 50e-6, 0.0)[1] == 0.0     # the setpoint one old
     outs = [st.sample(stamp(k), 5e-6, 50e-6, 0.0) for k in range(2, 10)]
-    assert outs[0][1] > 0.0 and outs[-1][0] > 0.0 and st.ctl.pid.integral > 0.0
+    assert outs[0][1] > 0.0 and outs[-1][0] > 0.0
+    assert st.ctl.pid.integral == 0.0               # the path's own ramp is not learnt
+    k_end = 10 + INTEGRAL_SETTLE_PERIODS - 1
+    for k in range(10, k_end):                       # at its setpoint, the integral waits
+        st.sample(stamp(k), 5e-6, st.traj.value, 0.0)
+    assert st.ctl.pid.integral == 0.0
+    st.sample(stamp(k_end), 5e-6, st.traj.value, 0.0)
+    assert st.ctl.pid.integral > 0.0                # ... the settling periods, then acts
     st.set_held(True)
     assert st.ctl.pid.integral == 0.0                            # nothing winds up held
-    assert st.sample(stamp(10), 7e-6, 50e-6, 0.0) == PARKED
+    assert st.sample(stamp(k_end + 1), 7e-6, 50e-6, 0.0) == PARKED
     assert st.traj.value == 7e-6 and st.r_prev == 7e-6           # bumpless resume
 
 
@@ -268,3 +275,16 @@ def test_the_compensators_lead_never_predicts_past_the_setpoint():
         refs.append(ff.r_shaped)
     assert max(refs) == pytest.approx(50e-6, abs=1e-15) and refs[-1] == 50e-6
     assert refs[10] == pytest.approx(11 * 2e-6 + 3 * T * 2e-3, rel=1e-9)   # mid-ramp: led
+
+
+def test_a_streamed_reference_is_led_freely():
+    """Setpoints that move a little every period (a scenario, a dither): not bounded."""
+    from fiber_align.control.feedforward import Feedforward
+    ff = Feedforward(gain_v_per_m=1e6, lead=Lead(T, 3 * T, 1e3))
+    st = CompensatorStep(ff, T, 2e-3, 0.4)
+    st.drive(0.0)
+    speed = 1e-4                                    # m/s: 0.1 um a period
+    for k in range(30):
+        st.sample(stamp(k), 0.0, speed * T * (k + 1), 0.0)
+    assert not st.traj.ramping and st.traj.value == pytest.approx(speed * T * 30, rel=1e-12)
+    assert ff.r_shaped == pytest.approx(speed * T * 30 + 3 * T * speed, rel=1e-9)

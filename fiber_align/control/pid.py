@@ -95,6 +95,9 @@ class Pid:
         self.saturation_count = 0
         self.nan_count = 0
         self.held = False
+        #: True: the integral stays as it is (the caller's reference is in a transient
+        #: the integral must not learn, e.g. the realtime path's own ramp)
+        self.hold_integral = False
 
     def step(self, e):
         """Advance one period with error ``e`` (m); return the output (V)."""
@@ -108,7 +111,8 @@ class Pid:
         self.e_prev = e
         d = self.deriv_pole * self.deriv + self._deriv_gain * de
         self.deriv = d
-        i_new = self.integral + self.ki * self.period_s * e
+        i_new = self.integral if self.hold_integral else \
+            self.integral + self.ki * self.period_s * e
         u = self.kp * e + i_new + self.kd * d
         if u > self.u_max:
             u_sat = self.u_max

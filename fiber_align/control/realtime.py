@@ -124,8 +124,10 @@ class CompensatorStep(LoopClock):
         elif self.drive_stale(now, never=False):
             v = self.ff_last
         else:
-            head_lead(self.ff, target)      # the path stops there: no lead past it
-            v = self.ff.step(self.traj.advance(target, 1)[0])
+            r = self.traj.advance(target, 1)[0]
+            # a ramp stops at its target: no lead past it (a stream is led freely)
+            head_lead(self.ff, target if self.traj.ramping else None)
+            v = self.ff.step(r)
         self.ff_last = v
         return v
 
@@ -146,6 +148,14 @@ class CompensatorStep(LoopClock):
         self.traj.reset(y)
         return self.ff.rest_on_drive(y)
 
+
+#: Periods after the realtime path reached its setpoint during which the feedback's
+#: integral still holds (it held during the path's ramp): the plant arrives one to a few
+#: periods after the path, later when the compensator skipped samples.
+INTEGRAL_SETTLE_PERIODS = 10
+#: Time constant (s) with which the feedback's integral fades while the realtime path
+#: ramps to a new setpoint (smoothly: a drop at once would be a step of the drive).
+INTEGRAL_RAMP_FADE_S = 0.01
 
 #: What a parked controller publishes: (feedback V, error m, error rate m/s, gains).
 PARKED = (0.0, math.nan, 0.0, (0.0, 0.0, 0.0))
@@ -172,6 +182,7 @@ class ControllerStep(LoopClock):
         self.ctl = ctl
         self.r_prev = 0.0           # the trajectory's value one sample old (m)
         self.has_setpoint = False
+        self.settle = 0             # periods the integral still waits after a ramp
 
     def park(self):
         """Rest at the latest measured position (trajectory and reference model)."""
@@ -224,9 +235,23 @@ class ControllerStep(LoopClock):
                     getattr(ctl, 'gains', (0.0, 0.0, 0.0)))
         seq = [self.r_prev] + self.traj.advance(target, n)
         self.r_prev = seq[-1]
+        pid = getattr(self.ctl, 'pid', None)
+        if pid is not None:
+            # the path's own ramp to a setpoint, and a few periods after: the plant lags
+            # it by the loop's delay (and the compensator's path by its skipped samples),
+            # which the integral would learn and give back past the setpoint at the end.
+            # During the ramp the integral also fades: it corrected the model's error at
+            # the setpoint left behind, not at the one ahead (a flood of reversals kept
+            # an old correction of several volts to the bottom of the range).
+            if self.traj.value != target:
+                self.settle = INTEGRAL_SETTLE_PERIODS
+                pid.integral *= math.exp(-n * self.period_s / INTEGRAL_RAMP_FADE_S)
+            else:
+                self.settle = max(0, self.settle - n)
+            pid.hold_integral = self.settle > 0
         rf = getattr(self.ctl, 'reference_filter', None)
         if rf is not None:
-            head_lead(rf, target)           # as the compensator's lead (CompensatorStep)
+            head_lead(rf, target if self.traj.ramping else None)     # as CompensatorStep
             for r in seq[:-2]:
                 rf.step(r)
         return self.step(seq[-2], y)

@@ -63,6 +63,11 @@ class SetpointTrajectory:
         self.value = 0.0
         self.speed = 0.0            # m/s, signed
         self.bound = None           # m: the target the path last moved towards
+        self.arrived = True         # the last advance ended at its target
+        #: the path ramps to a target (set by :meth:`advance`): it did not end at its
+        #: target, or the advance before did not (the period of the arrival). A streamed
+        #: reference that the path follows sample by sample is not a ramp.
+        self.ramping = False
         self.last_ns = None
 
     def reset(self, value):
@@ -70,6 +75,7 @@ class SetpointTrajectory:
         self.value = float(value)
         self.speed = 0.0
         self.bound = None
+        self.arrived, self.ramping = True, False
 
     def periods(self, stamp):
         """Return how many sample periods, at least 1, lie between the last two stamps."""
@@ -120,6 +126,9 @@ class SetpointTrajectory:
             v = nv
             out.append(v)
         self.value, self.speed = v, s
+        arrived = v == target
+        self.ramping = not (arrived and self.arrived)
+        self.arrived = arrived
         return out
 
 
