@@ -38,8 +38,12 @@ def _wait(future, timeout_s=5.0):
     return future.result() if future.done() else None
 
 
-def one_run(params=()):
-    """Run the three sequences once on a fresh graph; return ``{name: {min_um, max_um}}``."""
+def one_run(params=(), flood_s=FLOOD_S, cycles=5):
+    """
+    Run the three sequences once on a fresh graph; return ``{name: {min_um, max_um}}``.
+
+    :param flood_s: length of the flood (s); :param cycles: lifecycle and enable cycles.
+    """
     import rclpy
     from lifecycle_msgs.msg import Transition
     from lifecycle_msgs.srv import ChangeState
@@ -84,7 +88,7 @@ def one_run(params=()):
         setpoint(60e-6)
         time.sleep(1.5)
         t0, k = time.monotonic(), 0
-        while time.monotonic() - t0 < FLOOD_S:
+        while time.monotonic() - t0 < flood_s:
             setpoint(0.0 if k % 2 == 0 else 80e-6)
             k += 1
             time.sleep(max(0.0, t0 + k * 1e-3 - time.monotonic()))
@@ -95,7 +99,7 @@ def one_run(params=()):
         cs = node.create_client(ChangeState, '/actuator_driver/change_state')
         cs.wait_for_service(timeout_sec=5.0)
         t0, oks = time.monotonic(), []
-        for _ in range(5):
+        for _ in range(cycles):
             for tid, dwell in ((Transition.TRANSITION_DEACTIVATE, 0.5),
                                (Transition.TRANSITION_ACTIVATE, 1.0)):
                 res = _wait(cs.call_async(ChangeState.Request(transition=Transition(id=tid))))
@@ -105,7 +109,7 @@ def one_run(params=()):
         en = node.create_client(SetBool, '/actuator_driver/enable')
         en.wait_for_service(timeout_sec=5.0)
         t0 = time.monotonic()
-        for _ in range(5):
+        for _ in range(cycles):
             for on, dwell in ((False, 0.5), (True, 1.0)):
                 _wait(en.call_async(SetBool.Request(data=on)))
                 time.sleep(dwell)
