@@ -40,11 +40,6 @@ class FakeFeedforward:
         self.starts.append(y)
         return -y
 
-    rest_on_drive = start_at
-
-    def follow(self, u):
-        pass
-
 
 def test_compensator_steps_one_trajectory_period_per_sample_whatever_the_gap():
     st = CompensatorStep(FakeFeedforward(), T, 2e-3)

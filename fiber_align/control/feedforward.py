@@ -10,7 +10,6 @@ controller). References below 0 m are taken as 0 m (the actuator only moves one 
 
 import math
 
-from fiber_align.hysteresis.pi import inverse_state
 from fiber_align.hysteresis.playbank import PlayBank
 
 
@@ -40,8 +39,6 @@ class Feedforward:
         self.inverse = model.inverse() if model is not None else None
         # the inverse PI model, stepped in amortised O(1) (fiber_align.hysteresis.playbank)
         self.bank = PlayBank.from_model(self.inverse) if model is not None else None
-        # the forward model driven by the voltage the plant really received (:meth:`follow`)
-        self.plant_memory = PlayBank.from_model(model) if model is not None else None
         self.gain_v_per_m = None if gain_v_per_m is None else float(gain_v_per_m)
         self.shaper = shaper
         self.lead = lead
@@ -52,7 +49,6 @@ class Feedforward:
         if self.inverse is not None:
             self.inverse.reset()
             self.bank.reset()
-            self.plant_memory.reset()
         if self.shaper is not None:
             self.shaper.reset()
         if self.lead is not None:
@@ -78,41 +74,6 @@ class Feedforward:
             self.lead.reset(r)
         self.r_shaped = r
         self.u = self.bank.step(r) if self.bank is not None else r * self.gain_v_per_m
-        if self.plant_memory is not None:
-            self.plant_memory.step(self.u)
-        return self.u
-
-    def follow(self, u):
-        """
-        Note the drive ``u`` (V) the plant received (realtime: each ``drive_voltage``).
-
-        Feeds the forward model, so :meth:`rest_on_drive` knows the branch of the
-        hysteresis the plant is on (a ramp to the safe voltage, the feedback's share).
-        """
-        if self.plant_memory is not None and u - u == 0.0:
-            self.plant_memory.step(u)
-
-    def rest_on_drive(self, r):
-        """
-        Rest at reference ``r`` (m) on the branch the received drive put the plant on.
-
-        As :meth:`start_at`, but the inverse model's memory is taken from the forward
-        model fed with every drive the plant received (:meth:`follow`), instead of a
-        loading curve from rest: after a hold that ramped the drive to the safe voltage,
-        the plant comes back up along its descending branch's minor loop, and an inverse
-        restarted on the loading curve asked for the wrong voltage (the feedback's
-        integral made up the difference and overshot). Returns the voltage (V) for ``r``.
-        """
-        if self.plant_memory is None:
-            return self.start_at(r)
-        r = max(float(r), 0.0) if math.isfinite(r) else 0.0
-        if self.shaper is not None:
-            self.shaper.reset(r)
-        if self.lead is not None:
-            self.lead.reset(r)
-        self.bank.reset(list(inverse_state(self.model.weights, self.plant_memory.state)))
-        self.r_shaped = r
-        self.u = self.bank.step(r)
         return self.u
 
     def step(self, r):

@@ -67,8 +67,8 @@ class LoopClock:
         self.t_drive = None         # monotonic s of the newest ``drive_voltage``
         self.y_latest = 0.0         # newest measured position (m)
 
-    def drive(self, now, v=None):
-        """Note a ``drive_voltage`` ``v`` (V) arriving at ``now`` (monotonic s)."""
+    def drive(self, now):
+        """Note a ``drive_voltage`` arriving at ``now`` (monotonic s)."""
         self.t_drive = now
 
     def drive_stale(self, now, never=True):
@@ -131,22 +131,10 @@ class CompensatorStep(LoopClock):
         self.ff_last = v
         return v
 
-    def drive(self, now, v=None):
-        """Note a ``drive_voltage`` ``v`` (V) at ``now`` (s); the feedforward follows it."""
-        super().drive(now)
-        if v is not None:
-            self.ff.follow(v)
-
     def rest(self, y):
-        """
-        Rest at ``y`` (m): feedforward and trajectory; return the feedforward (V).
-
-        The feedforward rests on the hysteresis branch of the drive the plant received
-        (``Feedforward.rest_on_drive``), so the resume after a hold starts from where the
-        plant really is.
-        """
+        """Rest at ``y`` (m): feedforward and trajectory; return the feedforward (V)."""
         self.traj.reset(y)
-        return self.ff.rest_on_drive(y)
+        return self.ff.start_at(y)
 
 
 #: Periods after the realtime path reached its setpoint during which the feedback's

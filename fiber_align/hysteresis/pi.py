@@ -99,21 +99,6 @@ def play_operators(u, thresholds, state=None):
     return out, y.copy()
 
 
-def inverse_state(weights, state):
-    """
-    Return the inverse model's operator states (m) matching forward states ``state`` (V).
-
-    ``p'_i = S_i p_i + sum_{j>i} w_j p_j`` with the partial sums ``S_i = w_1 + ... + w_i``
-    of the forward weights ``weights`` (m/V): the inverse built with these states
-    answers the forward model's present output with its present input, and goes on
-    along the branch the forward model's history put it on.
-    """
-    w = np.asarray(weights, dtype=float).reshape(-1)
-    p = np.asarray(state, dtype=float).reshape(-1)
-    tail = np.concatenate([np.cumsum((w * p)[::-1])[::-1][1:], [0.0]])
-    return np.cumsum(w) * p + tail
-
-
 def check_thresholds(thresholds):
     """Validate thresholds: finite, first one 0, strictly increasing. Returns an array."""
     r = np.asarray(thresholds, dtype=float).reshape(-1)
@@ -272,7 +257,9 @@ class PIModel(_PlayModel):
         wi[0] = 1.0 / w[0]
         wi[1:] = -w[1:] / (S[1:] * S[:-1])
         ri = np.array([np.sum(w[:i + 1] * (r[i] - r[:i + 1])) for i in range(w.size)])
-        return InversePIModel(ri, wi, inverse_state(w, p))
+        tail = np.concatenate([np.cumsum((w * p)[::-1])[::-1][1:], [0.0]])
+        pi = S * p + tail
+        return InversePIModel(ri, wi, pi)
 
     def to_params(self):
         """Return the model as a ROS parameter mapping (SI units)."""

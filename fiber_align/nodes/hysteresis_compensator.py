@@ -242,8 +242,8 @@ class HysteresisCompensatorNode(Node):
         self.step.held = bool(msg.data)
 
     def _on_drive(self, msg):
-        """Realtime: note when the newest drive arrived and what the plant got (V)."""
-        self.step.drive(time.monotonic(), msg.data)
+        """Realtime: note when the newest drive command arrived (wall time)."""
+        self.step.drive(time.monotonic())
 
     def _on_reset(self, request, response):
         """Restart the feedforward at rest at the present position (m)."""
