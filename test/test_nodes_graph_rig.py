@@ -86,7 +86,7 @@ def test_bad_rig_arguments_are_refused_in_one_line(kwargs):
         graph_rig.build_rig(**kwargs)
 
 
-@pytest.mark.parametrize('option', [['--record', 'bag'], ['--no-noise'], ['--duration', '1'],
+@pytest.mark.parametrize('option', [['--record', 'bag'], ['--no-noise'], ['--rate', '500'],
                                     ['-p', 'no-equals-sign']])
 @pytest.mark.ros  # starts a process
 def test_bringup_rig_refuses_one_axis_options_and_bad_params_in_one_line(option, tmp_path):

@@ -23,10 +23,9 @@ from fiber_align.nodes.scenario_runner import setpoint_range, Source
 
 TRACKING_SCENARIOS = ('step', 'sine', 'triangle', 'staircase')
 #: bringup options of the 1-D graph only: (attribute, option); refused with ``--rig``.
-ONE_AXIS_OPTIONS = (('scenario', '--scenario'), ('duration', '--duration'),
-                    ('model', '--model'), ('rate', '--rate'), ('no_noise', '--no-noise'),
-                    ('cycles', '--cycles'), ('record', '--record'), ('storage', '--storage'),
-                    ('strict', '--strict'))
+ONE_AXIS_OPTIONS = (('scenario', '--scenario'), ('model', '--model'), ('rate', '--rate'),
+                    ('no_noise', '--no-noise'), ('record', '--record'),
+                    ('storage', '--storage'))
 #: What the scenario runner publishes in the open-loop experiment (it drives the driver).
 OPEN_LOOP = ('feedforward_voltage', 'feedback_voltage')
 
@@ -74,7 +73,8 @@ def parse_args(argv):
                          'align2d; lockstep: compared with the offline run (--seed: the '
                          "run seed, as fiber-align simulate --scenario align2d's)")
     ap.add_argument('--duration', type=_positive(float, '--duration'), default=None,
-                    help="scenario length (s of sample time; default: the scenario's)")
+                    help="scenario length (s of sample time; default: the scenario's); "
+                    '--rig: hold TRACKING this long after the cycles')
     ap.add_argument('--sync', choices=('realtime', 'lockstep'), default=None,
                     help='sample clock (default: sync_mode of fiber_align.yaml)')
     ap.add_argument('--controller', choices=gd.CONTROLLERS, default=None,
@@ -87,7 +87,8 @@ def parse_args(argv):
     ap.add_argument('--seed', type=int, default=None, help='plant sensor-noise seed')
     ap.add_argument('--no-noise', action='store_true', help='sensor noise off')
     ap.add_argument('--cycles', type=int, default=None,
-                    help='align: switch off/on cycles after TRACKING (default 5)')
+                    help='align: switch off/on cycles after TRACKING (default 5); --rig: '
+                    'release / align cycles after the first TRACKING (default 0)')
     ap.add_argument('--record', metavar='DIR', default=None, help='record a bag into DIR')
     ap.add_argument('--storage', choices=('mcap', 'sqlite3'), default=None)
     layout = ap.add_mutually_exclusive_group()

@@ -67,6 +67,8 @@ class DiagnosticsWatch:
     :ivar latest: node name -> its last key/value pairs (strings), ``level``, ``message``
         and ``_t`` (monotonic s of arrival).
     :ivar worst: node name -> its worst cycle window (:func:`summary.worst_cycles`).
+    :ivar by_status: the same as ``latest`` and ``worst``, keyed by the full status name
+        (``/rig/x/simulated_actuator``): the rig's axes have nodes of one base name.
     :ivar errors: node name -> the distinct ERROR messages it reported (why a FAULT).
     """
 
@@ -75,6 +77,7 @@ class DiagnosticsWatch:
         import rclpy
         self.latest = {}
         self.worst = {}
+        self.by_status = {'latest': {}, 'worst': {}}
         self.errors = {}
         #: monotonic s: reports of windows inside [run_from, run_to] count for ``worst``
         self.run_from = None
@@ -92,13 +95,15 @@ class DiagnosticsWatch:
             now = time.monotonic()
             node, values = diag_entry(st, now)
             self.latest[node] = values
+            self.by_status['latest'][st.name] = values
             if values['level'] >= 2 and values['message'] not in self.errors.get(node, []):
                 self.errors.setdefault(node, []).append(values['message'])
             # a report covers the diagnostics period before it (0.5 s by default): the
             # first full window starts a period after the run did
             if self.run_from is not None and now >= self.run_from + WINDOW_S and (
                     self.run_to is None or now <= self.run_to):
-                worst_cycles(self.worst, node, self.latest[node])
+                worst_cycles(self.worst, node, values)
+                worst_cycles(self.by_status['worst'], st.name, values)
 
     def close(self):
         """Stop the executor and join the thread (it must leave rclpy before exit)."""

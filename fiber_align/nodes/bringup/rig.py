@@ -23,7 +23,7 @@ from fiber_align.analysis import run_summary as sm
 from fiber_align.graph import rig as gr
 from fiber_align.nodes.bringup import interrupt
 from fiber_align.nodes.bringup.observer import BringupError
-from fiber_align.nodes.bringup.run import Harness
+from fiber_align.nodes.bringup.run import Harness, MISSED_SHARE_GOAL
 
 #: Streams recorded per sample: name -> topic.
 STREAMS = {'mx': 'x/displacement', 'my': 'y/displacement', 'p': 'optical_power',
@@ -42,7 +42,11 @@ def run_rig(a, g):
     summary = {'scenario': 'align2d', 'rig': True, 'sync_mode': g.sync_mode, 'seed': g.seed,
                'composed': g.composed, 'namespace': g.namespace, 'rate_hz': rate,
                'error': ''}
-    h = Harness(g, dict(streams=STREAMS), a.quiet)
+    # realtime without --trace: no stream; the waits count samples by the wall clock (an
+    # observer that takes every stream at 1 kHz falls behind on a loaded machine, and its
+    # reads are load the graph's users do not have)
+    full = g.sync_mode == 'lockstep' or bool(a.trace)
+    h = Harness(g, dict(streams=STREAMS if full else {}), a.quiet)
     code = 0
     try:
         # the align server discovered before the clock starts: a late discovery would
@@ -51,32 +55,44 @@ def run_rig(a, g):
                 .wait_for_service(timeout_sec=0.1))
         obs, alive = h.obs, h.alive
         align = obs.client(Trigger, 'align')
+        release = obs.client(Trigger, 'release')
         h.run(True)
         summary['startup_s'] = h.summary['startup_s']
         t_run = time.monotonic()
+        clock = (lambda: obs.samples) if full else (
+            lambda: int((time.monotonic() - t_run) * rate))
         k = int(round(sm.ALIGN_IDLE_S * rate))
-        obs.wait(lambda: obs.samples >= k, 60.0, alive, 'sample %d' % k)
-        res = obs.call(align, Trigger.Request(), 10.0, alive)
-        if not res.success:
-            raise BringupError('align refused: %s' % res.message)
-        obs.wait(lambda: obs.status.get('align_sample') is not None, 10.0, alive,
-                 'the align answer')
-        k_align = obs.status['align_sample']
-        obs.wait(lambda: obs.status.get('state') in ('TRACKING', 'FAULT')
-                 or obs.samples > k_align + sm.ALIGN_MAX_S * rate, 120.0, alive, 'TRACKING')
-        _, tracking = obs.first('TRACKING')
-        if tracking is None:
-            raise BringupError('alignment ended in %s: %s' % (
-                obs.status.get('state'), obs.status.get('fault_reason') or 'timeout'))
-        k_end = tracking['sample'] + int(round(sm.LOSS_WINDOW_S * rate)) + 5
-        obs.wait(lambda: obs.samples >= k_end, 60.0, alive, 'sample %d' % k_end)
-        h.run(False)
-        summary['run_wall_s'] = time.monotonic() - t_run
+        obs.wait(lambda: clock() >= k, 60.0, alive, 'sample %d' % k)
+        k_align, tracking = _align(obs, align, alive, rate, clock)
+        k_end = clock() + int(round(sm.LOSS_WINDOW_S * rate)) + 5
+        obs.wait(lambda: clock() >= k_end, 60.0, alive, 'sample %d' % k_end)
         summary.update(align_sample=k_align, tracking_sample=tracking['sample'],
                        time_to_peak_s=(tracking['sample'] - 1 - k_align) / rate,
-                       peak_samples=tracking['peak_samples'], state=obs.status.get('state'),
-                       samples=obs.samples)
-        if g.sync_mode == 'lockstep':
+                       peak_samples=tracking['peak_samples'])
+        cycles = [_release_align(obs, release, align, alive, rate, clock)
+                  for _ in range(a.cycles or 0)]
+        if cycles:
+            summary['cycles_tracking'] = len(cycles)
+            summary['cycle_time_to_peak_s'] = cycles
+        if a.duration:
+            # held aligned: TRACKING, or PEAKING again when the power drifts down
+            k_end = clock() + int(round(a.duration * rate))
+            obs.wait(lambda: clock() >= k_end or obs.status.get('state') in ('FAULT', 'IDLE'),
+                     60.0 + 4.0 * a.duration, alive, 'sample %d' % k_end)
+            if obs.status.get('state') in ('FAULT', 'IDLE'):
+                raise BringupError('left alignment while held: %s %s' % (
+                    obs.status.get('state'), obs.status.get('fault_reason') or ''))
+        summary['run_wall_s'] = time.monotonic() - t_run
+        obs.watch.run_to = time.monotonic()
+        if g.sync_mode == 'realtime':
+            # before the hold: a held plant stops the drivers' input (a watchdog trip)
+            summary['axes'] = axis_figures(obs.watch.by_status, g.namespace)
+            summary['goals_missed'] = [
+                '%s: %s' % (axis, m) for axis, rt in summary['axes'].items()
+                for m in sm.goals_missed({'realtime': rt}, 'realtime', MISSED_SHARE_GOAL)]
+        h.run(False)
+        summary.update(state=obs.status.get('state'), samples=clock())
+        if g.sync_mode == 'lockstep' and not (a.cycles or a.duration):
             summary['offline'] = sm.compare_offline(g.seed, k_align, arrays(obs))
             # the offline run has the shipped parameters: with others it is only reported
             comparable = not (a.param or a.params_file)
@@ -92,11 +108,76 @@ def run_rig(a, g):
     finally:
         s = h.stop(code == 130)
         summary['children'] = {n: c['exit_code'] for n, c in s.get('children', {}).items()}
+        summary['processes'] = s.get('processes', {})
         if a.trace and h.obs is not None:
-            sm.write_trace(a.trace, arrays(h.obs), rate)
+            sm.write_trace(a.trace, arrays(h.obs), rate)   # full: every stream
         h.close()
+    if code == 0 and a.strict and summary.get('goals_missed'):
+        print('bringup: --strict: %s' % '; '.join(summary['goals_missed']), flush=True)
+        code = 1
     _report(summary, a)
     return code
+
+
+def _align(obs, align, alive, rate, clock):
+    """
+    Call ``align`` and wait for TRACKING; return ``(align sample, TRACKING status)``.
+
+    :param clock: returns the samples so far (the wait's bound is in sample time).
+    """
+    from std_srvs.srv import Trigger
+    n = len(obs.states)
+    res = obs.call(align, Trigger.Request(), 10.0, alive)
+    if not res.success:
+        raise BringupError('align refused: %s' % res.message)
+    k_align = obs.event(n)
+    k_max = clock() + sm.ALIGN_MAX_S * rate
+    obs.wait(lambda: obs.status.get('state') in ('TRACKING', 'FAULT') or clock() > k_max,
+             120.0, alive, 'TRACKING')
+    _, tracking = obs.first('TRACKING', k_align)
+    if tracking is None:
+        raise BringupError('alignment ended in %s: %s' % (
+            obs.status.get('state'), obs.status.get('fault_reason') or 'timeout'))
+    return k_align, tracking
+
+
+def _release_align(obs, release, align, alive, rate, clock):
+    """
+    One switch cycle of the rig: ``release`` to IDLE, then ``align`` to TRACKING.
+
+    :returns: the time to peak of the new alignment (s of sample time).
+    :raises BringupError: a refused call, a FAULT, a timeout.
+    """
+    from std_srvs.srv import Trigger
+    res = obs.call(release, Trigger.Request(), 10.0, alive)
+    if not res.success:
+        raise BringupError('release refused: %s' % res.message)
+    obs.wait(lambda: obs.status.get('state') in ('IDLE', 'FAULT'), 60.0, alive, 'IDLE')
+    if obs.status.get('state') != 'IDLE':
+        raise BringupError('release ended in FAULT: %s' % obs.status.get('fault_reason'))
+    k = clock() + int(round(sm.ALIGN_IDLE_S * rate))
+    obs.wait(lambda: clock() >= k, 60.0, alive, 'sample %d' % k)
+    k_align, tracking = _align(obs, align, alive, rate, clock)
+    return (tracking['sample'] - 1 - k_align) / rate
+
+
+def axis_figures(by_status, namespace):
+    """
+    Return the realtime figures of each rig axis from its nodes' ``/diagnostics``.
+
+    :param by_status: :attr:`DiagnosticsWatch.by_status` (full status names).
+    :returns: ``{axis: {missed_share, watchdog_count, ..., worst: {node: window}}}``
+        (:func:`fiber_align.analysis.run_summary.realtime_figures`, SI).
+    """
+    out = {}
+    for axis in gr.AXES:
+        prefix = '/%s/%s/' % (namespace.strip('/'), axis) if namespace else '/%s/' % axis
+        latest = {k[len(prefix):]: v for k, v in by_status['latest'].items()
+                  if k.startswith(prefix)}
+        out[axis] = dict(sm.realtime_figures(latest), worst={
+            k[len(prefix):]: dict(v) for k, v in by_status['worst'].items()
+            if k.startswith(prefix)})
+    return out
 
 
 def _report(summary, a):
@@ -117,3 +198,20 @@ def _report(summary, a):
                             % (off['samples'], max(off['max_abs_mx'], off['max_abs_my']),
                                max(off['max_abs_rx'], off['max_abs_ry']), off['max_rel_p'],
                                'EQUAL' if off['equal'] else 'DIFFERENT')), flush=True)
+    procs = {n: p.get('cpu_per_s') for n, p in summary.get('processes', {}).items()
+             if p.get('cpu_per_s') is not None}
+    if summary.get('cycles_tracking') is not None:
+        print('rig: %d release / align cycles, each to TRACKING; time to peak %.1f-%.1f ms'
+              % (summary['cycles_tracking'], 1e3 * min(summary['cycle_time_to_peak_s']),
+                 1e3 * max(summary['cycle_time_to_peak_s'])), flush=True)
+    if summary.get('axes'):
+        print('rig realtime: %s' % '; '.join(
+            '%s missed %s %% of the cycles, %s watchdog trips' % (
+                axis, '-' if rt.get('missed_share') is None else '%.3f' % (
+                    100 * rt['missed_share']), rt.get('watchdog_count', '-'))
+            for axis, rt in summary['axes'].items()), flush=True)
+    if procs:
+        print('rig CPU: %.2f core in all (%s)' % (sum(procs.values()), ', '.join(
+            '%s %.2f' % kv for kv in sorted(procs.items()))), flush=True)
+    for m in summary.get('goals_missed') or ():
+        print('rig: GOAL MISSED: %s' % m, flush=True)
