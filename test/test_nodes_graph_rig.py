@@ -20,19 +20,26 @@ def test_rig_module_imports_no_rclpy():
     assert subprocess.run([sys.executable, '-c', code], timeout=60).returncode == 0
 
 
-def test_composed_rig_is_two_axis_graphs_the_rig_nodes_and_the_manager():
+def test_composed_rig_is_one_process_hosting_both_axes_and_the_rig_nodes():
     g = graph_rig.build_rig()
     assert [(p.name, p.executable, p.namespace) for p in g.processes] == [
-        ('x', 'control_graph', 'rig/x'), ('y', 'control_graph', 'rig/y'),
         ('rig', 'control_graph', 'rig'), ('lifecycle_manager', 'lifecycle_manager', 'rig')]
-    assert g.processes[0].nodes == CONTROL == g.processes[1].nodes
+    rig = g.processes[0]
+    assert rig.nodes == tuple('%s/%s' % (a, n) for a in 'xy' for n in CONTROL) + (
+        'simulated_optics_2d', 'alignment_sequencer_2d')
+    assert rig.hosted('rig')[0] == ('simulated_actuator', '/rig/x')
+    assert rig.hosted('rig')[-1] == ('alignment_sequencer_2d', '/rig')
     assert g.nodes[-3:] == ('simulated_optics_2d', 'alignment_sequencer_2d',
                             'lifecycle_manager')
-    argv = g.processes[1].command('/p.yaml', g.namespace)
-    assert argv[-2:] == ['-r', '__ns:=/rig/y'] and '--params-file' in argv
+    assert 'y/actuator_driver' in g.nodes
+    argv = rig.command('/p.yaml', g.namespace)
+    assert argv[-2:] == ['-r', '__ns:=/rig'] and '--params-file' in argv
     # the plant of each axis is the rig's (it publishes tip_position too)
-    assert g.processes[0].arguments == (
-        '--nodes', 'rig_actuator,hysteresis_compensator,fuzzy_pid_controller,actuator_driver')
+    hosted = rig.arguments[1].split(',')
+    assert rig.arguments[0] == '--nodes' and hosted[:4] == [
+        'x/rig_actuator', 'x/hysteresis_compensator', 'x/fuzzy_pid_controller',
+        'x/actuator_driver'] and hosted[-2:] == ['simulated_optics_2d',
+                                                 'alignment_sequencer_2d']
     assert g.node_params('lifecycle_manager')['managed_nodes'] == [
         'x/actuator_driver', 'y/actuator_driver']
 

@@ -184,6 +184,24 @@ class Process:
     ends_graph: bool = False
     namespace: Optional[str] = None
 
+    def hosted(self, graph_namespace=''):
+        """
+        Return ``(name, namespace)`` of each hosted node: its base name and full namespace.
+
+        A node may be listed below a sub-namespace of the process's (``x/simulated_actuator``
+        in the rig's one process).
+
+        :param graph_namespace: the graph's namespace (``''``: none), for a process
+            without one of its own.
+        """
+        ns = graph_namespace if self.namespace is None else self.namespace
+        out = []
+        for n in self.nodes:
+            sub, _, base = n.rpartition('/')
+            full = '/'.join(x for x in (ns.strip('/'), sub) if x)
+            out.append((base, '/' + full))
+        return out
+
     @property
     def module(self):
         """Return the Python module of the executable (``python -m`` form)."""

@@ -26,32 +26,41 @@ SEQUENCER_2D = 'alignment_sequencer_2d'
 RANGE_KEYS = ('range_x_min_m', 'range_x_max_m', 'range_y_min_m', 'range_y_max_m')
 
 
-def _specs(process):
-    """Return the registry specs of the nodes a process runs."""
+def _specs(process, root):
+    """
+    Return ``(prefix, spec)`` of each node a process runs.
+
+    ``spec``: the node's registry spec; ``prefix``: the part of its namespace below the
+    graph's ``root`` (``x`` for the rig's axes, or ``''``).
+    """
     if process.arguments[:1] == ('--nodes',):
         keys = process.arguments[1].split(',')
     elif process.executable in gd.NODES:
         keys = [process.executable]
     else:
         keys = list(process.nodes)
-    return [gd.NODES[k] for k in keys if k in gd.NODES]
+    ns = root if process.namespace is None else process.namespace
+    own = ns[len(root):].strip('/') if ns.startswith(root) else ''
+    out = []
+    for k in keys:
+        sub, _, base = k.rpartition('/')
+        if base in gd.NODES:
+            out.append(('/'.join(x for x in (own, sub) if x), gd.NODES[base]))
+    return out
 
 
 def graph_topics(graph):
     """
     Return the topics the graph's nodes publish and read (relative to its namespace).
 
-    A process in a namespace below the graph's (the rig's axes) prefixes its topics with
+    A node in a namespace below the graph's (the rig's axes) prefixes its topics with
     that part (``x/displacement``). In order of the processes, each topic once.
 
     :param graph: a :class:`~fiber_align.graph.description.Graph` (or the rig's).
     """
     out = []
-    root = graph.namespace
     for p in graph.processes:
-        ns = root if p.namespace is None else p.namespace
-        prefix = ns[len(root):].strip('/') if ns.startswith(root) else ''
-        for spec in _specs(p):
+        for prefix, spec in _specs(p, graph.namespace):
             for t in spec.publishes + spec.subscribes:
                 out.append('%s/%s' % (prefix, t) if prefix else t)
     return tuple(dict.fromkeys(out))
@@ -60,11 +69,8 @@ def graph_topics(graph):
 def graph_published(graph):
     """Return the topics the graph's nodes publish (relative, as :func:`graph_topics`)."""
     out = []
-    root = graph.namespace
     for p in graph.processes:
-        ns = root if p.namespace is None else p.namespace
-        prefix = ns[len(root):].strip('/') if ns.startswith(root) else ''
-        for spec in _specs(p):
+        for prefix, spec in _specs(p, graph.namespace):
             out += ['%s/%s' % (prefix, t) if prefix else t for t in spec.publishes]
     return tuple(dict.fromkeys(out))
 

@@ -18,9 +18,10 @@ namespace (``rig`` unless told):
   ``switch``;
 - ``/rig/lifecycle_manager``: activates ``x/actuator_driver`` and ``y/actuator_driver``.
 
-Layouts as in the 1-D graph: composed (default): three ``control_graph`` processes (x, y,
-and the rig's optics + sequencer; a composed process has one namespace); multi-process:
-one process per node.
+Layouts as in the 1-D graph: composed (default): one ``control_graph`` process hosting
+both axes, the optics and the sequencer (``--nodes x/rig_actuator,...,simulated_optics_2d,
+alignment_sequencer_2d``: every per-sample message between them is an in-process call);
+multi-process: one process per node.
 
 The run's description is the offline one (:mod:`fiber_align.simulation.
 alignment2d_scenarios`): plant seeds ``2 S`` (x) and ``2 S + 1`` (y), detector seed
@@ -72,11 +73,9 @@ class RigGraph(g.Graph):
     @property
     def nodes(self):
         """Return every node name relative to the rig namespace, in process order."""
-        out = []
-        for p in self.processes:
-            axis = p.namespace.rsplit('/', 1)[-1] if p.namespace != self.namespace else ''
-            out += [('%s/%s' % (axis, n)) if axis else n for n in p.nodes]
-        return tuple(out)
+        root = '/' + self.namespace.strip('/') if self.namespace else ''
+        return tuple((ns[len(root):].strip('/') + '/' + n).lstrip('/')
+                     for p in self.processes for n, ns in p.hosted(self.namespace))
 
     def params(self):
         """Return the merged params mapping, node sections keyed ``/<ns>[/<axis>]/<node>``."""
@@ -107,11 +106,12 @@ def _axis_ns(ns, axis):
 def rig_processes(ns, composed):
     """Return the rig's processes (each with its namespace), the manager last."""
     if composed:
-        hosted = ','.join(AXIS_EXECUTABLES.get(n, n) for n in AXIS_NODES)
-        procs = [g.Process(a, g.COMPOSED_EXECUTABLE, AXIS_NODES, ('--nodes', hosted),
-                           namespace=_axis_ns(ns, a)) for a in AXES]
-        procs.append(g.Process('rig', g.COMPOSED_EXECUTABLE, tuple(RIG_NODES),
-                               ('--nodes', ','.join(RIG_NODES)), namespace=ns))
+        # one process: both axes and the optics exchange every sample in-process
+        nodes = tuple('%s/%s' % (a, n) for a in AXES for n in AXIS_NODES) + tuple(RIG_NODES)
+        hosted = ['%s/%s' % (a, AXIS_EXECUTABLES.get(n, n)) for a in AXES
+                  for n in AXIS_NODES] + list(RIG_NODES)
+        procs = [g.Process('rig', g.COMPOSED_EXECUTABLE, nodes, ('--nodes', ','.join(hosted)),
+                           namespace=ns)]
     else:
         procs = [g.Process('%s/%s' % (a, n), AXIS_EXECUTABLES.get(n, n), (n,), node_name=n,
                            namespace=_axis_ns(ns, a)) for a in AXES for n in AXIS_NODES]

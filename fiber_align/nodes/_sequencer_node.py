@@ -76,7 +76,7 @@ class SequencerNode:
                 # the last drive_held writer unmatched: the driver's process ended
                 if info.current_count == 0 and info.current_count_change < 0:
                     self._gone_later(n, self.resolve_topic_name(t))
-            if bus is not None and bus.local(topic):
+            if bus is not None and bus.local(self, topic):
                 subscription(self, Bool, topic, held, LATCHED_QOS, bus)   # same process
             else:
                 self.create_subscription(

@@ -13,8 +13,11 @@ DDS for outside subscribers (the recorder, ``ros2 topic echo``). A realtime cont
 period is then one timer callback of the plant that runs the compensator, the
 controller and the driver in turn (docs/ros_interface.md, "Composed graph").
 
-Remapping of the hosted nodes' topics is not supported (the bus matches relative names);
-a namespace (``-r __ns:=/name``) is.
+Remapping of the hosted nodes' topics is not supported; a namespace (``-r __ns:=/name``)
+is, and a hosted node may live in a namespace below it: ``--nodes x/rig_actuator,...,
+y/rig_actuator,...,simulated_optics_2d`` hosts the two-axis rig in one process
+(``/rig/x/simulated_actuator``, ..., ``/rig/simulated_optics_2d``), the bus keyed by
+fully qualified topic names.
 """
 
 import argparse
@@ -39,7 +42,11 @@ DEFAULT_NODES = ('simulated_actuator', 'hysteresis_compensator', 'fuzzy_pid_cont
 
 def parse_nodes(argv):
     """
-    Return the node names of the command line (ROS arguments removed).
+    Return the node names of the command line (ROS arguments removed), in build order.
+
+    A name may carry a sub-namespace (``x/rig_actuator``). Build order: the
+    sub-namespaces in their order of first mention, within one the registry's order
+    (the order of in-process delivery).
 
     :raises SystemExit: (exit 2) an unknown node name, with the allowed ones.
     """
@@ -49,27 +56,72 @@ def parse_nodes(argv):
                     help='comma-separated node names, from: %s' % ', '.join(HOSTABLE))
     a = ap.parse_args(argv)
     names = [n.strip() for n in a.nodes.split(',') if n.strip()]
-    bad = [n for n in names if n not in HOSTABLE]
+    bad = [n for n in names if n.rpartition('/')[2] not in HOSTABLE
+           or not all(part.isidentifier() for part in n.split('/'))]
     if bad or not names or len(set(names)) != len(names):
-        ap.error('--nodes %r: give each of %s at most once' % (a.nodes, ', '.join(HOSTABLE)))
-    return [n for n in HOSTABLE if n in names]
+        ap.error('--nodes %r: give each of %s at most once (per sub-namespace: x/name)'
+                 % (a.nodes, ', '.join(HOSTABLE)))
+    subs = list(dict.fromkeys(n.rpartition('/')[0] for n in names))
+    order = list(HOSTABLE)
+    return sorted(names, key=lambda n: (subs.index(n.rpartition('/')[0]),
+                                        order.index(n.rpartition('/')[2])))
 
 
-def build(names, bus=None):
+def ros_arguments(argv):
+    """
+    Return ``(namespace, args)``: the process's ``__ns`` remap and its other ROS arguments.
+
+    :param argv: the command line.
+    :returns: the namespace (``'/'`` without a remap) and the ``--ros-args`` items
+        without the namespace remap, for the nodes hosted in a sub-namespace (a global
+        ``__ns`` remap would override the namespace they are given).
+    """
+    ros, inside = [], False
+    for item in argv[1:]:
+        if item == '--ros-args':
+            inside = True
+        elif item == '--' and inside:
+            inside = False
+        elif inside:
+            ros.append(item)
+    ns, out, i = '/', [], 0
+    while i < len(ros):
+        if ros[i] in ('-r', '--remap') and i + 1 < len(ros) and \
+                ros[i + 1].startswith('__ns:='):
+            ns = '/' + ros[i + 1][len('__ns:='):].strip('/')
+            i += 2
+            continue
+        out.append(ros[i])
+        i += 1
+    return ns, out
+
+
+def build(names, bus=None, argv=()):
     """
     Build the named nodes on one :class:`~fiber_align.nodes.ros.bus.LocalBus`.
 
-    :param names: node names from :data:`HOSTABLE` (after ``rclpy.init``).
+    :param names: node names from :data:`HOSTABLE`, each maybe below a sub-namespace
+        (``x/rig_actuator``), in build order (after ``rclpy.init``).
+    :param argv: the process's command line (its namespace and ROS arguments, which a
+        node in a sub-namespace is given as its own: :func:`ros_arguments`).
     :returns: ``(nodes, bus)``.
     """
     bus = bus if bus is not None else LocalBus()
-    mods = [importlib.import_module(HOSTABLE[n][0]) for n in names]
+    ns, ros = ros_arguments(list(argv) or ['control_graph'])
+    specs = []
     for n in names:
-        bus.provide(*graph.HOSTABLE[n].publishes)
+        sub, _, base = n.rpartition('/')
+        node_ns = ns.rstrip('/') + '/' + sub if sub else ns
+        kw = dict(namespace=node_ns, use_global_arguments=False,
+                  cli_args=['--ros-args'] + ros) if sub else {}
+        specs.append((base, node_ns, kw, importlib.import_module(HOSTABLE[base][0])))
+    for base, node_ns, _, _ in specs:
+        bus.provide(*(t if t.startswith('/') else node_ns.rstrip('/') + '/' + t
+                      for t in graph.HOSTABLE[base].publishes))
     nodes = []
     try:
-        for n, m in zip(names, mods):
-            nodes.append(getattr(m, HOSTABLE[n][1])(bus=bus))
+        for base, _, kw, m in specs:
+            nodes.append(getattr(m, HOSTABLE[base][1])(bus=bus, **kw))
     except Exception:
         for node in nodes:
             node.destroy_node()
@@ -100,7 +152,7 @@ def main(args=None):
     bus = LocalBus()
     bus.sender = Sender()
     try:
-        nodes, _ = build(names, bus)
+        nodes, _ = build(names, bus, argv)
         realtime = is_realtime(nodes)
         # realtime: the DDS publishes leave the control thread (ros/sender.py); lockstep
         # has no deadline and keeps them on the executor's thread

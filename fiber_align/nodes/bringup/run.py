@@ -76,8 +76,7 @@ class Harness:
         self.obs.start_stall_s = float(self.gp['start_stall_timeout_s'])
         want = set()
         for p in g.processes:
-            ns = g.namespace if p.namespace is None else p.namespace
-            want.update((n, '/' + ns if ns else '/') for n in p.nodes)
+            want.update(p.hosted(g.namespace))
         if check_alone:
             time.sleep(float(self.gp['discovery_wait_s']))
             others = sorted(n for n, ns in want & self.obs.node_names())

@@ -23,8 +23,9 @@ class LocalBus:
     A topic is delivered locally when a node of the process publishes it
     (:meth:`provide`, before the nodes are built); its in-process readers then create no
     DDS subscription, so an outside publisher on that topic is not heard by them (one
-    writer per control topic). Names are the relative names the nodes use (one
-    namespace per process; remapping is not supported in a composed process).
+    writer per control topic). Topics are keyed by their fully qualified names
+    (:meth:`key`), so the nodes of one process may live in several namespaces (the rig's
+    axes and its optics); remapping is not supported in a composed process.
     """
 
     def __init__(self, topics=()):
@@ -46,12 +47,17 @@ class LocalBus:
             pub.send(msg)
 
     def provide(self, *topics):
-        """Mark ``topics`` (relative names) as published inside this process."""
+        """Mark ``topics`` (fully qualified names) as published inside this process."""
         self.topics.update(topics)
 
-    def local(self, topic):
-        """Return True when ``topic`` is delivered inside this process."""
-        return topic in self.topics
+    @staticmethod
+    def key(node, topic):
+        """Return the fully qualified name of ``topic`` as ``node`` resolves it."""
+        return node.resolve_topic_name(topic)
+
+    def local(self, node, topic):
+        """Return True when ``topic`` of ``node`` is delivered inside this process."""
+        return self.key(node, topic) in self.topics
 
     def callbacks(self, topic):
         """Return the (live) list of in-process callbacks of ``topic``."""
@@ -83,10 +89,10 @@ class Pub:
         self.pub = node.create_publisher(msg_type, topic, qos)
         self._writer = writer_of(self.pub, qos.durability == DurabilityPolicy.VOLATILE,
                                  bus)
-        self.topic = topic
         self.topic_name = self.pub.topic_name
-        self._bus = bus if bus is not None and bus.local(topic) else None
-        self._local = self._bus.callbacks(topic) if self._bus is not None else ()
+        self.topic = self.topic_name    # the bus's key: the fully qualified name
+        self._bus = bus if bus is not None and bus.local(node, topic) else None
+        self._local = self._bus.callbacks(self.topic) if self._bus is not None else ()
         self._latched = latched
         self._slack = slack
 
@@ -188,8 +194,8 @@ def subscription(node, msg_type, topic, callback, qos, bus=None):
     :returns: a :class:`LocalSub` when a node of this process publishes ``topic`` on
         ``bus``, else the rclpy Subscription.
     """
-    if bus is not None and bus.local(topic):
-        return LocalSub(bus, topic, callback)
+    if bus is not None and bus.local(node, topic):
+        return LocalSub(bus, bus.key(node, topic), callback)
     return node.create_subscription(msg_type, topic, callback, qos)
 
 
