@@ -4,16 +4,17 @@ CPU per axis of the realtime graph: this tree beside a baseline tree, in one run
 
 Each run is one ``bringup --sync realtime`` (the graph users start with ``ros2 launch``):
 the 1-D graph on a sine (``--scenario sine``, one axis), with or without a recorder, and
-the two-axis rig aligning, tracking and through its switch cycles (``--rig``, two
-axes). The trees alternate run by
+the two-axis rig aligning, through ``--rig-cycles`` release / align cycles, then held
+aligned for ``--seconds`` (``--rig --cycles N --duration S``, two axes). The trees alternate run by
 run (A, B, A, B, ...) so both see the same machine; every process of the graph is
 counted (CPU seconds per second of run, from bringup's summary), divided by the axes.
 Reported per case and tree: the median and the spread of CPU per axis and of the cycles
-kept (the worst axis), and the ratio of the medians (this tree over the baseline).
+kept (the worst axis), watchdog trips and failed runs, and the ratio of the medians (this
+tree over the baseline).
 
 Usage: ``python -m bench.bench_axis_cpu --baseline DIR [--repeats 3] [--seconds 20]
-[--cases one,one-recorded,rig] [--json FILE]``; ``DIR`` is a checkout of the baseline
-(e.g. ``git worktree add --detach /tmp/base <commit>``).
+[--rig-cycles 20] [--cases one,one-recorded,rig] [--json FILE]``; ``DIR`` is a checkout of
+the baseline (e.g. ``git worktree add --detach /tmp/base <commit>``).
 """
 
 import argparse
@@ -26,23 +27,22 @@ import tempfile
 import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-#: case -> (bringup arguments, axes, recorded); the rig runs its align2d to TRACKING and
-#: its switch cycles (no ``--duration``)
+#: case -> (bringup arguments, axes, recorded)
 CASES = {
     'one': (['--scenario', 'sine', '--duration', '{seconds}'], 1, False),
     'one-recorded': (['--scenario', 'sine', '--duration', '{seconds}'], 1, True),
-    'rig': (['--rig'], 2, False),
+    'rig': (['--rig', '--cycles', '{cycles}', '--duration', '{seconds}'], 2, False),
 }
 
 
-def run_once(tree, case, seconds, tmp):
+def run_once(tree, case, seconds, tmp, cycles=20):
     """Run one case on ``tree``; return ``{cpu_per_axis, cycles_kept, ...}``."""
     args, axes, recorded = CASES[case]
     summary = os.path.join(tmp, 'summary-%s-%s.json' % (case, os.getpid()))
     if os.path.exists(summary):
         os.remove(summary)
     cmd = [sys.executable, '-m', 'fiber_align.nodes.bringup'] + [
-        x.format(seconds=seconds) for x in args] + [
+        x.format(seconds=seconds, cycles=cycles) for x in args] + [
         '--sync', 'realtime', '--quiet', '--summary', summary]
     if recorded:
         bag = tempfile.mkdtemp(dir=tmp)
@@ -50,7 +50,7 @@ def run_once(tree, case, seconds, tmp):
         cmd += ['--record', bag]
     env = dict(os.environ, PYTHONPATH=tree)
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=tree,
-                          timeout=180 + 3 * seconds)
+                          timeout=180 + 3 * seconds + 3 * cycles)
     if not os.path.isfile(summary):
         return {'error': (proc.stdout + proc.stderr)[-400:]}
     with open(summary, encoding='utf-8') as f:
@@ -60,6 +60,8 @@ def run_once(tree, case, seconds, tmp):
     return {'cpu_per_axis': cpu / axes, 'cpu_total': cpu,
             'cycles_kept': 1.0 - max(shares) if shares else None,
             'processes': {k: v.get('cpu_per_s') for k, v in s.get('processes', {}).items()},
+            'trips': sum(int(a.get('watchdog_count') or 0) for a in _axes(s)),
+            'state': s.get('state'), 'error': s.get('error') or None,
             'exit_code': proc.returncode}
 
 
@@ -77,7 +79,8 @@ def summarise(runs):
         v = [r[key] for r in runs if r.get(key) is not None]
         out[key] = {'median': float(np.median(v)), 'min': min(v), 'max': max(v)} if v \
             else None
-    out['errors'] = [r['error'] for r in runs if 'error' in r]
+    out['errors'] = [r['error'] for r in runs if r.get('error')]
+    out['trips'] = sum(r.get('trips') or 0 for r in runs)
     return out
 
 
@@ -87,6 +90,8 @@ def main(argv=None):
     ap.add_argument('--baseline', required=True, help='checkout of the baseline tree')
     ap.add_argument('--repeats', type=int, default=3)
     ap.add_argument('--seconds', type=float, default=20.0)
+    ap.add_argument('--rig-cycles', type=int, default=20,
+                    help='rig: release / align cycles before the held part')
     ap.add_argument('--cases', default='one,one-recorded,rig')
     ap.add_argument('--json', default=None)
     a = ap.parse_args(argv)
@@ -98,24 +103,28 @@ def main(argv=None):
         for _ in range(a.repeats):
             for c in cases:
                 for t in ('this', 'baseline'):
-                    runs[(c, t)].append(run_once(trees[t], c, a.seconds, tmp))
+                    runs[(c, t)].append(run_once(trees[t], c, a.seconds, tmp,
+                                                 a.rig_cycles))
     out = {'seconds': a.seconds, 'repeats': a.repeats, 'load_average': os.getloadavg(),
            'cases': {}}
     lines = ['| case | tree | CPU per axis (s/s) median [min, max] | cycles kept, worst axis '
-             '(median) |', '|---|---|---|---|']
+             '(median) [min] | trips | failed runs |', '|---|---|---|---|---|---|']
     for c in cases:
         out['cases'][c] = {t: dict(summarise(runs[(c, t)]), runs=runs[(c, t)]) for t in trees}
         for t in trees:
             s = out['cases'][c][t]
             cpu, cyc = s['cpu_per_axis'], s['cycles_kept']
-            lines.append('| %s | %s | %s | %s |' % (
+            lines.append('| %s | %s | %s | %s | %d | %d |' % (
                 c, t, '%.3f [%.3f, %.3f]' % (cpu['median'], cpu['min'], cpu['max'])
-                if cpu else 'error', '%.3f %%' % (100 * cyc['median']) if cyc else '-'))
+                if cpu else 'error', '%.3f %% [%.3f %%]' % (100 * cyc['median'],
+                                                            100 * cyc['min'])
+                if cyc else '-', s['trips'], len(s['errors'])))
         a_, b_ = out['cases'][c]['this']['cpu_per_axis'], \
             out['cases'][c]['baseline']['cpu_per_axis']
         if a_ and b_:
             out['cases'][c]['ratio_cpu'] = a_['median'] / b_['median']
-            lines.append('| %s | this / baseline | %.2f | |' % (c, out['cases'][c]['ratio_cpu']))
+            lines.append('| %s | this / baseline | %.2f | | | |'
+                         % (c, out['cases'][c]['ratio_cpu']))
     print('\n'.join(lines))
     if a.json:
         with open(a.json, 'w', encoding='utf-8') as f:
