@@ -192,3 +192,42 @@ def test_a_forgotten_writer_publishes_nothing_more(node):
     assert s.start()             # the queued message of the forgotten writer is dropped
     assert s.stop() == 0
     assert s.dropped == 1 and s.published == 0
+
+
+def test_a_durable_writer_without_readers_sends_its_newest_once_per_refresh(node):
+    """A latched topic set every period: few DDS publishes, a late reader gets the present."""
+    from std_msgs.msg import Float64
+
+    from fiber_align.nodes.ros.qos import CONTROL_QOS, LATCHED_QOS
+    from fiber_align.nodes.ros.sender import Sender
+    pub = node.create_publisher(Float64, 'latched', LATCHED_QOS)
+    s = Sender(refresh_s=0.01)
+    w = s.writer(pub, False)
+    assert s.start()
+    try:
+        assert w.readers == 0
+        t0 = time.monotonic()
+        n = 0
+        while time.monotonic() - t0 < 0.5:      # 1 kHz for 0.5 s, nobody listening
+            w.publish(Float64(data=float(n)))
+            n += 1
+            time.sleep(0.001)
+        newest = float(n - 1)
+        time.sleep(0.05)
+        # about one publish per refresh (10 ms), not one per message
+        assert 0 < s.published < n / 4, (s.published, n)
+        got = []
+        # deep and durable: every message of the burst below is kept
+        node.create_subscription(Float64, 'latched', lambda m: got.append(m.data),
+                                 CONTROL_QOS)
+        assert _spin_until(node, lambda: got and got[-1] == newest, 5.0), (got, newest)
+        # once the sender has seen the reader (one refresh), every message is published
+        assert _spin_until(node, lambda: w.readers > 0, 5.0)
+        before = s.published
+        for i in range(100):
+            w.publish(Float64(data=1000.0 + i))
+        assert _spin_until(node, lambda: got[-1] == 1099.0, 5.0)
+        assert got[-100:] == [1000.0 + i for i in range(100)]
+        assert s.published - before >= 100
+    finally:
+        s.stop()

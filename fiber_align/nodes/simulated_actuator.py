@@ -54,7 +54,7 @@ from std_srvs.srv import SetBool
 from fiber_align.control.cycle import CycleStats, LatencyHistogram
 from fiber_align.control.trajectory import MAX_CATCH_UP
 from fiber_align.nodes._plant_clock import PlantClock
-from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
+from fiber_align.nodes.ros.bus import Pub, sample_timer, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import Health
 from fiber_align.nodes.ros.params import check_parameters, declare, declare_graph_values
 from fiber_align.nodes.ros.params import flatten_defaults, node_defaults, PRIORITY
@@ -168,7 +168,7 @@ class SimulatedActuatorNode(PlantClock, Node):
         self.reset_stats()
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         if self.sync_mode == 'realtime':
-            self.timer = self.create_timer(self.period_s, self._on_tick, clock=steady)
+            self.timer = sample_timer(self, bus, self.period_s, self._on_tick, steady)
             self.create_timer(diag_period, lambda: self.slack.submit(self._update_values),
                               clock=steady)
         else:

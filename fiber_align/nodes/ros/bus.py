@@ -39,6 +39,8 @@ class LocalBus:
         #: the process's :class:`~fiber_align.nodes.ros.sender.Sender` (DDS publishes off
         #: the control thread once started), or ``None``: publishes made at once
         self.sender = None
+        #: period (s) -> the :class:`SampleTimer` the sample clocks of that period share
+        self.timers = {}
 
     def flush(self):
         """Hand the DDS publishes deferred by nested deliveries to DDS, in order."""
@@ -163,6 +165,46 @@ class LocalSub:
         cbs = self.bus.callbacks(self.topic)
         if self.callback in cbs:
             cbs.remove(self.callback)
+
+
+class SampleTimer:
+    """
+    One wall-clock timer that ticks every realtime sample clock of a process in turn.
+
+    The plants of one process (the rig's two axes) tick from one timer callback, in the
+    order they were built: each tick's scheduled time is the timer's, so a second plant
+    is not counted late for the time the first one's loop took, and the executor wakes
+    once a period instead of once per plant.
+    """
+
+    def __init__(self, node, period_s, clock):
+        """Create the timer on ``node`` (period in s, ``clock`` rclpy steady clock)."""
+        self.callbacks = []
+        self.timer = node.create_timer(period_s, self._tick, clock=clock)
+
+    def _tick(self):
+        for cb in self.callbacks:
+            cb()
+
+    def time_until_next_call(self):
+        """Return the time (ns) until the next tick, as rclpy's ``Timer``."""
+        return self.timer.time_until_next_call()
+
+
+def sample_timer(node, bus, period_s, callback, clock):
+    """
+    Return the timer of a realtime sample clock calling ``callback`` every ``period_s``.
+
+    Composed (``bus`` given): the process's :class:`SampleTimer` of that period, shared
+    with the other sample clocks of the process; else a timer of ``node`` of its own.
+    """
+    if bus is None:
+        return node.create_timer(period_s, callback, clock=clock)
+    shared = bus.timers.get(period_s)
+    if shared is None:
+        shared = bus.timers[period_s] = SampleTimer(node, period_s, clock)
+    shared.callbacks.append(callback)
+    return shared
 
 
 def writer_of(pub, volatile, bus=None):

@@ -88,10 +88,14 @@ class Writer:
     sender's thread; otherwise (lockstep, a process without a sender) it is published at
     once by rclpy. A volatile writer with no matched reader delivers to nobody, now or
     later, so its message is not converted at all (the count is the sender thread's,
-    refreshed every :attr:`Sender.refresh_s`).
+    refreshed every :attr:`Sender.refresh_s`). A durable (transient local) writer with no
+    matched reader keeps its newest message, and the sender publishes that once per
+    refresh: a reader that joins gets the present (at most one refresh old, then the
+    newest; until the next refresh sees it, the messages in between are folded into the
+    newest), and a latched topic set every period costs one DDS publish per refresh.
     """
 
-    __slots__ = ('pub', 'volatile', 'readers', 'sender', 'ptr', 'ctype')
+    __slots__ = ('pub', 'volatile', 'readers', 'sender', 'ptr', 'ctype', 'pending')
 
     def __init__(self, pub, volatile, sender=None):
         """Wrap rclpy publisher ``pub``; ``volatile``: its durability is volatile."""
@@ -101,13 +105,16 @@ class Writer:
         self.readers = 1
         self.ptr = pub.handle.pointer if sender is not None else None
         self.ctype = MessageType(pub.msg_type) if sender is not None else None
+        self.pending = None     # durable, no reader: the newest C message, not yet sent
 
     def publish(self, msg):
         """Publish ``msg`` (queued while the sender runs, else at once)."""
         s = self.sender
         if s is not None and s.running:
-            if self.readers or not self.volatile:
+            if self.readers:
                 s.put(self, msg)
+            elif not self.volatile:
+                s.keep(self, msg)
         elif not self.volatile or self.pub.get_subscription_count():
             self.pub.publish(msg)
 
@@ -133,6 +140,7 @@ class Sender:
         self._stopping = False
         self._writers = []
         self._lock = threading.Lock()
+        self._keep_lock = threading.Lock()     # Writer.pending only: never held over DDS
         self._rcl = None
         self.max_queued = int(max_queued)
         self.refresh_s = float(refresh_s)
@@ -159,6 +167,7 @@ class Sender:
         with self._lock:
             if writer in self._writers:
                 self._writers.remove(writer)
+            self._drop_pending(writer)
             if writer.ptr is not None and writer.sender is self:
                 writer.sender = None
                 writer.ptr = None
@@ -202,6 +211,7 @@ class Sender:
         if self._lock.acquire(timeout=timeout_s):
             for w in self._writers:
                 w.ptr = None
+                self._drop_pending(w)
             self._writers = []
             self._lock.release()
         left = len(self._q)
@@ -229,6 +239,29 @@ class Sender:
         if not self._wake.is_set():
             self._wake.set()
 
+    def keep(self, writer, msg):
+        """Convert ``msg`` and keep it as ``writer``'s newest (durable, no reader yet)."""
+        ptr = writer.ctype.to_c(msg)
+        with self._keep_lock:
+            old, writer.pending = writer.pending, ptr
+        if old is not None:
+            writer.ctype.destroy(old)
+
+    def _drop_pending(self, writer):
+        with self._keep_lock:
+            ptr, writer.pending = writer.pending, None
+        if ptr is not None:
+            writer.ctype.destroy(ptr)
+
+    def _take_pending(self):
+        """Queue the newest kept message of each durable writer (the sender thread)."""
+        for w in list(self._writers):
+            if w.pending is not None:
+                with self._keep_lock:
+                    ptr, w.pending = w.pending, None
+                if ptr is not None:
+                    self._q.append((w, ptr))
+
     def stats(self):
         """Return the sender's counters for ``/diagnostics`` (``sender.*`` keys)."""
         return {'sender.published': self.published, 'sender.dropped': self.dropped,
@@ -238,7 +271,7 @@ class Sender:
         n = ctypes.c_size_t()
         with self._lock:
             for w in self._writers:
-                if w.volatile and self._rcl.count(w.ptr, ctypes.byref(n)) == 0:
+                if self._rcl.count(w.ptr, ctypes.byref(n)) == 0:
                     w.readers = n.value
 
     def _run(self):
@@ -259,8 +292,9 @@ class Sender:
                         self.failed += 1
                 w.ctype.destroy(msg)
             now = time.monotonic()
-            if now - t_refresh >= self.refresh_s:
+            if now - t_refresh >= self.refresh_s or self._stopping:
                 t_refresh = now
                 self._refresh()
+                self._take_pending()
             if self._stopping and not q:
                 return
