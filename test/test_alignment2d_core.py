@@ -139,6 +139,26 @@ def test_parameters_come_from_the_config_file_only():
         s2d.Sequencer2D(p)
 
 
+def test_the_search_walks_no_faster_than_the_realtime_path_follows():
+    # realtime: the loop follows a setpoint at most at realtime_setpoint_rate_m_per_s; a
+    # spiral walked faster lags further each period until the follow check faults
+    rate = 2.0e-3
+    free = s2d.Sequencer2D(period_s=1e-3)
+    bound = s2d.Sequencer2D(period_s=1e-3, path_rate_m_per_s=rate)
+    assert free.search_speed == free.p['search_speed_m_per_s'] > rate
+    assert bound.search_speed == pytest.approx(s2d.PATH_RATE_SHARE * rate)
+    assert bound.search_speed < rate
+    # the spiral's pitch is laid out for the chord walked between two readings
+    p = bound.p
+    chord = (int(p['confirm_samples']) + 1) * bound.search_speed * 1e-3
+    assert bound.pitch_m == pytest.approx(
+        s2.spiral_pitch(p['mode_radius_m'], p['spiral_capture_db'], chord))
+    assert bound.pitch_m != free.pitch_m
+    slow = s2d.Sequencer2D(period_s=1e-3, path_rate_m_per_s=1.0,
+                           search_speed_m_per_s=1e-3)
+    assert slow.search_speed == 1e-3           # a slower search is left as it is
+
+
 def _bench2d(seed=2, **seq):
     from fiber_align.simulation import alignment2d_scenarios as sc
     bench = sc.build(seed=seed, seq_overrides=seq)

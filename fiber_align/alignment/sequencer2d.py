@@ -73,17 +73,27 @@ def default_period_s():
     return 1.0 / float(load_params(RATE_FILE, RATE_NODE)['rate_hz'])
 
 
+#: Share of the realtime path's rate the search walks at, at most: the rest is room for
+#: the acceleration limit at the spiral's turns.
+PATH_RATE_SHARE = 0.9
+
+
 class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
     """Find, peak, track and switch the light in x and y (see the module docstring)."""
 
     AXIS_NAMES = AXES
 
-    def __init__(self, params=None, period_s=None, **overrides):
+    def __init__(self, params=None, period_s=None, path_rate_m_per_s=None, **overrides):
         """
         Build from a parameter mapping (``None``: ``config/sequencer2d.yaml``).
 
         :param period_s: period of the :meth:`update` calls (s); ``None``: 1 / the
             graph's ``rate_hz``.
+        :param path_rate_m_per_s: the fastest the realtime loop follows a setpoint (m/s,
+            the graph's ``realtime_setpoint_rate_m_per_s``); the search walks at most
+            :data:`PATH_RATE_SHARE` of it, so the actuators keep up with the spiral (a
+            walk faster than its path lags further each period until the follow check
+            faults). ``None`` or <= 0: no bound (offline, lockstep).
 
         Every key of the file's ``alignment_sequencer_2d`` node is required (the file is
         the one source of defaults); ``overrides`` replace keys.
@@ -104,7 +114,10 @@ class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
         self.hi = np.array([p['range_x_max_m'], p['range_y_max_m']], dtype=float)
         self.park = np.array([p['park_x_m'], p['park_y_m']], dtype=float)
         self.period_s = default_period_s() if period_s is None else float(period_s)
-        chord = (int(p['confirm_samples']) + 1) * p['search_speed_m_per_s'] * self.period_s
+        self.search_speed = float(p['search_speed_m_per_s'])
+        if path_rate_m_per_s is not None and path_rate_m_per_s > 0:
+            self.search_speed = min(self.search_speed, PATH_RATE_SHARE * path_rate_m_per_s)
+        chord = (int(p['confirm_samples']) + 1) * self.search_speed * self.period_s
         self.capture_radius_m = s2.capture_radius(p['mode_radius_m'], p['spiral_capture_db'])
         self.pitch_m = s2.spiral_pitch(p['mode_radius_m'], p['spiral_capture_db'], chord)
         self.curvature_prior = 1.0 / p['mode_radius_m'] ** 2
@@ -318,7 +331,7 @@ class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
                             % (self.lo[0] * 1e6, self.hi[0] * 1e6, self.lo[1] * 1e6,
                                self.hi[1] * 1e6, _dbm(self.threshold_w)))
             return
-        self.sp = np.array(self._spiral.advance(p['search_speed_m_per_s'] * self.dt))
+        self.sp = np.array(self._spiral.advance(self.search_speed * self.dt))
 
     # PEAKING: settled points, paraboloid fit --------------------------------------------
     def _start_peaking(self, center):

@@ -83,13 +83,15 @@ class AlignmentSequencer2DNode(SequencerNode, Node):
         super().__init__(NODE_NAME, **kwargs)
         d = node_defaults(NODE_NAME, AREA_FILES)
         g = declare_graph_values(self, d, 'sync_mode', 'diagnostics_period_s', 'rate_hz',
-                                 'sensorless', *PRIORITY)
+                                 'sensorless', 'realtime_setpoint_rate_m_per_s', *PRIORITY)
         self.lockstep, diag = g['sync_mode'] == 'lockstep', g['diagnostics_period_s']
         core = {name: declare(self, d, name, 'sequencer parameter (SI, see '
                               'sequencer2d.yaml)', read_only=True)
                 for name in load_params(s2d.CONFIG_FILE, s2d.CONFIG_NODE)}
         self.period_s = 1.0 / float(g['rate_hz'])
-        self.seq = s2d.Sequencer2D(core, period_s=self.period_s)
+        # realtime: the search walks no faster than the loop's path follows a setpoint
+        self.seq = s2d.Sequencer2D(core, period_s=self.period_s, path_rate_m_per_s=None
+                                   if self.lockstep else g['realtime_setpoint_rate_m_per_s'])
         self.pub_sp = [Pub(self, Float64, a + '/setpoint', sample_pub_qos(self.lockstep), bus)
                        for a in AXES]
         qos = sample_qos(self.lockstep)
@@ -122,8 +124,9 @@ class AlignmentSequencer2DNode(SequencerNode, Node):
         self._driver_diag.update({'%s/mdt693b_driver/%s' % (ns, a): name
                                   for name, a in zip(s2d.DRIVERS, AXES)})
         self._publish_state()
-        self.get_logger().info('2-D sequencer ready (%s pairing)'
-                               % ('index' if self.lockstep else 'latest y and power'))
+        self.get_logger().info('2-D sequencer ready (%s pairing, search at %.3g mm/s)'
+                               % ('index' if self.lockstep else 'latest y and power',
+                                  self.seq.search_speed * 1e3))
 
     # -- inputs ---------------------------------------------------------------------
     @staticmethod
