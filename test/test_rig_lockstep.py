@@ -53,7 +53,7 @@ def assert_equals_offline(graph, summary, seed):
 
 
 def test_rig_align2d_composed_equals_offline(tmp_path):
-    """Composed (three control_graph processes): seed 0, the docs' example run."""
+    """Composed (one control_graph process for the rig): seed 0, the docs' example run."""
     graph, summary = run_rig(tmp_path, 0)
     assert summary['composed'] and summary['namespace'] == 'rig'
     assert_equals_offline(graph, summary, 0)

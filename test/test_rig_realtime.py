@@ -1,0 +1,38 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The two-axis rig in realtime as ``bringup --rig`` runs it: release / align cycles, held.
+
+The composed rig is one process (both axes, the optics, the sequencer) beside the
+lifecycle manager; every cycle ends in TRACKING, both axes report their realtime figures
+from their own ``/diagnostics`` (the two plants share a base name), with no watchdog trip.
+The CPU and cycle goals are the benchmark's (``bench/bench_axis_cpu.py``), not a test's.
+"""
+
+import json
+import sys
+
+import pytest
+
+from procs import run_bounded
+
+pytestmark = [pytest.mark.ros]
+
+
+def test_rig_release_align_cycles_in_realtime_end_in_tracking(tmp_path):
+    summary = tmp_path / 'rig.json'
+    code, out = run_bounded([sys.executable, '-m', 'fiber_align.nodes.bringup', '--rig',
+                             '--sync', 'realtime', '--cycles', '2', '--duration', '2',
+                             '--summary', str(summary), '--quiet'], 120)
+    assert code == 0, out
+    s = json.loads(summary.read_text(encoding='utf-8'))
+    assert s['state'] in ('TRACKING', 'PEAKING') and not s['error'], s
+    assert s['cycles_tracking'] == 2 and len(s['cycle_time_to_peak_s']) == 2
+    assert all(0.0 < t < 1.0 for t in s['cycle_time_to_peak_s'])
+    assert set(s['processes']) == {'rig', 'lifecycle_manager'}
+    assert all(p['cpu_per_s'] > 0 for p in s['processes'].values())
+    for axis in ('x', 'y'):
+        rt = s['axes'][axis]
+        # the statistics start after the plant's warm-up (1000 samples)
+        assert rt['periods'] > 100 and 0.0 <= rt['missed_share'] < 1.0, rt
+        assert rt['watchdog_count'] == 0, rt
+    assert 'rig CPU:' in out and 'release / align cycles' in out
