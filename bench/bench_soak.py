@@ -114,6 +114,7 @@ def soak(a, extra):
     pub = node.create_publisher(Float64, 'setpoint', 10)
     rng = np.random.default_rng(a.seed)
     misses, rss, cli = [], {}, None
+    publish_s, late = [], []    # the client's own publish time (s); the missed setpoints
     try:
         end = time.monotonic() + 60
         while 'graph up' not in open(log.name).read() and time.monotonic() < end:
@@ -128,7 +129,9 @@ def soak(a, extra):
         while time.monotonic() < t_end:
             r = float(rng.uniform(10e-6, 80e-6))
             t0 = time.time()
+            c0 = time.monotonic()
             pub.publish(Float64(data=r))
+            publish_s.append(time.monotonic() - c0)
             t_wait = time.monotonic() + a.check_after + 0.02
             t_win = t0 + a.check_after + 0.02
             while time.monotonic() < t_wait or (
@@ -136,6 +139,11 @@ def soak(a, extra):
                 rclpy.spin_once(node, timeout_sec=0.005)
             win = [y for t, y in ys if t0 + a.check_after <= t <= t0 + a.check_after + 0.02]
             misses.append(abs(np.mean(win) - r) if win else float('inf'))
+            if misses[-1] > 1e-6:
+                # the setpoint, when the client sent it, how long its own publish took,
+                # and the samples it had around the check (for a miss's cause)
+                late.append({'r_m': r, 'miss_m': misses[-1], 'publish_s': publish_s[-1],
+                             'samples_seen': len(win), 'at_s': time.monotonic() - t_start})
             if 'minute1' not in rss and time.monotonic() - t_start >= 60.0:
                 rss['minute1'] = {k: rss_bytes(p) / 1e6 for k, p in pids.items()}
             while time.time() < t0 + a.interval:
@@ -164,6 +172,8 @@ def soak(a, extra):
            'median_miss_um': float(np.median(bad) * 1e6) if bad.size else 0.0,
            'worst_miss_um': float(m.max() * 1e6) if m.size else None,
            'watchdog_trips': trips['n'], 'rss_mb': rss,
+           'client_publish_max_s': max(publish_s) if publish_s else None,
+           'missed': late[:20],
            'cycle_missed_share_windows': {
                'n': len(cycles), 'worst': max(cycles) if cycles else None,
                'median': float(np.median(cycles)) if cycles else None,
