@@ -28,6 +28,8 @@ import sys
 import threading
 import time
 
+import numpy as np
+
 FLOOD_S = 10.0
 
 
@@ -63,8 +65,9 @@ def one_run(params=(), flood_s=FLOOD_S, cycles=5):
     ys, lock = [], threading.Lock()
 
     def on_y(msg):
+        st = msg.header.stamp
         with lock:
-            ys.append((time.monotonic(), msg.position[0]))
+            ys.append((time.monotonic(), msg.position[0], st.sec + 1e-9 * st.nanosec))
     node.create_subscription(JointState, 'displacement', on_y, qos.LIVE_QOS)
     pub = node.create_publisher(Float64, 'setpoint', qos.SETPOINT_QOS)
     ex.add_node(node)
@@ -82,9 +85,17 @@ def one_run(params=(), flood_s=FLOOD_S, cycles=5):
             pub.publish(Float64(data=float(v)))
 
         def span(t0):
+            # also the largest gap between the samples' own stamps (a stall of the loop
+            # shows as one) and when the extremes came (s after t0), for a miss's cause
             with lock:
-                w = [y for t, y in ys if t >= t0]
-            return {'min_um': min(w) * 1e6, 'max_um': max(w) * 1e6}
+                w = [(t, y, ts) for t, y, ts in ys if t >= t0]
+            y = np.array([v[1] for v in w])
+            ts = np.array([v[2] for v in w])
+            return {'min_um': float(y.min()) * 1e6, 'max_um': float(y.max()) * 1e6,
+                    'min_at_s': w[int(np.argmin(y))][0] - t0,
+                    'max_at_s': w[int(np.argmax(y))][0] - t0,
+                    'largest_stamp_gap_ms': float(np.max(np.diff(ts))) * 1e3
+                    if ts.size > 1 else None}
         setpoint(60e-6)
         time.sleep(1.5)
         t0, k = time.monotonic(), 0
