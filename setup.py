@@ -24,6 +24,8 @@ NODES = [
     'alignment_sequencer2d',
     'rig_optics',
     'rig_actuator',
+    'station_optics',
+    'station_sequencer',
     'bag_recorder',
     'bringup',
     'control_graph',

@@ -172,3 +172,27 @@ def test_a_driver_down_too_long_is_a_fault(rig):
     b.driver_active = False
     b.run_until(b.t + 0.1)
     assert b.seq.state == FAULT and 'driver inactive' in b.seq.fault_reason
+
+
+def test_what_the_drivers_publish_holds_the_station_and_refuses_align(rig):
+    """The node's path: a driver's ``drive_held`` (not ``update``'s argument) holds."""
+    b = sc.build(2, 'concurrent', rig=rig)
+    for name in st.DRIVERS:
+        b.seq.driver_lifecycle('active', name)
+        b.seq.driver_held(False, name)
+    sc.align_bench(b)
+    assert b.seq.state == TRACKING
+    assert b.seq.driver_held(True, 'out/y/actuator_driver')        # acted at once
+    assert b.seq.state == HELD and 'y_out' in b.seq.hold_reason
+    assert 'out/y/actuator_driver' in b.seq.hold_reason
+    held = np.asarray(b.seq.setpoint)
+    for _ in range(50):
+        b.step()
+        assert np.allclose(b.seq.setpoint, held) and b.seq.state == HELD
+    b.seq.release()
+    ok, why = b.seq.align()
+    assert not ok and 'out/y/actuator_driver' in why
+    b.seq.driver_held(False, 'out/y/actuator_driver')
+    assert b.seq.align()[0]
+    b.run_until(b.t + 5.0, lambda x: x.seq.state in (TRACKING, FAULT))
+    assert b.seq.state == TRACKING, b.seq.fault_reason

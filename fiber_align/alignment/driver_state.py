@@ -152,6 +152,15 @@ class DriverState:
         return True if all(w == '' for w in why) else None
 
     @property
+    def each(self):
+        """Return per driver (in ``names`` order) False when down, True when driving, else None."""
+        out = []
+        for d in self._d.values():
+            w = self._down(d)
+            out.append(False if w else (True if w == '' else None))
+        return tuple(out)
+
+    @property
     def reason(self):
         """Return why the drivers are not all driving ('' when they are, or unknown)."""
         out = []

@@ -172,6 +172,10 @@ class Station(StationHold, MultiAxis, Machine, JointPeakMixin):
         pw = None if power_w is None or not math.isfinite(power_w) else float(power_w)
         if pw is not None:
             self._last['p'] = t
+        if driver_active is None and not self.drivers.pending:
+            # what the drivers published (the graph's nodes); pending: a re-activated
+            # driver whose drive_held false is on its way is no reason to hold
+            driver_active = self.drivers.each
         down = axes_down(driver_active)
         self._down = bool(down)
         if self.state in ACTIVE and down:
@@ -200,6 +204,11 @@ class Station(StationHold, MultiAxis, Machine, JointPeakMixin):
                     threshold_w=self.threshold_w, hold_reason=self.hold_reason,
                     peak_samples=self.peak_samples,
                     search_samples=self.search_samples, iterations=self.iterations)
+
+    def _driver_down(self, reason):
+        """Hold at once: a driver stopped driving (``Machine``'s driver calls)."""
+        self._hold(self._t, axes_down(self.drivers.each) or list(AXES4))
+        self.hold_reason += ' (%s)' % reason
 
     # ---- health, IDLE, RELEASING ---------------------------------------------------
     def _unhealthy(self, t, pos):

@@ -15,6 +15,7 @@ import numpy as np
 from fiber_align.analysis.report import default_params
 from fiber_align.plant.optics import OpticalLink
 from fiber_align.simulation import alignment2d_scenarios as a2, scenarios
+from fiber_align.simulation import station_scenarios as sc
 from fiber_align.simulation.alignment_scenarios import rise_time
 from fiber_align.simulation.metrics import loop_metrics, run_scores, STEP_KEYS
 from fiber_align.simulation.simulate import tracking_skip_s
@@ -302,13 +303,29 @@ def compare_offline(seed, align_sample, graph):
     """
     bench = a2.build(seed=seed, record=True)
     res = a2.align_bench(bench, idle_s=align_sample * bench.period_s)
-    tr = bench.trace()
+    return _compare(bench.trace(), res, graph, RIG_STREAMS)
+
+
+def compare_offline_station(seed, align_sample, graph):
+    """
+    Run the offline ``station`` with ``align`` before sample ``align_sample``; compare.
+
+    :param graph: the graph's per-sample arrays: ``mx_in`` .. ``my_out`` (m, measured),
+        ``rx_in`` .. ``ry_out`` (m, setpoints), ``p`` (W).
+    :returns: as :func:`compare_offline`.
+    """
+    bench = sc.build(seed, record=True)
+    res = sc.align_bench(bench, idle_s=align_sample * bench.period_s)
+    return _compare(bench.trace(), res, graph, sc.StationBench.FIELDS[1:])
+
+
+def _compare(tr, res, graph, streams):
     n = min(tr['t'].size, min(v.size for v in graph.values()))
     out = {'samples': int(n), 'offline_samples': int(tr['t'].size),
            'state': res['state'], 'time_to_peak_s': res['time_to_peak_s'],
            'peak_samples': res['peak_samples'], 'final_loss_db': res['final_loss_db']}
     equal = n == tr['t'].size
-    for k in RIG_STREAMS:
+    for k in streams:
         d = np.abs(graph[k][:n] - tr[k][:n])
         out['max_abs_' + k] = float(d.max()) if n else math.nan
         if k == 'p':
@@ -321,9 +338,10 @@ def compare_offline(seed, align_sample, graph):
 
 
 def write_trace(path, arrays, rate):
-    """Write ``k,t_s,mx_m,my_m,p_w,rx_m,ry_m`` of every sample (SI) to ``path``."""
+    """Write ``k,t_s`` and every stream of ``arrays`` (``<name>_m`` or ``p_w``; SI) to ``path``."""
     n = min(v.size for v in arrays.values())
     k = np.arange(n)
-    cols = [k, k / rate] + [arrays[c][:n] for c in ('mx', 'my', 'p', 'rx', 'ry')]
+    cols = [k, k / rate] + [arrays[c][:n] for c in arrays]
+    head = ['k', 't_s'] + [c + ('_w' if c == 'p' else '_m') for c in arrays]
     np.savetxt(path, np.column_stack(cols), delimiter=',', fmt='%.17g',
-               header='k,t_s,mx_m,my_m,p_w,rx_m,ry_m', comments='')
+               header=','.join(head), comments='')

@@ -87,6 +87,8 @@ class NodeSpec:
     area: bool = True
 
 
+#: The coupled station's axes (namespaces below the station's: input x-y, output x-y).
+STATION_AXES = ('in/x', 'in/y', 'out/x', 'out/y')
 #: Every node of the graphs, keyed by its ``control_graph --nodes`` name (its executable).
 #: Hostable nodes are built, and so served in-process, in this order: the plant, then the
 #: setpoint sources (their answer to a sample reaches the compensator and the controller
@@ -112,6 +114,15 @@ NODES = {
                                        'AlignmentSequencer2DNode', ('sequencer2d.yaml',),
                                        area=False, publishes=('x/setpoint', 'y/setpoint'),
                                        subscribes=('optical_power',)),
+    # the coupled station (graph/station.py): four axes in/x .. out/y
+    'simulated_station_optics': NodeSpec(
+        'simulated_station_optics', 'station_optics', 'StationOpticsNode', ('station.yaml',),
+        area=False, publishes=('optical_power',),
+        subscribes=tuple('%s/tip_position' % a for a in STATION_AXES)),
+    'station_sequencer': NodeSpec(
+        'station_sequencer', 'station_sequencer', 'StationSequencerNode', ('station.yaml',),
+        area=False, publishes=tuple('%s/setpoint' % a for a in STATION_AXES),
+        subscribes=('optical_power',)),
     COMPENSATOR: NodeSpec(COMPENSATOR, COMPENSATOR, 'HysteresisCompensatorNode',
                           ('compensator.yaml', 'models/compensator_model.yaml'),
                           publishes=('feedforward_voltage', 'reference'),

@@ -35,11 +35,13 @@ two plants and the optics advance in step; the x plant publishes ``/clock``.
 import copy
 from dataclasses import dataclass
 import os
+from typing import Tuple
 
 from fiber_align.config import config_dir
 from fiber_align.graph import description as g
 from fiber_align.graph.params import (check_user, DRIVER, effective, GraphError, LIFECYCLE_MANAGER,
-                                      LIVE_VIEW, merge, merge_params, PLANT, wildcard_first)
+                                      LIVE_VIEW, merge, merge_params, PLANT, RECORDER,
+                                      wildcard_first)
 from fiber_align.simulation import seeds2d
 
 RIG_NAMESPACE = 'rig'
@@ -69,6 +71,10 @@ class RigGraph(g.Graph):
     """
 
     seed: int = 0
+    #: the axes' namespaces below the graph's (``x``, ``y``; the station's ``in/x`` ...)
+    axes: Tuple[str, ...] = AXES
+    #: the nodes of the graph's own namespace besides the manager (optics, sequencer)
+    own_nodes: Tuple[str, ...] = tuple(RIG_NODES)
 
     @property
     def nodes(self):
@@ -82,12 +88,12 @@ class RigGraph(g.Graph):
         base = merge_params(self.params_files, self.overrides)
         root = '/' + self.namespace if self.namespace else ''
         out = {'/**': base.get('/**', {'ros__parameters': {}})}
-        for a in AXES:
+        for a in self.axes:
             for n in AXIS_NODES:
                 sec = merge(base.get(n, {}), base.get('%s/%s' % (a, n), {}))
                 if sec:
                     out['%s/%s/%s' % (root, a, n)] = sec
-        for n in tuple(RIG_NODES) + (LIFECYCLE_MANAGER, LIVE_VIEW):
+        for n in tuple(self.own_nodes) + (LIFECYCLE_MANAGER, LIVE_VIEW, RECORDER):
             if n in base:
                 out['%s/%s' % (root, n)] = base[n]
         # a copy per section: no shared mappings, so no YAML aliases in the params file;
@@ -103,23 +109,70 @@ def _axis_ns(ns, axis):
     return '%s/%s' % (ns, axis) if ns else axis
 
 
-def rig_processes(ns, composed):
-    """Return the rig's processes (each with its namespace), the manager last."""
+def rig_processes(ns, composed, axes=AXES, own=None, label='rig', record=False):
+    """
+    Return the processes (each with its namespace), the manager (and recorder) last.
+
+    :param axes: the axes' namespaces below ``ns``.
+    :param own: ``{node: executable}`` of the nodes in ``ns`` itself (default the rig's).
+    :param label: the composed process's name.
+    :param record: add the recorder (in ``ns``).
+    """
+    own = RIG_NODES if own is None else own
     if composed:
-        # one process: both axes and the optics exchange every sample in-process
-        nodes = tuple('%s/%s' % (a, n) for a in AXES for n in AXIS_NODES) + tuple(RIG_NODES)
-        hosted = ['%s/%s' % (a, AXIS_EXECUTABLES.get(n, n)) for a in AXES
-                  for n in AXIS_NODES] + list(RIG_NODES)
-        procs = [g.Process('rig', g.COMPOSED_EXECUTABLE, nodes, ('--nodes', ','.join(hosted)),
+        # one process: every axis and the optics exchange every sample in-process
+        nodes = tuple('%s/%s' % (a, n) for a in axes for n in AXIS_NODES) + tuple(own)
+        hosted = ['%s/%s' % (a, AXIS_EXECUTABLES.get(n, n)) for a in axes
+                  for n in AXIS_NODES] + list(own)
+        procs = [g.Process(label, g.COMPOSED_EXECUTABLE, nodes, ('--nodes', ','.join(hosted)),
                            namespace=ns)]
     else:
         procs = [g.Process('%s/%s' % (a, n), AXIS_EXECUTABLES.get(n, n), (n,), node_name=n,
-                           namespace=_axis_ns(ns, a)) for a in AXES for n in AXIS_NODES]
+                           namespace=_axis_ns(ns, a)) for a in axes for n in AXIS_NODES]
         procs += [g.Process(n, exe, (n,), node_name=n, namespace=ns)
-                  for n, exe in RIG_NODES.items()]
+                  for n, exe in own.items()]
     procs.append(g.Process(LIFECYCLE_MANAGER, LIFECYCLE_MANAGER, (LIFECYCLE_MANAGER,),
                            node_name=LIFECYCLE_MANAGER, namespace=ns))
+    if record:
+        procs.append(g.Process(RECORDER, RECORDER, (RECORDER,), node_name=RECORDER,
+                               namespace=ns))
     return tuple(procs)
+
+
+def check_seed(seed):
+    """Return the run seed as an int >= 0, or raise :class:`GraphError`."""
+    try:
+        seed = int(seed)
+    except (TypeError, ValueError):
+        raise GraphError('seed %r is not allowed: an integer >= 0' % (seed,)) from None
+    if seed < 0:
+        raise GraphError('seed %r is not allowed: an integer >= 0' % seed)
+    return seed
+
+
+def multi_axis_files(config_directory, own, params_file, overrides):
+    """Return the params files of a multi-axis graph: area files, its nodes', the user's."""
+    d = config_dir() if config_directory is None else config_directory
+    files = list(g.area_files(d)) + [os.path.join(str(d), f) for n in own
+                                     for f in g.NODES[n].configs]
+    users = g.user_files(params_file)
+    check_user(files, users, overrides)
+    return list(dict.fromkeys(files + users))
+
+
+def graph_wide(over, sync_mode, controller):
+    """Put the ``sync_mode`` and ``controller`` launch arguments into ``over['/**']``."""
+    if sync_mode:
+        over['/**']['sync_mode'] = g._choice('sync_mode', sync_mode, g.SYNC_MODES)
+    if controller:
+        over['/**']['controller'] = g._choice('controller', controller, g.CONTROLLERS)
+
+
+def in_effect(files, over):
+    """Return ``(sync_mode, controller)`` in effect after every file and override."""
+    plant = effective(merge_params(files, over), PLANT)
+    return (g._choice('sync_mode', plant.get('sync_mode', 'realtime'), g.SYNC_MODES),
+            g._choice('controller', plant.get('controller', 'composite'), g.CONTROLLERS))
 
 
 def build_rig(namespace=RIG_NAMESPACE, composed=None, sync_mode='', controller='',
@@ -140,22 +193,10 @@ def build_rig(namespace=RIG_NAMESPACE, composed=None, sync_mode='', controller='
     ns = g.check_namespace(namespace)
     composed = g.DEFAULT_COMPOSED if composed in (None, '') else g.parse_bool('composed',
                                                                               composed)
-    d = config_dir() if config_directory is None else config_directory
-    files = list(g.area_files(d)) + [os.path.join(str(d), f) for f in RIG_FILES]
-    users = g.user_files(params_file)
-    check_user(files, users, overrides)
-    files += users
-    try:
-        seed = int(seed)
-    except (TypeError, ValueError):
-        raise GraphError('seed %r is not allowed: an integer >= 0' % (seed,)) from None
-    if seed < 0:
-        raise GraphError('seed %r is not allowed: an integer >= 0' % seed)
+    files = multi_axis_files(config_directory, RIG_NODES, params_file, overrides)
+    seed = check_seed(seed)
     over = {'/**': {}}
-    if sync_mode:
-        over['/**']['sync_mode'] = g._choice('sync_mode', sync_mode, g.SYNC_MODES)
-    if controller:
-        over['/**']['controller'] = g._choice('controller', controller, g.CONTROLLERS)
+    graph_wide(over, sync_mode, controller)
     seeds = seeds2d.run_seeds(seed)
     target = seeds2d.random_target(seed)
     over[PLANT] = {'optical_power_every': 0, 'tip_position_every': 1}
@@ -165,10 +206,7 @@ def build_rig(namespace=RIG_NAMESPACE, composed=None, sync_mode='', controller='
                     'target.position_y_m': target[1]}
     over[LIFECYCLE_MANAGER] = {'managed_nodes': list(MANAGED)}
     over = g.add_overrides(over, overrides)
-    merged = merge_params(files, over)
-    plant = effective(merged, PLANT)
-    sync = g._choice('sync_mode', plant.get('sync_mode', 'realtime'), g.SYNC_MODES)
-    law = g._choice('controller', plant.get('controller', 'composite'), g.CONTROLLERS)
+    sync, law = in_effect(files, over)
     return RigGraph(namespace=ns, composed=composed, sync_mode=sync, controller=law,
                     scenario='align2d', record='', processes=rig_processes(ns, composed),
                     params_files=tuple(files), overrides=over, remappings=g.REMAPPINGS,

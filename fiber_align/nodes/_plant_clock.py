@@ -41,8 +41,11 @@ class PlantClock:
         if not name or self.sync_mode != 'realtime':
             return True
         topics = (self.pub_disp.topic_name, self.resolve_topic_name('drive_voltage'))
-        ns = self.get_namespace()
-        if all(any(i.node_name == name and i.node_namespace == ns
+        # a bare name: the node in this plant's namespace; a full one (the station's
+        # recorder, in the namespace above the axes) as it is
+        full = name if name.startswith('/') else '%s/%s' % (
+            self.get_namespace().rstrip('/'), name)
+        if all(any('%s/%s' % (i.node_namespace.rstrip('/'), i.node_name) == full
                    for i in self.get_subscriptions_info_by_topic(t)) for t in topics):
             return True
         if time.monotonic() - self.created < self.start_wait_s:

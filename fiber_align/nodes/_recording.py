@@ -75,3 +75,62 @@ def recorder_missing(diag, since, names=None):
     """
     short = recorder_short(diag, since, names)
     return None if short is None else sorted(t for t, (rec, _) in short.items() if rec == 0)
+
+
+def recorder_short_full(diag, since, nodes, base=None):
+    """
+    :func:`recorder_short` for reports keyed by full status names (the multi-axis graphs).
+
+    The rig's and the station's axes publish the same relative topics in their own
+    namespaces, so the counts are matched by full topic name: a node's ``sent.<topic>``
+    is ``<its namespace>/<topic>`` (or ``/<topic>``, an absolute one such as ``/clock``)
+    and the recorder's ``recorded.<full topic>``.
+
+    :param diag: full status name (``/station/in/x/simulated_actuator``) -> its newest
+        values (with ``_t``, monotonic s).
+    :param nodes: the full names of the nodes whose ``sent.*`` counts must be recorded.
+    :param base: ``{topic: (recorded, sent)}`` when the recorder had matched every writer
+        (:func:`recorder_counts`): only what was sent after it counts (a volatile
+        message published before the match cannot reach any late reader).
+    :returns: ``None`` while a report is older than ``since``; else ``{topic: (recorded,
+        sent)}`` (since ``base``) of the topics the recorder is short of.
+    """
+    now = recorder_counts(diag, nodes, since)
+    if now is None:
+        return None
+    short = {}
+    for t, (got, sent) in now.items():
+        r0, s0 = (base or {}).get(t, (0, 0))
+        if got - r0 < sent - s0:
+            short[t] = (got - r0, sent - s0)
+    return short
+
+
+def recorder_counts(diag, nodes, since=-1.0):
+    """
+    Return ``{full topic: (recorded, sent)}`` of the recorded topics, or ``None``.
+
+    ``None`` while the recorder's or a node's newest report is older than ``since``
+    (monotonic s). Arguments as :func:`recorder_short_full`.
+    """
+    rec = next((v for k, v in diag.items() if k.rsplit('/', 1)[-1] == RECORDER), {})
+    if rec.get('_t', 0.0) <= since:
+        return None
+    got = {k[len('recorded.'):]: int(float(v)) for k, v in rec.items()
+           if k.startswith('recorded.')}
+    sent = {}
+    for node in nodes:
+        if node.rsplit('/', 1)[-1] in NOT_RECORDED + (RECORDER,):
+            continue
+        d = diag.get(node, {})
+        if d.get('_t', 0.0) <= since:
+            return None
+        ns = node.rpartition('/')[0]
+        for k, v in d.items():
+            if not k.startswith('sent.'):
+                continue
+            t = k[len('sent.'):]
+            full = next((f for f in (ns + '/' + t, '/' + t) if f in got), None)
+            if full is not None:
+                sent[full] = sent.get(full, 0) + int(float(v))
+    return {t: (got[t], n) for t, n in sent.items()}

@@ -109,7 +109,8 @@ class SimulatedActuatorNode(PlantClock, Node):
                                  read_only=ro)
         self.start_reader = declare(self, d, 'start_after_reader', 'realtime: start the '
                                     'clock once this node subscribes to displacement and '
-                                    'drive_voltage ("" = none)', read_only=ro)
+                                    'drive_voltage (a name in this namespace or a full '
+                                    'one, /ns/name; "" = none)', read_only=ro)
         self.start_wait_s = declare(self, d, 'start_wait_s', 'bound of that wait (s, wall)',
                                     0.0, 3600.0, ro)
         self.created = time.monotonic()

@@ -190,7 +190,8 @@ class StationLink:
         if station_params is None:
             station_params = load_params(CONFIG_FILE, CONFIG_NODE)
         o = op._section(optics_params, op.CONFIG_KEY)
-        c = dict(station_params)
+        # the node's detector seed is the ``seed`` argument, not a chip key
+        c = {k: v for k, v in station_params.items() if k != 'seed'}
         for k, v in overrides.items():
             if k in CHIP_KEYS:
                 c[k] = v

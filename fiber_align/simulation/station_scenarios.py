@@ -45,6 +45,9 @@ from fiber_align.simulation.alignment2d_scenarios import Rig2D
 SCENARIOS = ('station', 'cure')
 METHODS = {'concurrent': st.Station, 'serial': ser.SerialStation}
 GOAL_LOSS_DB = 0.05
+#: The four axes in the order of the sequencer's positions and setpoints (the graph's
+#: ``in/x`` .. ``out/y`` namespaces).
+AXIS_KEYS = ('x_in', 'y_in', 'x_out', 'y_out')
 
 
 class StationRig:
@@ -94,12 +97,18 @@ class Hold:
 class StationBench(sc1.Stepping):
     """A station sequencer, the chip's optical link and the rig, one period a call."""
 
-    def __init__(self, rig, link, seq):
-        """Combine the parts; time starts at 0 s."""
+    #: Per-period trace columns (``record``): time, the four measured displacements, the
+    #: four setpoints and the detector reading (s, m, W).
+    FIELDS = ('t',) + tuple('m' + a for a in AXIS_KEYS) + tuple('r' + a for a in AXIS_KEYS) \
+        + ('p',)
+
+    def __init__(self, rig, link, seq, record=False):
+        """Combine the parts; time starts at 0 s; ``record``: keep :meth:`trace`'s rows."""
         self.rig, self.link, self.seq = rig, link, seq
         self.period_s = rig.period_s
         self.k = 0
         self.last = None
+        self.rows = {k: [] for k in self.FIELDS} if record else None
         #: what the drivers report to the sequencer (None, a bool or four bools)
         self.driver_active = None
 
@@ -108,7 +117,11 @@ class StationBench(sc1.Stepping):
         t = self.t
         pos = self.rig.position
         p = self.link.measure(t, pos, self.period_s)
-        r = self.seq.update(t, self.rig.measured, p, self.driver_active)
+        m = self.rig.measured
+        r = self.seq.update(t, m, p, self.driver_active)
+        if self.rows is not None:
+            for k, v in zip(self.FIELDS, (t, *m, *r, p)):
+                self.rows[k].append(float(v))
         self.last = (t, pos, p)
         self.rig.step(r)
         self.k += 1
@@ -118,6 +131,10 @@ class StationBench(sc1.Stepping):
         """Return the true loss (dB) of the last period."""
         t, pos, _ = self.last
         return float(self.link.loss_db(t, pos))
+
+    def trace(self):
+        """Return the recorded run (``record``) as a dict of arrays (SI)."""
+        return {k: np.asarray(v, dtype=float) for k, v in self.rows.items()}
 
 
 def run_seeds(seed):
@@ -145,7 +162,7 @@ def random_cure(seed):
 
 
 def build(seed=0, method='concurrent', facets=None, rig=None, seq_overrides=None,
-          **optics_overrides):
+          record=False, **optics_overrides):
     """
     Return a :class:`StationBench` with the facets at ``facets`` (m; random if None).
 
@@ -165,7 +182,7 @@ def build(seed=0, method='concurrent', facets=None, rig=None, seq_overrides=None
     rig.reset(seeds['plant'])
     ov.setdefault('sample_period_s', rig.period_s)
     link = so.StationLink.from_params(None, None, seed=seeds['detector'], **ov)
-    return StationBench(rig, link, seq)
+    return StationBench(rig, link, seq, record)
 
 
 def align_bench(bench, idle_s=0.02, loss_window_s=0.02):

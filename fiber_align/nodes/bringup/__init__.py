@@ -38,7 +38,7 @@ interrupted.
 
 ``--hardware`` runs the sensorless bench graph instead (``--emulate``: on the emulators;
 :mod:`fiber_align.nodes.bringup.hardware`); ``--rig --hardware`` the two-axis rig on one
-MDT693B.
+MDT693B. ``--station`` runs the coupled station as the rig (its sequence, its summary).
 """
 
 import os
@@ -49,7 +49,7 @@ from fiber_align import lifeline
 from fiber_align.config import ConfigError
 from fiber_align.graph.description import dds_environment
 from fiber_align.nodes.bringup import hardware, interrupt
-from fiber_align.nodes.bringup.cli import describe, describe_rig, parse_args
+from fiber_align.nodes.bringup.cli import describe, describe_rig, describe_station, parse_args
 from fiber_align.nodes.bringup.rig import run_rig
 from fiber_align.nodes.bringup.run import Bringup
 
@@ -67,6 +67,8 @@ def main(args=None):
             code = hardware.run(a)
         elif a.rig:
             code = run_rig(a, describe_rig(a))
+        elif a.station:
+            code = run_rig(a, describe_station(a))
         else:
             code = Bringup(a, *describe(a)).run()
     except (ConfigError, ValueError) as exc:

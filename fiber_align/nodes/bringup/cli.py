@@ -15,7 +15,7 @@ import sys
 import yaml
 
 from fiber_align.config import ConfigError
-from fiber_align.graph import description as gd, rig as gr
+from fiber_align.graph import description as gd, rig as gr, station as gs
 from fiber_align.graph.description import NODES
 from fiber_align.graph.live import check_endpoint, live_settings, with_live
 from fiber_align.graph.params import GraphError, PLANT, RECORDER, SCENARIO_RUNNER
@@ -72,9 +72,13 @@ def parse_args(argv):
                     help='the two-axis rig (/rig/x, /rig/y, optics, 2-D sequencer) running '
                          'align2d; lockstep: compared with the offline run (--seed: the '
                          "run seed, as fiber-align simulate --scenario align2d's)")
+    ap.add_argument('--station', action='store_true',
+                    help='the coupled station (/station/in/x .. /station/out/y, optics, '
+                         'station sequencer): align as --rig; lockstep: compared with '
+                         "fiber-align simulate --scenario station's run (--seed)")
     ap.add_argument('--duration', type=_positive(float, '--duration'), default=None,
                     help="scenario length (s of sample time; default: the scenario's); "
-                    '--rig: hold TRACKING this long after the cycles')
+                    '--rig, --station: hold TRACKING this long after the cycles')
     ap.add_argument('--sync', choices=('realtime', 'lockstep'), default=None,
                     help='sample clock (default: sync_mode of fiber_align.yaml)')
     ap.add_argument('--controller', choices=gd.CONTROLLERS, default=None,
@@ -128,6 +132,8 @@ def parse_args(argv):
     lv.add_argument('--live-host', default=None, metavar='HOST',
                     help='--live: address (default: config/live_view.yaml, 127.0.0.1)')
     a = ap.parse_args(argv)
+    if a.station and (a.rig or a.hardware):
+        ap.error('--station is a graph of its own: not with --rig or --hardware')
     if not a.live and (a.live_port is not None or a.live_host is not None):
         ap.error('--live-port and --live-host need --live')
     if not a.hardware and (a.emulate or a.port or a.visa_resource or a.slot is not None
@@ -251,6 +257,29 @@ def describe_rig(a):
                                 composed=a.composed, sync_mode=a.sync or '',
                                 controller=a.controller or '', seed=int(a.seed or 0),
                                 params_file=a.params_file, overrides=ov))
+
+
+def describe_station(a):
+    """
+    Return the station's :class:`~fiber_align.graph.rig.RigGraph` for the options ``a``.
+
+    As :func:`describe_rig`; ``--record`` (and ``--storage``) record the station's topics.
+
+    :raises GraphError: a bad option (exit code 2).
+    """
+    bad = [opt for attr, opt in ONE_AXIS_OPTIONS if attr not in ('record', 'storage')
+           and getattr(a, attr, None) not in (None, False)]
+    if bad:
+        raise GraphError('%s: not available with --station' % ', '.join(bad))
+    ov = {PLANT: {'autostart': False}}
+    if a.storage:
+        ov[RECORDER] = {'storage': a.storage}
+    ov = parse_params(a.param, ov)
+    return live(a, gs.build_station(namespace=a.namespace or gs.STATION_NAMESPACE,
+                                    composed=a.composed, sync_mode=a.sync or '',
+                                    controller=a.controller or '', seed=int(a.seed or 0),
+                                    record=a.record or '', params_file=a.params_file,
+                                    overrides=ov))
 
 
 def parse_params(items, ov):

@@ -20,33 +20,45 @@ import json
 import time
 
 from fiber_align.analysis import run_summary as sm
-from fiber_align.graph import rig as gr
+from fiber_align.graph.description import STATION_AXES as AXES4
 from fiber_align.nodes.bringup import interrupt
 from fiber_align.nodes.bringup.observer import BringupError
 from fiber_align.nodes.bringup.run import Harness, MISSED_SHARE_GOAL
+from fiber_align.simulation import station_scenarios as sc
 
 #: Streams recorded per sample: name -> topic.
 STREAMS = {'mx': 'x/displacement', 'my': 'y/displacement', 'p': 'optical_power',
            'rx': 'x/setpoint', 'ry': 'y/setpoint'}
+#: The station's (``bringup --station``): the offline bench's trace columns
+#: (:class:`fiber_align.simulation.station_scenarios.StationBench`).
+STATION_STREAMS = dict([('m' + k, a + '/displacement') for k, a in zip(sc.AXIS_KEYS, AXES4)]
+                       + [('r' + k, a + '/setpoint') for k, a in zip(sc.AXIS_KEYS, AXES4)]
+                       + [('p', 'optical_power')])
 
 
-def arrays(obs):
+def streams_of(g):
+    """Return the per-sample streams of the multi-axis graph ``g`` (rig or station)."""
+    return STATION_STREAMS if g.scenario == 'station' else STREAMS
+
+
+def arrays(obs, streams=STREAMS):
     """Return every stream of the observer, cut to the complete samples (SI arrays)."""
-    return {k: obs.series(k) for k in STREAMS}
+    return {k: obs.series(k) for k in streams}
 
 
 def run_rig(a, g):
-    """Run ``bringup --rig`` (options ``a``, graph ``g``); return the exit code."""
+    """Run ``bringup --rig`` or ``--station`` (options ``a``, graph ``g``); return the code."""
     from std_srvs.srv import Trigger
-    rate = float(g.node_params(gr.SEQUENCER_2D)['rate_hz'])
-    summary = {'scenario': 'align2d', 'rig': True, 'sync_mode': g.sync_mode, 'seed': g.seed,
+    rate = float(g.node_params(g.own_nodes[-1])['rate_hz'])
+    streams = streams_of(g)
+    summary = {'scenario': g.scenario, 'rig': True, 'sync_mode': g.sync_mode, 'seed': g.seed,
                'composed': g.composed, 'namespace': g.namespace, 'rate_hz': rate,
                'error': ''}
     # realtime without --trace: no stream; the waits count samples by the wall clock (an
     # observer that takes every stream at 1 kHz falls behind on a loaded machine, and its
     # reads are load the graph's users do not have)
     full = g.sync_mode == 'lockstep' or bool(a.trace)
-    h = Harness(g, dict(streams=STREAMS if full else {}), a.quiet)
+    h = Harness(g, dict(streams=streams if full else {}), a.quiet)
     code = 0
     try:
         # the align server discovered before the clock starts: a late discovery would
@@ -86,14 +98,16 @@ def run_rig(a, g):
         obs.watch.run_to = time.monotonic()
         if g.sync_mode == 'realtime':
             # before the hold: a held plant stops the drivers' input (a watchdog trip)
-            summary['axes'] = axis_figures(obs.watch.by_status, g.namespace)
+            summary['axes'] = axis_figures(obs.watch.by_status, g.namespace, g.axes)
             summary['goals_missed'] = [
                 '%s: %s' % (axis, m) for axis, rt in summary['axes'].items()
                 for m in sm.goals_missed({'realtime': rt}, 'realtime', MISSED_SHARE_GOAL)]
         h.run(False)
         summary.update(state=obs.status.get('state'), samples=clock())
         if g.sync_mode == 'lockstep' and not (a.cycles or a.duration):
-            summary['offline'] = sm.compare_offline(g.seed, k_align, arrays(obs))
+            compare = sm.compare_offline_station if g.scenario == 'station' else \
+                sm.compare_offline
+            summary['offline'] = compare(g.seed, k_align, arrays(obs, streams))
             # the offline run has the shipped parameters: with others it is only reported
             comparable = not (a.param or a.params_file)
             summary['offline']['comparable'] = comparable
@@ -109,8 +123,11 @@ def run_rig(a, g):
         s = h.stop(code == 130)
         summary['children'] = {n: c['exit_code'] for n, c in s.get('children', {}).items()}
         summary['processes'] = s.get('processes', {})
+        for k in ('recorded', 'recorder_short', 'recorder_catch_up_s'):
+            if k in s:
+                summary[k] = s[k]
         if a.trace and h.obs is not None:
-            sm.write_trace(a.trace, arrays(h.obs), rate)   # full: every stream
+            sm.write_trace(a.trace, arrays(h.obs, streams), rate)   # full: every stream
         h.close()
     if code == 0 and a.strict and summary.get('goals_missed'):
         print('bringup: --strict: %s' % '; '.join(summary['goals_missed']), flush=True)
@@ -161,7 +178,7 @@ def _release_align(obs, release, align, alive, rate, clock):
     return (tracking['sample'] - 1 - k_align) / rate
 
 
-def axis_figures(by_status, namespace):
+def axis_figures(by_status, namespace, axes=('x', 'y')):
     """
     Return the realtime figures of each rig axis from its nodes' ``/diagnostics``.
 
@@ -170,7 +187,7 @@ def axis_figures(by_status, namespace):
         (:func:`fiber_align.analysis.run_summary.realtime_figures`, SI).
     """
     out = {}
-    for axis in gr.AXES:
+    for axis in axes:
         prefix = '/%s/%s/' % (namespace.strip('/'), axis) if namespace else '/%s/' % axis
         latest = {k[len(prefix):]: v for k, v in by_status['latest'].items()
                   if k.startswith(prefix)}
@@ -186,8 +203,11 @@ def _report(summary, a):
         with open(a.summary, 'w', encoding='utf-8') as f:
             json.dump(summary, f, indent=2, sort_keys=True, default=str)
     off = summary.get('offline') or {}
-    print('rig align2d (%s, seed %d): %s, align at sample %s, time to peak %s ms, peak '
-          'samples %s%s' % (summary['sync_mode'], summary['seed'],
+
+    def worst(prefix):
+        return max(v for k, v in off.items() if k.startswith(prefix))
+    print('rig %s (%s, seed %d): %s, align at sample %s, time to peak %s ms, peak '
+          'samples %s%s' % (summary['scenario'], summary['sync_mode'], summary['seed'],
                             summary.get('state') or summary['error'],
                             summary.get('align_sample'),
                             '%.1f' % (summary['time_to_peak_s'] * 1e3)
@@ -195,8 +215,8 @@ def _report(summary, a):
                             summary.get('peak_samples'),
                             '' if not off else '; offline: %d samples compared, max |dx| '
                             '%.3g m, max |dsetpoint| %.3g m, max rel dP %.3g, %s'
-                            % (off['samples'], max(off['max_abs_mx'], off['max_abs_my']),
-                               max(off['max_abs_rx'], off['max_abs_ry']), off['max_rel_p'],
+                            % (off['samples'], worst('max_abs_m'), worst('max_abs_r'),
+                               off['max_rel_p'],
                                'EQUAL' if off['equal'] else 'DIFFERENT')), flush=True)
     procs = {n: p.get('cpu_per_s') for n, p in summary.get('processes', {}).items()
              if p.get('cpu_per_s') is not None}

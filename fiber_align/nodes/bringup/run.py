@@ -24,7 +24,7 @@ from fiber_align.analysis.report import hysteresis_metrics
 from fiber_align.graph.description import dds_environment
 from fiber_align.graph.params import effective, merge_params, PLANT, RECORDER, SCENARIO_RUNNER
 from fiber_align.jsonout import json_default
-from fiber_align.nodes._recording import recorder_short
+from fiber_align.nodes._recording import recorder_counts, recorder_short, recorder_short_full
 from fiber_align.nodes.bringup import interrupt
 from fiber_align.nodes.bringup.children import Child, wait_all
 from fiber_align.nodes.bringup.cli import expected_endpoints, TRACKING_SCENARIOS
@@ -65,6 +65,8 @@ class Harness:
         self.children, self.obs, self.summary = [], None, {}
         self._next_check, self.stopping = 0.0, False
         self.plants = tuple(n for n in graph.nodes if n.rsplit('/', 1)[-1] == PLANT)
+        #: the recorded and sent counts when the recorder had matched every writer
+        self.rec_base = None
 
     def start(self, check_alone=True, ready=None):
         """Observe, spawn every process, wait for the nodes, the active drivers, the topics."""
@@ -128,9 +130,42 @@ class Harness:
     def run(self, on=True):
         """Start (or hold) every plant's sample clock (``<plant>/run``)."""
         from std_srvs.srv import SetBool
+        if on and self.graph.record and getattr(self.graph, 'axes', None):
+            self.rec_base = self._recorder_base()
         for p in self.plants:
             self.obs.call(self.obs.client(SetBool, p + '/run'), SetBool.Request(data=on),
                           5.0 if on else 0.5, self.alive)
+
+    @property
+    def full_nodes(self):
+        """Return the full name of every node of the graph (``/station/in/x/...``)."""
+        return ['%s/%s' % (ns.rstrip('/'), n) for p in self.graph.processes
+                for n, ns in p.hosted(self.graph.namespace)]
+
+    def _recorder_base(self):
+        """
+        Wait until the recorder reads every writer of its topics; return the counts then.
+
+        The multi-axis graphs: a volatile message sent before the recorder matched its
+        writer (an activation, the sequencer's first setpoints) reaches no late reader, so
+        "every message in the bag" counts from here (the plants are still held: nothing
+        is published between this count and their start).
+        """
+        g, node = self.graph, self.obs.node
+        rec = '/%s/%s' % (g.namespace, RECORDER) if g.namespace else '/' + RECORDER
+        topics = [node.resolve_topic_name(t) for t in g.node_params(RECORDER)['topics']]
+
+        def matched():
+            return all(not node.count_publishers(t) or any(
+                '%s/%s' % (i.node_namespace.rstrip('/'), i.node_name) == rec
+                for i in node.get_subscriptions_info_by_topic(t)) for t in topics)
+        timeout = float(self.gp['startup_timeout_s'])
+        self.obs.wait(matched, timeout, self.alive, 'the recorder on every recorded topic')
+        t0 = time.monotonic()
+        diag = self.obs.watch.by_status['latest']
+        self.obs.wait(lambda: recorder_counts(diag, self.full_nodes, t0) is not None,
+                      timeout, self.alive, 'fresh counts of the recorder and every node')
+        return recorder_counts(diag, self.full_nodes, t0)
 
     def stop(self, interrupted=False):
         """Hold the plants, SIGINT the nodes, then the recorder, within stop_timeout_s."""
@@ -197,7 +232,11 @@ class Harness:
         short = None
         while time.monotonic() - t0 < limit_s and ch.alive():
             time.sleep(0.05)
-            now = recorder_short(diag, t0, self.graph.nodes)
+            if getattr(self.graph, 'axes', None):       # the rig, the station
+                now = recorder_short_full(self.obs.watch.by_status['latest'], t0,
+                                          self.full_nodes, self.rec_base)
+            else:
+                now = recorder_short(diag, t0, self.graph.nodes)
             if now is not None:
                 short = now
                 if not short:
