@@ -32,6 +32,12 @@ it without hardware, start ``fiber-align emulate`` and pass its ``serial_link`` 
 ``visa_resource`` (docs/hardware.md). ``rig:=true hardware:=true``: the two-axis rig on
 one MDT693B (x and y channels) and a PM100 (:mod:`fiber_align.graph.hardware_rig`).
 
+``station:=true``: the coupled station instead (:mod:`fiber_align.graph.station`: the
+actuator graphs ``/<namespace>/in/x`` .. ``/<namespace>/out/y``, the chip's optics and the
+station sequencer, namespace ``station`` unless given; ``seed`` as ``fiber-align simulate
+--scenario station --seed``; ``record`` records the station's topics); call
+``/station/align`` to align.
+
 ``live:=true [live_port:=8765] [live_host:=127.0.0.1]`` (any of the graphs above): the
 Foxglove live view, a process of its own (:mod:`fiber_align.graph.live`, docs/live_view.md).
 """
@@ -48,6 +54,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from fiber_align.graph import description as graph, rig as graph_rig
+from fiber_align.graph import station as graph_station
 from fiber_align.graph.hardware import build_hardware
 from fiber_align.graph.hardware_rig import build_hardware_rig
 from fiber_align.graph.live import check_endpoint, live_settings, with_live
@@ -71,8 +78,10 @@ ARGUMENTS = (
      'none, the graph waits for setpoints)', [''] + list(graph.SCENARIOS)),
     ('rig', 'false', 'true: the two-axis rig (/rig/x, /rig/y, optics, 2-D sequencer) '
      'instead of the 1-D graph', ['true', 'false']),
-    ('seed', '0', 'rig: run seed (plant, detector seeds and target, as the offline align2d)',
-     None),
+    ('station', 'false', 'true: the coupled station (/station/in/x .. /station/out/y, the '
+     "chip's optics, the station sequencer) instead of the 1-D graph", ['true', 'false']),
+    ('seed', '0', 'rig, station: run seed (plant, detector seeds and target or facets, as '
+     'the offline align2d and station)', None),
     ('hardware', 'false', 'true: the sensorless bench (MDT693B + PM100) instead of the '
      'simulated actuator', ['true', 'false']),
     ('port', '', 'hardware: MDT693B serial device ("" = config/hardware.yaml)', None),
@@ -84,6 +93,8 @@ ARGUMENTS = (
 )
 #: Arguments the rig does not take (1-D graph only).
 ONE_AXIS_ONLY = ('model_file', 'record', 'scenario')
+#: Arguments the station does not take.
+NOT_STATION = ('model_file', 'scenario')
 #: Arguments of the hardware graph only, and the ones it does not take.
 HARDWARE_ONLY = ('port', 'visa_resource')
 NOT_HARDWARE = ('sync_mode', 'controller', 'scenario')
@@ -105,8 +116,19 @@ def describe(args):
 def _describe(args):
     rig = graph.parse_bool('rig', args.pop('rig'))
     hardware = graph.parse_bool('hardware', args.pop('hardware'))
+    station = graph.parse_bool('station', args.pop('station'))
     seed = args.pop('seed')
     hw = {k: args.pop(k) for k in HARDWARE_ONLY}
+    if station:
+        given = ['rig:=true'] * rig + ['hardware:=true'] * hardware + [
+            k for k in NOT_STATION + HARDWARE_ONLY if args.get(k) or hw.get(k)]
+        if given:
+            raise GraphError('%s: not available with station:=true' % ', '.join(given))
+        for k in NOT_STATION:
+            args.pop(k)
+        return graph_station.build_station(
+            namespace=args.pop('namespace') or graph_station.STATION_NAMESPACE, seed=seed,
+            **args)
     if rig and hardware:
         return build_hardware_rig_args(args, hw)
     if not hardware and any(hw.values()):

@@ -10,6 +10,7 @@ SIGINT stops every process cleanly (exit 0, no FATAL, no traceback). Every wait 
 bounded; the launch is stopped by its pid and group.
 """
 
+import json
 import signal
 import time
 
@@ -49,3 +50,29 @@ def test_launch_rig_aligns_and_stops_cleanly(ros2_env, tmp_path):  # noqa: F811
         assert 'FATAL' not in text and 'Traceback' not in text, text[-4000:]
     finally:
         stop_launch(proc)
+
+
+def test_launch_station_records_aligns_and_stops_cleanly(ros2_env, tmp_path):  # noqa: F811
+    """``station:=true record:=DIR``: ``/<ns>/align`` to TRACKING, a bag of every axis."""
+    log, bag = tmp_path / 'launch.log', tmp_path / 'bag'
+    proc = spawn(ros2_env, ['ros2', 'launch', 'fiber_align', 'fiber_align.launch.py',
+                            'station:=true', 'seed:=2', 'namespace:=stl',
+                            'record:=%s' % bag], log)
+    try:
+        assert _wait_log(log, 'startup done', 60.0, proc), log.read_text()[-4000:]
+        assert _wait_log(log, 'sample clock started', 30.0, proc), log.read_text()[-4000:]
+        rc, out = ros2(ros2_env, 'service', 'call', '/stl/align', 'std_srvs/srv/Trigger',
+                       timeout=30.0)
+        assert rc == 0 and 'success=True' in out, out
+        assert _wait_log(log, 'state TRACKING', 30.0, proc), log.read_text()[-4000:]
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=20) == 0
+        text = log.read_text(errors='replace')
+        assert 'FATAL' not in text and 'Traceback' not in text, text[-4000:]
+    finally:
+        stop_launch(proc)
+    counts = json.loads((bag / 'recorder_counts.json').read_text(encoding='utf-8'))
+    for axis in ('in/x', 'in/y', 'out/x', 'out/y'):
+        for topic in ('displacement', 'setpoint', 'drive_voltage'):
+            assert counts['/stl/%s/%s' % (axis, topic)] > 100, counts
+    assert counts['/stl/optical_power'] > 100 and counts['/stl/alignment_state'] >= 4

@@ -1,0 +1,96 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The coupled station on the graph: its description (pure) and ``bringup --station``.
+
+``bringup --station --sync lockstep`` starts the station of ``graph/station.py`` (four
+actuator graphs in one ``control_graph`` process, the chip's optics, the station
+sequencer), aligns and writes every sample's four displacements, four setpoints and the
+power; the offline station bench (:mod:`fiber_align.simulation.station_scenarios`) with
+``align`` before the same sample must give the same numbers, to the last bit (the graph
+computes the same float64 operations in the same order; the bounds leave room for one
+rounding step only).
+"""
+
+import json
+import sys
+
+import numpy as np
+import pytest
+
+from fiber_align.graph import station as gs
+from fiber_align.graph.params import GraphError
+from fiber_align.simulation import station_scenarios as sc
+from procs import run_bounded
+from test_nodes_graph import CONTROL, setup_py_nodes
+
+
+def test_composed_station_is_one_process_hosting_four_axes_the_optics_and_the_sequencer():
+    g = gs.build_station()
+    assert [(p.name, p.executable, p.namespace) for p in g.processes] == [
+        ('station', 'control_graph', 'station'),
+        ('lifecycle_manager', 'lifecycle_manager', 'station')]
+    st = g.processes[0]
+    assert st.nodes == tuple('%s/%s' % (a, n) for a in gs.AXES for n in CONTROL) + (
+        'simulated_station_optics', 'station_sequencer')
+    assert st.hosted('station')[0] == ('simulated_actuator', '/station/in/x')
+    assert st.hosted('station')[-1] == ('station_sequencer', '/station')
+    assert g.node_params('lifecycle_manager')['managed_nodes'] == [
+        '%s/actuator_driver' % a for a in gs.AXES]
+    assert {p.executable for p in gs.build_station(composed=False).processes} <= set(
+        setup_py_nodes())
+
+
+@pytest.mark.parametrize('seed', [0, 2])
+def test_station_takes_seeds_and_facets_from_the_offline_description(seed):
+    g = gs.build_station(seed=seed, sync_mode='lockstep')
+    plant = sc.run_seeds(seed)['plant']
+    assert [g.node_params('%s/simulated_actuator' % a)['seed'] for a in gs.AXES] == [
+        plant, plant + 1, plant + 2, plant + 3]
+    assert [g.node_params('%s/simulated_actuator' % a)['publish_clock']
+            for a in gs.AXES] == [True, False, False, False]
+    optics = g.node_params(gs.OPTICS)
+    assert optics['seed'] == sc.run_seeds(seed)['detector']
+    assert tuple(optics[k] for k in gs.FACET_KEYS) == sc.random_facets(seed)
+    assert g.sync_mode == 'lockstep' and g.node_params(gs.SEQUENCER)['sync_mode'] == \
+        'lockstep'
+
+
+def test_record_adds_the_recorder_of_every_axis_and_the_clock_waits_for_it(tmp_path):
+    g = gs.build_station(record=str(tmp_path / 'bag'), namespace='bench2')
+    assert g.processes[-1].executable == 'bag_recorder'
+    assert g.processes[-1].namespace == 'bench2'
+    rec = g.node_params('bag_recorder')
+    assert rec['output'] == str(tmp_path / 'bag')
+    assert 'out/y/setpoint' in rec['topics'] and 'optical_power' in rec['topics']
+    assert g.node_params('in/y/simulated_actuator')['start_after_reader'] == \
+        '/bench2/bag_recorder'
+    with pytest.raises(GraphError, match='already exists'):
+        gs.build_station(record=str(tmp_path))
+    with pytest.raises(GraphError, match='seed'):
+        gs.build_station(seed=-1)
+
+
+@pytest.mark.ros  # starts the station's processes
+def test_station_lockstep_equals_the_offline_run(tmp_path):
+    trace, summary = tmp_path / 'station.csv', tmp_path / 'station.json'
+    code, out = run_bounded([sys.executable, '-m', 'fiber_align.nodes.bringup', '--station',
+                             '--sync', 'lockstep', '--seed', '2', '--trace', str(trace),
+                             '--summary', str(summary), '--quiet'], 120)
+    assert code == 0, out
+    s = json.loads(summary.read_text(encoding='utf-8'))
+    cols = np.loadtxt(trace, delimiter=',', skiprows=1, ndmin=2)
+    head = trace.read_text(encoding='utf-8').split('\n', 1)[0].split(',')
+    graph = {h.rsplit('_', 1)[0] if h not in ('k', 't_s') else h: c
+             for h, c in zip(head, cols.T)}
+    bench = sc.build(2, record=True)
+    res = sc.align_bench(bench, idle_s=s['align_sample'] * bench.period_s)
+    off = bench.trace()
+    n = off['t'].size
+    assert res['state'] == 'TRACKING' and s['state'] == 'TRACKING'
+    assert graph['k'].size >= n, 'the graph ran past the offline run'
+    for k in sc.StationBench.FIELDS[1:-1]:
+        assert np.max(np.abs(graph[k][:n] - off[k])) <= 1e-15, k     # m
+    assert np.max(np.abs(graph['p'][:n] / off['p'] - 1.0)) <= 1e-12   # W, relative
+    assert s['time_to_peak_s'] == pytest.approx(res['time_to_peak_s'], abs=1e-12)
+    assert s['peak_samples'] == res['peak_samples']
+    assert s['offline']['equal'] and s['offline']['samples'] == n
