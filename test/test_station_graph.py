@@ -94,3 +94,61 @@ def test_station_lockstep_equals_the_offline_run(tmp_path):
     assert s['time_to_peak_s'] == pytest.approx(res['time_to_peak_s'], abs=1e-12)
     assert s['peak_samples'] == res['peak_samples']
     assert s['offline']['equal'] and s['offline']['samples'] == n
+
+
+@pytest.mark.ros  # starts the station's processes
+@pytest.mark.slow
+def test_a_driver_disabled_mid_align_holds_the_station_which_resumes_after_the_re_arm():
+    """Realtime: ``out/x`` disabled while SEARCHING; HELD names it; enabled: TRACKING."""
+    import time
+
+    from std_srvs.srv import SetBool, Trigger
+
+    from fiber_align.graph.params import PLANT
+    from fiber_align.nodes.bringup.run import Harness
+    g = gs.build_station(seed=2, sync_mode='realtime', overrides={PLANT: {'autostart': False}})
+    facets = np.array([g.node_params(gs.OPTICS)[k] for k in gs.FACET_KEYS])
+    h = Harness(g, dict(streams={}))
+
+    def wait(cond, what, timeout_s=20.0):
+        h.obs.wait(cond, timeout_s, h.alive, what)
+
+    def enable(on):
+        res = h.obs.call(h.obs.client(SetBool, 'out/x/actuator_driver/enable'),
+                         SetBool.Request(data=on), 10.0, h.alive)
+        assert res.success, res.message
+
+    def seen(state, since):
+        with h.obs.lock:
+            return [st for _, st in h.obs.states[since:] if st['state'] == state]
+    try:
+        h.start(check_alone=False)
+        h.obs.start()
+        h.run(True)
+        time.sleep(0.3)
+        wait(lambda: h.obs.status.get('state') == 'IDLE', 'IDLE')
+        res = h.obs.call(h.obs.client(Trigger, 'align'), Trigger.Request(), 10.0, h.alive)
+        assert res.success, res.message
+        wait(lambda: h.obs.status.get('state') == 'SEARCHING', 'SEARCHING')
+        n = len(h.obs.states)
+        enable(False)
+        wait(lambda: seen('HELD', n), 'HELD')
+        held = seen('HELD', n)[0]
+        assert 'x_out' in held['hold_reason'] and 'during SEARCHING' in held['hold_reason']
+        refused = h.obs.call(h.obs.client(Trigger, 'align'), Trigger.Request(), 10.0, h.alive)
+        assert not refused.success and 'out/x/actuator_driver' in refused.message
+        time.sleep(0.2)
+        assert h.obs.status.get('state') == 'HELD'
+        enable(True)
+        wait(lambda: h.obs.status.get('state') in ('TRACKING', 'FAULT'), 'TRACKING', 30.0)
+        st = h.obs.status
+        with h.obs.lock:
+            after = [s['state'] for _, s in h.obs.states[n:]]
+        print(after, held['hold_reason'])
+        assert st['state'] == 'TRACKING', st
+        assert not seen('FAULT', n) and after[-2:] == ['PEAKING', 'TRACKING'], after
+        # the joint peak found after the re-arm: the aligned point at the facets
+        assert np.max(np.abs(np.asarray(st['aligned_m']) - facets)) < 0.5e-6, st
+    finally:
+        h.stop()
+        h.close()
