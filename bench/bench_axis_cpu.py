@@ -5,7 +5,8 @@ CPU per axis of the realtime graph: this tree beside a baseline tree, in one run
 Each run is one ``bringup --sync realtime`` (the graph users start with ``ros2 launch``):
 the 1-D graph on a sine (``--scenario sine``, one axis), with or without a recorder, and
 the two-axis rig aligning, through ``--rig-cycles`` release / align cycles, then held
-aligned for ``--seconds`` (``--rig --cycles N --duration S``, two axes). The trees alternate run by
+aligned for ``--seconds`` (``--rig --cycles N --duration S``, two axes), and the same for
+the coupled station with its recorder (``--station ... --record``, four axes). The trees alternate run by
 run (A, B, A, B, ...) so both see the same machine; every process of the graph is
 counted (CPU seconds per second of run, from bringup's summary), divided by the axes.
 Reported per case and tree: the median and the spread of CPU per axis and of the cycles
@@ -13,7 +14,7 @@ kept (the worst axis), watchdog trips and failed runs, and the ratio of the medi
 tree over the baseline).
 
 Usage: ``python -m bench.bench_axis_cpu --baseline DIR [--repeats 3] [--seconds 20]
-[--rig-cycles 20] [--cases one,one-recorded,rig] [--json FILE]``; ``DIR`` is a checkout of
+[--rig-cycles 20] [--cases one,one-recorded,rig,station] [--json FILE]``; ``DIR`` is a checkout of
 the baseline (e.g. ``git worktree add --detach /tmp/base <commit>``).
 """
 
@@ -32,6 +33,8 @@ CASES = {
     'one': (['--scenario', 'sine', '--duration', '{seconds}'], 1, False),
     'one-recorded': (['--scenario', 'sine', '--duration', '{seconds}'], 1, True),
     'rig': (['--rig', '--cycles', '{cycles}', '--duration', '{seconds}'], 2, False),
+    # the coupled station with its recorder (a tree without --station: failed runs)
+    'station': (['--station', '--cycles', '{cycles}', '--duration', '{seconds}'], 4, True),
 }
 
 
@@ -61,6 +64,7 @@ def run_once(tree, case, seconds, tmp, cycles=20):
             'cycles_kept': 1.0 - max(shares) if shares else None,
             'processes': {k: v.get('cpu_per_s') for k, v in s.get('processes', {}).items()},
             'trips': sum(int(a.get('watchdog_count') or 0) for a in _axes(s)),
+            'recorder_short': s.get('recorder_short'),
             'state': s.get('state'), 'error': s.get('error') or None,
             'exit_code': proc.returncode}
 

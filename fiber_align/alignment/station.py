@@ -39,7 +39,7 @@ from fiber_align.alignment.driver_state import DriverState
 from fiber_align.alignment.machine import Machine
 from fiber_align.alignment.multiaxis import MultiAxis
 from fiber_align.alignment.peak2d import dbm
-from fiber_align.alignment.sequencer2d import default_period_s
+from fiber_align.alignment.sequencer2d import default_period_s, PATH_RATE_SHARE
 from fiber_align.alignment.states import ACTIVE, IDLE, PEAKING, SEARCHING, TRACKING
 from fiber_align.alignment.station_hold import axes_down, StationHold
 from fiber_align.alignment.station_peak import AXES4, JointPeakMixin, um
@@ -70,11 +70,14 @@ class Station(StationHold, MultiAxis, Machine, JointPeakMixin):
 
     method = 'concurrent'
 
-    def __init__(self, params=None, period_s=None, **overrides):
+    def __init__(self, params=None, period_s=None, path_rate_m_per_s=None, **overrides):
         """
         Build from a parameter mapping (None: ``config/station.yaml``); every key required.
 
         :param period_s: period of the :meth:`update` calls (s); None: 1 / ``rate_hz``.
+        :param path_rate_m_per_s: the fastest the realtime loop follows a setpoint (m/s);
+            the search walks at most ``PATH_RATE_SHARE`` of it (as the 2-D sequencer).
+            None or <= 0: no bound (offline, lockstep).
         """
         base = load_params(CONFIG_FILE, CONFIG_NODE)
         p = dict(base if params is None else params)
@@ -94,7 +97,10 @@ class Station(StationHold, MultiAxis, Machine, JointPeakMixin):
         self.hi = np.full(4, float(p['range_max_m']))
         self.park = np.array([p[k] for k in NOMINAL_KEYS], dtype=float)
         self.period_s = default_period_s() if period_s is None else float(period_s)
-        chord = (int(p['confirm_samples']) + 1) * p['search_speed_m_per_s'] * self.period_s
+        self.search_speed = float(p['search_speed_m_per_s'])
+        if path_rate_m_per_s is not None and path_rate_m_per_s > 0:
+            self.search_speed = min(self.search_speed, PATH_RATE_SHARE * path_rate_m_per_s)
+        chord = (int(p['confirm_samples']) + 1) * self.search_speed * self.period_s
         self.grid_n, self.lines_m = ss.search_design(
             p['coupling_radius_m'], p['search_capture_db'], p['search_slow_share'], chord,
             p['search_half_width_m'])
@@ -273,7 +279,7 @@ class Station(StationHold, MultiAxis, Machine, JointPeakMixin):
                             'chip, no source, or a facet out of the search square'
                             % (h, c[0], c[1], h, c[2], c[3], dbm(self.threshold_w)))
             return
-        self.sp = self._path.advance(p['search_speed_m_per_s'] * self.dt)
+        self.sp = self._path.advance(self.search_speed * self.dt)
 
     def _false_light(self):
         """Nothing lit around the first-light point: a noise spike; walk on (same path)."""

@@ -70,13 +70,15 @@ class StationSequencerNode(SequencerNode, Node):
         super().__init__(NODE_NAME, **kwargs)
         d = node_defaults(NODE_NAME, AREA_FILES)
         g = declare_graph_values(self, d, 'sync_mode', 'diagnostics_period_s', 'rate_hz',
-                                 *PRIORITY)
+                                 'realtime_setpoint_rate_m_per_s', *PRIORITY)
         self.lockstep, diag = g['sync_mode'] == 'lockstep', g['diagnostics_period_s']
         core = {name: declare(self, d, name, 'station parameter (SI, see station.yaml)',
                               read_only=True)
                 for name in load_params(st.CONFIG_FILE, st.CONFIG_NODE)}
         self.period_s = 1.0 / float(g['rate_hz'])
-        self.seq = st.Station(core, period_s=self.period_s)
+        # realtime: the search walks no faster than the loop's path follows a setpoint
+        self.seq = st.Station(core, period_s=self.period_s, path_rate_m_per_s=None
+                              if self.lockstep else g['realtime_setpoint_rate_m_per_s'])
         self.pub_sp = [Pub(self, Float64, a + '/setpoint', sample_pub_qos(self.lockstep), bus)
                        for a in AXES]
         qos = sample_qos(self.lockstep)
@@ -94,9 +96,10 @@ class StationSequencerNode(SequencerNode, Node):
         self.t_last = None              # time (s) of the last update
         self._watch_drivers({name: a + '/' for name, a in zip(st.DRIVERS, AXES)}, bus)
         self._publish_state()
-        self.get_logger().info('station sequencer ready (%s pairing, search grid %d x %d)'
-                               % ('index' if self.lockstep else 'latest readings',
-                                  self.seq.grid_n, self.seq.grid_n))
+        self.get_logger().info('station sequencer ready (%s pairing, search grid %d x %d '
+                               'at %.3g mm/s)' % ('index' if self.lockstep else
+                                                  'latest readings', self.seq.grid_n,
+                                                  self.seq.grid_n, self.seq.search_speed * 1e3))
 
     # -- inputs ---------------------------------------------------------------------
     def _on_position(self, i, msg):

@@ -51,6 +51,9 @@ def run_rig(a, g):
     from std_srvs.srv import Trigger
     rate = float(g.node_params(g.own_nodes[-1])['rate_hz'])
     streams = streams_of(g)
+    # the station's search may walk its whole square (offline: the search's timeout + 2 s)
+    max_s = float(g.node_params(g.own_nodes[-1])['search_timeout_s']) + 2.0 \
+        if g.scenario == 'station' else sm.ALIGN_MAX_S
     summary = {'scenario': g.scenario, 'rig': True, 'sync_mode': g.sync_mode, 'seed': g.seed,
                'composed': g.composed, 'namespace': g.namespace, 'rate_hz': rate,
                'error': ''}
@@ -75,13 +78,13 @@ def run_rig(a, g):
             lambda: int((time.monotonic() - t_run) * rate))
         k = int(round(sm.ALIGN_IDLE_S * rate))
         obs.wait(lambda: clock() >= k, 60.0, alive, 'sample %d' % k)
-        k_align, tracking = _align(obs, align, alive, rate, clock)
+        k_align, tracking = _align(obs, align, alive, rate, clock, max_s)
         k_end = clock() + int(round(sm.LOSS_WINDOW_S * rate)) + 5
         obs.wait(lambda: clock() >= k_end, 60.0, alive, 'sample %d' % k_end)
         summary.update(align_sample=k_align, tracking_sample=tracking['sample'],
                        time_to_peak_s=(tracking['sample'] - 1 - k_align) / rate,
                        peak_samples=tracking['peak_samples'])
-        cycles = [_release_align(obs, release, align, alive, rate, clock)
+        cycles = [_release_align(obs, release, align, alive, rate, clock, max_s)
                   for _ in range(a.cycles or 0)]
         if cycles:
             summary['cycles_tracking'] = len(cycles)
@@ -136,11 +139,12 @@ def run_rig(a, g):
     return code
 
 
-def _align(obs, align, alive, rate, clock):
+def _align(obs, align, alive, rate, clock, max_s=sm.ALIGN_MAX_S):
     """
     Call ``align`` and wait for TRACKING; return ``(align sample, TRACKING status)``.
 
     :param clock: returns the samples so far (the wait's bound is in sample time).
+    :param max_s: the bound (s of sample time).
     """
     from std_srvs.srv import Trigger
     n = len(obs.states)
@@ -148,7 +152,7 @@ def _align(obs, align, alive, rate, clock):
     if not res.success:
         raise BringupError('align refused: %s' % res.message)
     k_align = obs.event(n)
-    k_max = clock() + sm.ALIGN_MAX_S * rate
+    k_max = clock() + max_s * rate
     obs.wait(lambda: obs.status.get('state') in ('TRACKING', 'FAULT') or clock() > k_max,
              120.0, alive, 'TRACKING')
     _, tracking = obs.first('TRACKING', k_align)
@@ -158,7 +162,7 @@ def _align(obs, align, alive, rate, clock):
     return k_align, tracking
 
 
-def _release_align(obs, release, align, alive, rate, clock):
+def _release_align(obs, release, align, alive, rate, clock, max_s=sm.ALIGN_MAX_S):
     """
     One switch cycle of the rig: ``release`` to IDLE, then ``align`` to TRACKING.
 
@@ -174,7 +178,7 @@ def _release_align(obs, release, align, alive, rate, clock):
         raise BringupError('release ended in FAULT: %s' % obs.status.get('fault_reason'))
     k = clock() + int(round(sm.ALIGN_IDLE_S * rate))
     obs.wait(lambda: clock() >= k, 60.0, alive, 'sample %d' % k)
-    k_align, tracking = _align(obs, align, alive, rate, clock)
+    k_align, tracking = _align(obs, align, alive, rate, clock, max_s)
     return (tracking['sample'] - 1 - k_align) / rate
 
 
