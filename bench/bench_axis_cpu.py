@@ -5,9 +5,9 @@ CPU per axis of the realtime graph: this tree beside a baseline tree, in one run
 Each run is one ``bringup --sync realtime`` (the graph users start with ``ros2 launch``):
 the 1-D graph on a sine (``--scenario sine``, one axis), with or without a recorder, and
 the two-axis rig aligning, through ``--rig-cycles`` release / align cycles, then held
-aligned for ``--seconds`` (``--rig --cycles N --duration S``, two axes), and the same for
-the coupled station with its recorder (``--station ... --record``, four axes). The trees alternate run by
-run (A, B, A, B, ...) so both see the same machine; every process of the graph is
+aligned for ``--seconds`` (``--rig --cycles N --duration S``, two axes), and the same
+for the coupled station with its recorder (``--station ... --record``, four axes). The
+trees alternate run by run (A, B, A, B, ...) so both see the same machine; every process of the graph is
 counted (CPU seconds per second of run, from bringup's summary), divided by the axes.
 Reported per case and tree: the median and the spread of CPU per axis and of the cycles
 kept (the worst axis), watchdog trips and failed runs, and the ratio of the medians (this
