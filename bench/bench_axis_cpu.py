@@ -7,8 +7,9 @@ the 1-D graph on a sine (``--scenario sine``, one axis), with or without a recor
 the two-axis rig aligning, through ``--rig-cycles`` release / align cycles, then held
 aligned for ``--seconds`` (``--rig --cycles N --duration S``, two axes), and the same
 for the coupled station with its recorder (``--station ... --record``, four axes). The
-trees alternate run by run (A, B, A, B, ...) so both see the same machine; every process of the graph is
-counted (CPU seconds per second of run, from bringup's summary), divided by the axes.
+trees alternate run by run (A, B, A, B, ...) so both see the same machine; every
+process of the graph is counted (CPU seconds per second of run, from bringup's
+summary), divided by the axes.
 Reported per case and tree: the median and the spread of CPU per axis and of the cycles
 kept (the worst axis), watchdog trips and failed runs, and the ratio of the medians (this
 tree over the baseline).
