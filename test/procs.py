@@ -1,6 +1,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """Bounded subprocess runs for the integration tests (a hanging test is a failing test)."""
 
+import contextlib
 import os
 import subprocess
 import time
@@ -53,3 +54,29 @@ def spin_until(executor, cond, bound_s, slice_s=0.01):
 def level(status):
     """Return the severity (int) of a diagnostic_msgs/DiagnosticStatus."""
     return status.level[0] if isinstance(status.level, bytes) else int(status.level)
+
+
+@contextlib.contextmanager
+def nodes_on_executor(*factories):
+    """
+    Yield ``(executor, nodes)``: rclpy started, each factory's node on one executor.
+
+    Everything is torn down after the block (the nodes destroyed, rclpy shut down), also
+    when a factory or the block raises.
+    """
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    rclpy.init()
+    ex = SingleThreadedExecutor()
+    nodes = []
+    try:
+        for make in factories:
+            nodes.append(make())
+            ex.add_node(nodes[-1])
+        yield ex, nodes
+    finally:
+        for n in nodes:
+            ex.remove_node(n)
+            n.destroy_node()
+        ex.shutdown()
+        rclpy.try_shutdown()

@@ -12,11 +12,10 @@ import math
 
 import pytest
 
-from procs import spin_until
+from procs import nodes_on_executor, spin_until
 
-import rclpy  # noqa: E402 - a hard dependency of the node tests
+import rclpy  # noqa: E402, F401 - a hard dependency of the node tests
 
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
@@ -38,21 +37,10 @@ def rig():
     """Both rig nodes and a harness on one executor; torn down after the test."""
     from fiber_align.nodes.alignment_sequencer2d import AlignmentSequencer2DNode
     from fiber_align.nodes.rig_optics import RigOpticsNode
-    rclpy.init()
-    ex = SingleThreadedExecutor()
-    nodes = []
-    try:
-        nodes = [RigOpticsNode(parameter_overrides=LOCKSTEP),
-                 AlignmentSequencer2DNode(parameter_overrides=LOCKSTEP), Node('harness')]
-        for n in nodes:
-            ex.add_node(n)
+    with nodes_on_executor(lambda: RigOpticsNode(parameter_overrides=LOCKSTEP),
+                           lambda: AlignmentSequencer2DNode(parameter_overrides=LOCKSTEP),
+                           lambda: Node('harness')) as (ex, nodes):
         yield ex, nodes
-    finally:
-        for n in nodes:
-            ex.remove_node(n)
-            n.destroy_node()
-        ex.shutdown()
-        rclpy.try_shutdown()
 
 
 def test_bad_tip_positions_give_nan_readings_and_do_not_poison_the_detector(rig):

@@ -14,11 +14,10 @@ import math
 
 import pytest
 
-from procs import spin_until
+from procs import nodes_on_executor, spin_until
 
-import rclpy  # noqa: E402 - a hard dependency of the node tests
+import rclpy  # noqa: E402, F401 - a hard dependency of the node tests
 
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
@@ -42,21 +41,10 @@ def station():
     """Both station nodes and a harness on one executor; torn down after the test."""
     from fiber_align.nodes.station_optics import StationOpticsNode
     from fiber_align.nodes.station_sequencer import StationSequencerNode
-    rclpy.init()
-    ex = SingleThreadedExecutor()
-    nodes = []
-    try:
-        nodes = [StationOpticsNode(parameter_overrides=LOCKSTEP),
-                 StationSequencerNode(parameter_overrides=LOCKSTEP), Node('harness')]
-        for n in nodes:
-            ex.add_node(n)
+    with nodes_on_executor(lambda: StationOpticsNode(parameter_overrides=LOCKSTEP),
+                           lambda: StationSequencerNode(parameter_overrides=LOCKSTEP),
+                           lambda: Node('harness')) as (ex, nodes):
         yield ex, nodes
-    finally:
-        for n in nodes:
-            ex.remove_node(n)
-            n.destroy_node()
-        ex.shutdown()
-        rclpy.try_shutdown()
 
 
 def test_bad_tip_positions_give_nan_readings_and_do_not_poison_the_detector(station):

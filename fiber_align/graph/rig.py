@@ -150,6 +150,24 @@ def check_seed(seed):
     return seed
 
 
+def multi_axis_start(namespace, composed, config_directory, own, params_file, overrides,
+                     seed, sync_mode, controller):
+    """
+    Return what every multi-axis graph checks first: ``(ns, composed, files, seed, over)``.
+
+    The namespace and layout checked, the params files (:func:`multi_axis_files`), the
+    run seed (:func:`check_seed`) and the overrides started with the graph-wide
+    ``sync_mode`` and ``controller`` (:func:`graph_wide`).
+    """
+    ns = g.check_namespace(namespace)
+    composed = g.DEFAULT_COMPOSED if composed in (None, '') else g.parse_bool('composed',
+                                                                              composed)
+    files = multi_axis_files(config_directory, own, params_file, overrides)
+    over = {'/**': {}}
+    graph_wide(over, sync_mode, controller)
+    return ns, composed, files, check_seed(seed), over
+
+
 def multi_axis_files(config_directory, own, params_file, overrides):
     """Return the params files of a multi-axis graph: area files, its nodes', the user's."""
     d = config_dir() if config_directory is None else config_directory
@@ -190,13 +208,9 @@ def build_rig(namespace=RIG_NAMESPACE, composed=None, sync_mode='', controller='
     :param overrides: further ``{node: {name: value}}`` (bringup's options), applied last.
     :raises GraphError: a value is not allowed or a file is missing.
     """
-    ns = g.check_namespace(namespace)
-    composed = g.DEFAULT_COMPOSED if composed in (None, '') else g.parse_bool('composed',
-                                                                              composed)
-    files = multi_axis_files(config_directory, RIG_NODES, params_file, overrides)
-    seed = check_seed(seed)
-    over = {'/**': {}}
-    graph_wide(over, sync_mode, controller)
+    ns, composed, files, seed, over = multi_axis_start(
+        namespace, composed, config_directory, RIG_NODES, params_file, overrides, seed,
+        sync_mode, controller)
     seeds = seeds2d.run_seeds(seed)
     target = seeds2d.random_target(seed)
     over[PLANT] = {'optical_power_every': 0, 'tip_position_every': 1}

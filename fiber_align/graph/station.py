@@ -34,8 +34,7 @@ import os
 
 from fiber_align.graph import description as g
 from fiber_align.graph.params import GraphError, LIFECYCLE_MANAGER, PLANT, RECORDER
-from fiber_align.graph.rig import (check_seed, graph_wide, in_effect, multi_axis_files,
-                                   rig_processes, RigGraph)
+from fiber_align.graph.rig import in_effect, multi_axis_start, rig_processes, RigGraph
 from fiber_align.simulation import station_scenarios as sc
 
 STATION_NAMESPACE = 'station'
@@ -69,13 +68,9 @@ def build_station(namespace=STATION_NAMESPACE, composed=None, sync_mode='', cont
     :param overrides: further ``{node: {name: value}}`` (bringup's options), applied last.
     :raises GraphError: a value is not allowed or a file is missing.
     """
-    ns = g.check_namespace(namespace)
-    composed = g.DEFAULT_COMPOSED if composed in (None, '') else g.parse_bool('composed',
-                                                                              composed)
-    files = multi_axis_files(config_directory, OWN_NODES, params_file, overrides)
-    seed = check_seed(seed)
-    over = {'/**': {}}
-    graph_wide(over, sync_mode, controller)
+    ns, composed, files, seed, over = multi_axis_start(
+        namespace, composed, config_directory, OWN_NODES, params_file, overrides, seed,
+        sync_mode, controller)
     seeds = sc.run_seeds(seed)
     over[PLANT] = {'optical_power_every': 0, 'tip_position_every': 1}
     for i, a in enumerate(AXES):

@@ -32,8 +32,10 @@ from std_msgs.msg import Bool, String
 from std_srvs.srv import SetBool, Trigger
 
 from fiber_align.alignment.states import FAULT, HELD
+from fiber_align.config import load_params
 from fiber_align.nodes.ros.bus import subscription
 from fiber_align.nodes.ros.diagnostics import ERROR, OK, WARN
+from fiber_align.nodes.ros.params import declare
 from fiber_align.nodes.ros.qos import DIAG_QOS, LATCHED_QOS, STATE_QOS, TRANSITION_EVENT_QOS
 
 #: s from a driver's last ``drive_held`` writer unmatched to "gone" (``_gone_later``).
@@ -53,6 +55,19 @@ class SequencerNode:
         self.create_service(Trigger, 'align', self._on_align)
         self.create_service(Trigger, 'release', self._on_release)
         self.create_service(SetBool, 'switch', self._on_switch)
+
+    def _declare_core(self, defaults, config_file, config_node):
+        """
+        Declare every key of the core's params-file section, read-only; return them.
+
+        :param defaults: the node's defaults (``node_defaults``).
+        :param config_file: the core's file in ``config/`` (its section is the one source
+            of the core's keys).
+        :returns: ``{name: value}`` for the core's constructor (SI).
+        """
+        return {name: declare(self, defaults, name, 'sequencer parameter (SI, see %s)'
+                              % config_file, read_only=True)
+                for name in load_params(config_file, config_node)}
 
     def _watch_drivers(self, drivers, bus, lifecycle=None):
         """
@@ -145,7 +160,11 @@ class SequencerNode:
         return self._answer(response, self._command_align())
 
     def _command_align(self):
-        return self.seq.align()
+        result = self.seq.align()
+        if result[0] and hasattr(self, 'align_sample'):
+            # the multi-axis nodes: the index of the update the command acted before
+            self.align_sample = self.n
+        return result
 
     def _on_release(self, request, response):
         return self._answer(response, self.seq.release())

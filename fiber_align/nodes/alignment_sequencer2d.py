@@ -53,13 +53,12 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from fiber_align.alignment import sequencer2d as s2d
-from fiber_align.config import load_params
 from fiber_align.graph.hardware_rig import AMPLIFIER
 from fiber_align.nodes._sequencer_node import SequencerNode
 from fiber_align.nodes.alignment_sequencer import MAX_GAP_PERIODS, POWER_QUEUE_LIMIT
 from fiber_align.nodes.ros.bus import Pub, sender_of, stamp_to_s, subscription
 from fiber_align.nodes.ros.diagnostics import Health
-from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults, PRIORITY
+from fiber_align.nodes.ros.params import declare_graph_values, node_defaults, PRIORITY
 from fiber_align.nodes.ros.qos import (REALTIME_QOS, REFERENCE_LATCHED_QOS, sample_pub_qos,
                                        sample_qos)
 from fiber_align.nodes.ros.runtime import run_node
@@ -85,9 +84,7 @@ class AlignmentSequencer2DNode(SequencerNode, Node):
         g = declare_graph_values(self, d, 'sync_mode', 'diagnostics_period_s', 'rate_hz',
                                  'sensorless', 'realtime_setpoint_rate_m_per_s', *PRIORITY)
         self.lockstep, diag = g['sync_mode'] == 'lockstep', g['diagnostics_period_s']
-        core = {name: declare(self, d, name, 'sequencer parameter (SI, see '
-                              'sequencer2d.yaml)', read_only=True)
-                for name in load_params(s2d.CONFIG_FILE, s2d.CONFIG_NODE)}
+        core = self._declare_core(d, s2d.CONFIG_FILE, s2d.CONFIG_NODE)
         self.period_s = 1.0 / float(g['rate_hz'])
         # realtime: the search walks no faster than the loop's path follows a setpoint
         self.seq = s2d.Sequencer2D(core, period_s=self.period_s, path_rate_m_per_s=None
@@ -192,12 +189,6 @@ class AlignmentSequencer2DNode(SequencerNode, Node):
         s.update(sample=self.n, align_sample=self.align_sample, sample_time_s=self.t_last)
         self._publish_status(s, aligned_x_m=s['aligned_x_m'], aligned_y_m=s['aligned_y_m'],
                              sample=self.n)
-
-    def _command_align(self):
-        result = self.seq.align()
-        if result[0]:
-            self.align_sample = self.n
-        return result
 
     def sent_counts(self):
         """Return published message counts per topic."""

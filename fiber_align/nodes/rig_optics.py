@@ -45,10 +45,23 @@ PUBLISHES = ('optical_power',)
 OPTICS_KEYS = o2.LINK_KEYS + o2.DETECTOR_KEYS
 
 
-def optics_defaults():
-    """Return the ``optics.*`` defaults (dotted names) of ``config/optics.yaml``."""
+def optics_defaults(keys=OPTICS_KEYS):
+    """Return the ``optics.*`` defaults (dotted names) of ``config/optics.yaml`` in ``keys``."""
     flat = flatten_defaults(node_defaults(op.CONFIG_NODE), op.CONFIG_KEY)
-    return {k: v for k, v in flat.items() if k.split('.', 1)[1] in OPTICS_KEYS}
+    return {k: v for k, v in flat.items() if k.split('.', 1)[1] in keys}
+
+
+def declare_optics(node, d):
+    """
+    Declare ``seed`` and every ``optics.*`` of the defaults ``d``, read-only.
+
+    :returns: ``(seed, {dotted name: value})``.
+    """
+    seed = declare(node, d, 'seed', 'detector noise seed', 0, 2 ** 31 - 1, True)
+    optics = {name: declare(node, d, name, 'optics constant (SI, see optics.yaml)',
+                            read_only=True)
+              for name in sorted(k for k in d if k.startswith('optics.'))}
+    return int(seed), optics
 
 
 class RigOpticsNode(Node):
@@ -62,11 +75,7 @@ class RigOpticsNode(Node):
         g = declare_graph_values(self, d, 'sync_mode', 'diagnostics_period_s', 'rate_hz',
                                  *PRIORITY)
         self.lockstep, diag = g['sync_mode'] == 'lockstep', g['diagnostics_period_s']
-        seed = declare(self, d, 'seed', 'detector noise seed', 0, 2 ** 31 - 1, True)
-        optics = {}
-        for name in sorted(k for k in d if k.startswith('optics.')):
-            optics[name] = declare(self, d, name, 'optics constant (SI, see optics.yaml)',
-                                   read_only=True)
+        seed, optics = declare_optics(self, d)
         target = {}
         for name, value in sorted(flatten_defaults(d, 'target').items()):
             target[name] = declare(self, {name: value}, name, 'target (output core) '

@@ -33,11 +33,12 @@ from std_msgs.msg import Float64
 from fiber_align.graph.description import STATION_AXES
 from fiber_align.nodes.ros.bus import Pub, sender_of, stamp_to_s, subscription
 from fiber_align.nodes.ros.diagnostics import Health, OK
-from fiber_align.nodes.ros.params import declare, declare_graph_values, flatten_defaults
-from fiber_align.nodes.ros.params import node_defaults, PRIORITY
+from fiber_align.nodes.rig_optics import declare_optics, optics_defaults
+from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults
+from fiber_align.nodes.ros.params import PRIORITY
 from fiber_align.nodes.ros.qos import sample_pub_qos, sample_qos
 from fiber_align.nodes.ros.runtime import run_node
-from fiber_align.plant import optics as op, station_optics as so
+from fiber_align.plant import station_optics as so
 
 NODE_NAME = so.CONFIG_NODE          # simulated_station_optics
 AREA_FILES = (so.CONFIG_FILE,)
@@ -48,12 +49,6 @@ PUBLISHES = ('optical_power',)
 OPTICS_KEYS = so.SOURCE_KEYS + so.DETECTOR_KEYS
 
 
-def optics_defaults():
-    """Return the ``optics.*`` defaults (dotted names) of ``config/optics.yaml``."""
-    flat = flatten_defaults(node_defaults(op.CONFIG_NODE), op.CONFIG_KEY)
-    return {k: v for k, v in flat.items() if k.split('.', 1)[1] in OPTICS_KEYS}
-
-
 class StationOpticsNode(Node):
     """Transport, parameters and health around :class:`~so.StationLink`."""
 
@@ -61,21 +56,18 @@ class StationOpticsNode(Node):
         """Declare the parameters (defaults from config/), build the link, wire topics."""
         super().__init__(NODE_NAME, **kwargs)
         d = node_defaults(NODE_NAME, AREA_FILES)
-        d.update(optics_defaults())
+        d.update(optics_defaults(OPTICS_KEYS))
         g = declare_graph_values(self, d, 'sync_mode', 'diagnostics_period_s', 'rate_hz',
                                  *PRIORITY)
         self.lockstep, diag = g['sync_mode'] == 'lockstep', g['diagnostics_period_s']
-        seed = declare(self, d, 'seed', 'detector noise seed', 0, 2 ** 31 - 1, True)
-        optics = {name: declare(self, d, name, 'optics constant (SI, see optics.yaml)',
-                                read_only=True)
-                  for name in sorted(k for k in d if k.startswith('optics.'))}
+        seed, optics = declare_optics(self, d)
         chip = {name: declare(self, d, name, 'chip, facet or cure constant (SI: m, rad, s, '
                               'dB; see station.yaml)', read_only=True)
                 for name in so.CHIP_KEYS}
         self.period_s = 1.0 / float(g['rate_hz'])
         over = {k.split('.', 1)[1]: v for k, v in optics.items()}
         over.update(chip, sample_period_s=self.period_s)
-        self.link = so.StationLink.from_params(seed=int(seed), **over)
+        self.link = so.StationLink.from_params(seed=seed, **over)
         self.pub = Pub(self, Float64, 'optical_power', sample_pub_qos(self.lockstep), bus)
         qos = sample_qos(self.lockstep)
         self.q = [[] for _ in AXES]             # lockstep: positions not yet read (m)

@@ -42,12 +42,11 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from fiber_align.alignment import station as st
-from fiber_align.config import load_params
 from fiber_align.nodes._sequencer_node import SequencerNode
 from fiber_align.nodes.alignment_sequencer import POWER_QUEUE_LIMIT
 from fiber_align.nodes.ros.bus import Pub, sender_of, stamp_to_s, subscription
 from fiber_align.nodes.ros.diagnostics import Health
-from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults, PRIORITY
+from fiber_align.nodes.ros.params import declare_graph_values, node_defaults, PRIORITY
 from fiber_align.nodes.ros.qos import sample_pub_qos, sample_qos
 from fiber_align.nodes.ros.runtime import run_node
 from fiber_align.nodes.station_optics import AXES
@@ -72,13 +71,11 @@ class StationSequencerNode(SequencerNode, Node):
         g = declare_graph_values(self, d, 'sync_mode', 'diagnostics_period_s', 'rate_hz',
                                  'realtime_setpoint_rate_m_per_s', *PRIORITY)
         self.lockstep, diag = g['sync_mode'] == 'lockstep', g['diagnostics_period_s']
-        core = {name: declare(self, d, name, 'station parameter (SI, see station.yaml)',
-                              read_only=True)
-                for name in load_params(st.CONFIG_FILE, st.CONFIG_NODE)}
         self.period_s = 1.0 / float(g['rate_hz'])
         # realtime: the search walks no faster than the loop's path follows a setpoint
-        self.seq = st.Station(core, period_s=self.period_s, path_rate_m_per_s=None
-                              if self.lockstep else g['realtime_setpoint_rate_m_per_s'])
+        rate = None if self.lockstep else g['realtime_setpoint_rate_m_per_s']
+        self.seq = st.Station(self._declare_core(d, st.CONFIG_FILE, st.CONFIG_NODE),
+                              period_s=self.period_s, path_rate_m_per_s=rate)
         self.pub_sp = [Pub(self, Float64, a + '/setpoint', sample_pub_qos(self.lockstep), bus)
                        for a in AXES]
         qos = sample_qos(self.lockstep)
@@ -140,12 +137,6 @@ class StationSequencerNode(SequencerNode, Node):
         s = self.seq.status()
         s.update(sample=self.n, align_sample=self.align_sample, sample_time_s=self.t_last)
         self._publish_status(s, sample=self.n)
-
-    def _command_align(self):
-        result = self.seq.align()
-        if result[0]:
-            self.align_sample = self.n
-        return result
 
     def sent_counts(self):
         """Return published message counts per topic."""
