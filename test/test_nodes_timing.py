@@ -288,3 +288,18 @@ def test_slack_runs_one_job_after_each_cycle_and_at_once_when_idle():
     sl.t_cycle = -math.inf                      # the cycles stopped: the waiting job and
     sl.submit(b)                                # the new one run at once, in order
     assert ran == ['idle', 'a', 'b', 'a', 'b'] and not sl.jobs
+
+
+def test_slack_waits_for_the_end_of_a_tick_of_several_sample_clocks():
+    """The rig's and the station's axes tick in one callback: no job between two axes."""
+    from fiber_align.control.cycle import Slack
+    ran = []
+    sl = Slack(idle_s=10.0)
+    sl.after_cycle()
+    sl.submit(lambda: ran.append('report'))
+    sl.in_tick = True
+    for _ in range(4):                          # each axis's answered sample
+        sl.after_cycle()
+    assert ran == [] and sl.jobs
+    sl.end_tick()                               # every axis answered: now
+    assert ran == ['report'] and not sl.in_tick and not sl.jobs

@@ -144,6 +144,15 @@ class Slack:
         self.jobs = collections.deque()
         self.idle_s = float(idle_s)
         self.t_cycle = -math.inf
+        #: True while one timer callback ticks several sample clocks (the rig's, the
+        #: station's axes): a job waits for the end of the whole tick (:meth:`end_tick`),
+        #: not for the first axis's answered sample, so it never delays the other axes
+        self.in_tick = False
+
+    def end_tick(self):
+        """End a tick of several sample clocks: run the oldest waiting job, if any."""
+        self.in_tick = False
+        self.after_cycle()
 
     def submit(self, job):
         """Run ``job`` (a callable) after the next cycle, or now when no cycle runs."""
@@ -155,9 +164,9 @@ class Slack:
             self.jobs.append(job)
 
     def after_cycle(self):
-        """Note a finished cycle; run the oldest waiting job, if any."""
+        """Note a finished cycle; run the oldest waiting job, if any (not mid-tick)."""
         self.t_cycle = time.monotonic()
-        if self.jobs:
+        if self.jobs and not self.in_tick:
             self.jobs.popleft()()
 
 

@@ -177,12 +177,27 @@ class SampleTimer:
     once a period instead of once per plant.
     """
 
-    def __init__(self, node, period_s, clock):
-        """Create the timer on ``node`` (period in s, ``clock`` rclpy steady clock)."""
+    def __init__(self, node, period_s, clock, slack=None):
+        """
+        Create the timer on ``node`` (period in s, ``clock`` rclpy steady clock).
+
+        :param slack: the process's :class:`~fiber_align.control.cycle.Slack`: its
+            housekeeping runs after the whole tick, every sample clock answered.
+        """
         self.callbacks = []
+        self.slack = slack
         self.timer = node.create_timer(period_s, self._tick, clock=clock)
 
     def _tick(self):
+        slack = self.slack
+        if slack is not None and len(self.callbacks) > 1:
+            slack.in_tick = True
+            try:
+                for cb in self.callbacks:
+                    cb()
+            finally:
+                slack.end_tick()
+            return
         for cb in self.callbacks:
             cb()
 
@@ -202,7 +217,7 @@ def sample_timer(node, bus, period_s, callback, clock):
         return node.create_timer(period_s, callback, clock=clock)
     shared = bus.timers.get(period_s)
     if shared is None:
-        shared = bus.timers[period_s] = SampleTimer(node, period_s, clock)
+        shared = bus.timers[period_s] = SampleTimer(node, period_s, clock, bus.slack)
     shared.callbacks.append(callback)
     return shared
 
