@@ -33,44 +33,41 @@ def _wait_log(log, text, seconds, proc):
     return text in log.read_text(errors='replace')
 
 
-def test_launch_rig_aligns_and_stops_cleanly(ros2_env, tmp_path):  # noqa: F811
-    log = tmp_path / 'launch.log'
-    proc = spawn(ros2_env, ['ros2', 'launch', 'fiber_align', 'fiber_align.launch.py',
-                            'rig:=true', 'seed:=0', 'namespace:=' + NS], log)
+def launch_align_stop(env, log, args, ns, tracking_s=20.0, stop_s=10.0):
+    """
+    ``ros2 launch`` the graph of ``args``, align it by ``ros2 service call``, SIGINT it.
+
+    Asserts TRACKING within ``tracking_s`` (s) after the call and a clean stop (exit 0 within
+    ``stop_s``, no FATAL, no traceback); the launch is stopped by its pid and group.
+    """
+    proc = spawn(env, ['ros2', 'launch', 'fiber_align', 'fiber_align.launch.py'] + args, log)
     try:
         assert _wait_log(log, 'startup done', 60.0, proc), log.read_text()[-4000:]
-        # TRACKING needs every node of the rig: both axes' loops, the optics, the sequencer
-        rc, out = ros2(ros2_env, 'service', 'call', '/%s/align' % NS,
-                       'std_srvs/srv/Trigger', timeout=30.0)
+        assert _wait_log(log, 'sample clock started', 30.0, proc), log.read_text()[-4000:]
+        # TRACKING needs every node: each axis's loop, the optics, the sequencer
+        rc, out = ros2(env, 'service', 'call', '/%s/align' % ns, 'std_srvs/srv/Trigger',
+                       timeout=30.0)
         assert rc == 0 and 'success=True' in out, out
-        assert _wait_log(log, 'state TRACKING', 20.0, proc), log.read_text()[-4000:]
+        assert _wait_log(log, 'state TRACKING', tracking_s, proc), log.read_text()[-4000:]
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=10) == 0
+        assert proc.wait(timeout=stop_s) == 0
         text = log.read_text(errors='replace')
         assert 'FATAL' not in text and 'Traceback' not in text, text[-4000:]
     finally:
         stop_launch(proc)
+
+
+def test_launch_rig_aligns_and_stops_cleanly(ros2_env, tmp_path):  # noqa: F811
+    launch_align_stop(ros2_env, tmp_path / 'launch.log',
+                      ['rig:=true', 'seed:=0', 'namespace:=' + NS], NS)
 
 
 def test_launch_station_records_aligns_and_stops_cleanly(ros2_env, tmp_path):  # noqa: F811
     """``station:=true record:=DIR``: ``/<ns>/align`` to TRACKING, a bag of every axis."""
-    log, bag = tmp_path / 'launch.log', tmp_path / 'bag'
-    proc = spawn(ros2_env, ['ros2', 'launch', 'fiber_align', 'fiber_align.launch.py',
-                            'station:=true', 'seed:=2', 'namespace:=stl',
-                            'record:=%s' % bag], log)
-    try:
-        assert _wait_log(log, 'startup done', 60.0, proc), log.read_text()[-4000:]
-        assert _wait_log(log, 'sample clock started', 30.0, proc), log.read_text()[-4000:]
-        rc, out = ros2(ros2_env, 'service', 'call', '/stl/align', 'std_srvs/srv/Trigger',
-                       timeout=30.0)
-        assert rc == 0 and 'success=True' in out, out
-        assert _wait_log(log, 'state TRACKING', 30.0, proc), log.read_text()[-4000:]
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=20) == 0
-        text = log.read_text(errors='replace')
-        assert 'FATAL' not in text and 'Traceback' not in text, text[-4000:]
-    finally:
-        stop_launch(proc)
+    bag = tmp_path / 'bag'
+    launch_align_stop(ros2_env, tmp_path / 'launch.log',
+                      ['station:=true', 'seed:=2', 'namespace:=stl', 'record:=%s' % bag],
+                      'stl', tracking_s=30.0, stop_s=20.0)
     counts = json.loads((bag / 'recorder_counts.json').read_text(encoding='utf-8'))
     for axis in ('in/x', 'in/y', 'out/x', 'out/y'):
         for topic in ('displacement', 'setpoint', 'drive_voltage'):
