@@ -36,9 +36,12 @@ STATION_STREAMS = dict([('m' + k, a + '/displacement') for k, a in zip(sc.AXIS_K
                        + [('p', 'optical_power')])
 
 
-def streams_of(g):
-    """Return the per-sample streams of the multi-axis graph ``g`` (rig or station)."""
-    return STATION_STREAMS if g.scenario == 'station' else STREAMS
+#: What differs between the multi-axis graphs, by their scenario: the per-sample streams,
+#: the offline run a lockstep run is compared with, and whether the wait for TRACKING is
+#: bounded by the sequencer's own search timeout (+ 2 s, as offline; the station's search
+#: may walk its whole square) or by ``ALIGN_MAX_S``.
+KINDS = {'align2d': (STREAMS, sm.compare_offline, False),
+         'station': (STATION_STREAMS, sm.compare_offline_station, True)}
 
 
 def arrays(obs, streams=STREAMS):
@@ -49,11 +52,10 @@ def arrays(obs, streams=STREAMS):
 def run_rig(a, g):
     """Run ``bringup --rig`` or ``--station`` (options ``a``, graph ``g``); return the code."""
     from std_srvs.srv import Trigger
-    rate = float(g.node_params(g.own_nodes[-1])['rate_hz'])
-    streams = streams_of(g)
-    # the station's search may walk its whole square (offline: the search's timeout + 2 s)
-    max_s = float(g.node_params(g.own_nodes[-1])['search_timeout_s']) + 2.0 \
-        if g.scenario == 'station' else sm.ALIGN_MAX_S
+    seq = g.node_params(g.own_nodes[-1])
+    rate = float(seq['rate_hz'])
+    streams, compare, own_timeout = KINDS[g.scenario]
+    max_s = float(seq['search_timeout_s']) + 2.0 if own_timeout else sm.ALIGN_MAX_S
     summary = {'scenario': g.scenario, 'rig': True, 'sync_mode': g.sync_mode, 'seed': g.seed,
                'composed': g.composed, 'namespace': g.namespace, 'rate_hz': rate,
                'error': ''}
@@ -108,8 +110,6 @@ def run_rig(a, g):
         h.run(False)
         summary.update(state=obs.status.get('state'), samples=clock())
         if g.sync_mode == 'lockstep' and not (a.cycles or a.duration):
-            compare = sm.compare_offline_station if g.scenario == 'station' else \
-                sm.compare_offline
             summary['offline'] = compare(g.seed, k_align, arrays(obs, streams))
             # the offline run has the shipped parameters: with others it is only reported
             comparable = not (a.param or a.params_file)
