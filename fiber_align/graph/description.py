@@ -401,6 +401,15 @@ def user_files(params_file):
     return out
 
 
+def graph_wide(over, sync_mode, controller):
+    """Put the ``sync_mode`` and ``controller`` launch arguments (if given) into ``over``."""
+    if sync_mode:
+        over.setdefault('/**', {})['sync_mode'] = _choice('sync_mode', sync_mode, SYNC_MODES)
+    if controller:
+        over.setdefault('/**', {})['controller'] = _choice('controller', controller,
+                                                           CONTROLLERS)
+
+
 def add_overrides(over, overrides):
     """Return ``over`` with the user's ``{node: {name: value}}`` applied last (a copy)."""
     out = {k: dict(v) for k, v in over.items()}
@@ -442,11 +451,7 @@ def build(namespace='', composed=None, sync_mode='', controller='', params_file=
     check_user(shipped, users, overrides)
     files = shipped + users
     over = {}
-    if sync_mode:
-        over.setdefault('/**', {})['sync_mode'] = _choice('sync_mode', sync_mode, SYNC_MODES)
-    if controller:
-        over.setdefault('/**', {})['controller'] = _choice('controller', controller,
-                                                           CONTROLLERS)
+    graph_wide(over, sync_mode, controller)
     if model_file:
         if not os.path.isfile(model_file):
             raise GraphError('model_file %s does not exist' % model_file)
@@ -464,9 +469,9 @@ def build(namespace='', composed=None, sync_mode='', controller='', params_file=
                                  'exit_when_done': True, 'wait_for_recorder': bool(record)}
     over = add_overrides(over, overrides)
     merged = merge_params(files, over, ns)
-    graph_wide = effective(merged, PLANT, ns)
-    sync = _choice('sync_mode', graph_wide.get('sync_mode', 'realtime'), SYNC_MODES)
-    law = _choice('controller', graph_wide.get('controller', 'composite'), CONTROLLERS)
+    wide = effective(merged, PLANT, ns)
+    sync = _choice('sync_mode', wide.get('sync_mode', 'realtime'), SYNC_MODES)
+    law = _choice('controller', wide.get('controller', 'composite'), CONTROLLERS)
     scen = _choice('scenario', effective(merged, SCENARIO_RUNNER, ns).get('scenario', 'none'),
                    SCENARIOS)
     nodes = control_nodes(scen)

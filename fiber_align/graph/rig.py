@@ -157,14 +157,14 @@ def multi_axis_start(namespace, composed, config_directory, own, params_file, ov
 
     The namespace and layout checked, the params files (:func:`multi_axis_files`), the
     run seed (:func:`check_seed`) and the overrides started with the graph-wide
-    ``sync_mode`` and ``controller`` (:func:`graph_wide`).
+    ``sync_mode`` and ``controller`` (:func:`~fiber_align.graph.description.graph_wide`).
     """
     ns = g.check_namespace(namespace)
     composed = g.DEFAULT_COMPOSED if composed in (None, '') else g.parse_bool('composed',
                                                                               composed)
     files = multi_axis_files(config_directory, own, params_file, overrides)
     over = {'/**': {}}
-    graph_wide(over, sync_mode, controller)
+    g.graph_wide(over, sync_mode, controller)
     return ns, composed, files, check_seed(seed), over
 
 
@@ -176,14 +176,6 @@ def multi_axis_files(config_directory, own, params_file, overrides):
     users = g.user_files(params_file)
     check_user(files, users, overrides)
     return list(dict.fromkeys(files + users))
-
-
-def graph_wide(over, sync_mode, controller):
-    """Put the ``sync_mode`` and ``controller`` launch arguments into ``over['/**']``."""
-    if sync_mode:
-        over['/**']['sync_mode'] = g._choice('sync_mode', sync_mode, g.SYNC_MODES)
-    if controller:
-        over['/**']['controller'] = g._choice('controller', controller, g.CONTROLLERS)
 
 
 def in_effect(files, over):
