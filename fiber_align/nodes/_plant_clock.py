@@ -10,6 +10,7 @@ clock (:class:`fiber_align.plant.dac.DacClock`). SI units (s, V).
 import time
 
 from fiber_align.control.cycle import LatencyHistogram, loop_summary
+from fiber_align.nodes.ros.diagnostics import endpoint_node_name
 
 #: Realtime: samples before the statistics start (1 s at 1 kHz).
 WARMUP_SAMPLES = 1000
@@ -45,7 +46,7 @@ class PlantClock:
         # recorder, in the namespace above the axes) as it is
         full = name if name.startswith('/') else '%s/%s' % (
             self.get_namespace().rstrip('/'), name)
-        if all(any('%s/%s' % (i.node_namespace.rstrip('/'), i.node_name) == full
+        if all(any(endpoint_node_name(i) == full
                    for i in self.get_subscriptions_info_by_topic(t)) for t in topics):
             return True
         if time.monotonic() - self.created < self.start_wait_s:

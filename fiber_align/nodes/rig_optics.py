@@ -64,7 +64,34 @@ def declare_optics(node, d):
     return int(seed), optics
 
 
-class RigOpticsNode(Node):
+class OpticsReadings:
+    """
+    One detector reading per sample, published (the rig's and the station's optics nodes).
+
+    The node has ``pub``, ``_msg`` (a Float64), ``n``, ``health`` and ``_measure(t_s, pos)``.
+    """
+
+    def _read(self, t_s, pos):
+        """Publish one detector reading (W) with the fibers at ``pos`` (m) at ``t_s``."""
+        if not all(math.isfinite(v) for v in pos):
+            # refused, not read: a NaN would stay in the detector's averaging for good;
+            # a NaN reading still goes out so that the index pairing holds
+            why = 'tip positions %r m: not all numbers, no reading' % (tuple(pos),)
+            self.get_logger().warning(why)
+            self.health.warn(why)
+            self._msg.data = math.nan
+        else:
+            self._msg.data = float(self._measure(t_s, pos))
+        self.pub.publish(self._msg)
+        self.n += 1
+        self.health.set_values(samples=self.n, optical_power_w=self._msg.data)
+
+    def sent_counts(self):
+        """Return published message counts per topic."""
+        return {'optical_power': self.n}
+
+
+class RigOpticsNode(OpticsReadings, Node):
     """Transport, parameters and health around :class:`~o2.OpticalLink2D`."""
 
     def __init__(self, bus=None, **kwargs):
@@ -108,7 +135,7 @@ class RigOpticsNode(Node):
             self.x_q.append(self._position(msg))
             self._pair()
         elif self.y_latest is not None:
-            self._read(stamp_to_s(msg.header.stamp), self._position(msg), self.y_latest)
+            self._read(stamp_to_s(msg.header.stamp), (self._position(msg), self.y_latest))
 
     def _on_y(self, msg):
         if self.lockstep:
@@ -119,26 +146,11 @@ class RigOpticsNode(Node):
 
     def _pair(self):
         while self.x_q and self.y_q:
-            self._read(self.n * self.period_s, self.x_q.pop(0), self.y_q.pop(0))
+            self._read(self.n * self.period_s, (self.x_q.pop(0), self.y_q.pop(0)))
 
-    def _read(self, t_s, x_m, y_m):
-        """Publish one detector reading (W) with the tip at ``(x_m, y_m)`` at ``t_s``."""
-        if not (math.isfinite(x_m) and math.isfinite(y_m)):
-            # refused, not read: a NaN would stay in the detector's averaging for good;
-            # a NaN reading still goes out so that the index pairing holds
-            why = 'tip position (%r, %r) m is not a number: no reading' % (x_m, y_m)
-            self.get_logger().warning(why)
-            self.health.warn(why)
-            self._msg.data = math.nan
-        else:
-            self._msg.data = float(self.link.measure(t_s, x_m, y_m, self.period_s))
-        self.pub.publish(self._msg)
-        self.n += 1
-        self.health.set_values(samples=self.n, optical_power_w=self._msg.data)
-
-    def sent_counts(self):
-        """Return published message counts per topic."""
-        return {'optical_power': self.n}
+    def _measure(self, t_s, pos):
+        """Return the detector reading (W) with the tip at ``pos`` = (x, y) (m) at ``t_s``."""
+        return self.link.measure(t_s, pos[0], pos[1], self.period_s)
 
 
 def main(args=None):

@@ -33,7 +33,7 @@ from std_msgs.msg import Float64
 from fiber_align.graph.description import STATION_AXES
 from fiber_align.nodes.ros.bus import Pub, sender_of, stamp_to_s, subscription
 from fiber_align.nodes.ros.diagnostics import Health, OK
-from fiber_align.nodes.rig_optics import declare_optics, optics_defaults
+from fiber_align.nodes.rig_optics import declare_optics, OpticsReadings, optics_defaults
 from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults
 from fiber_align.nodes.ros.params import PRIORITY
 from fiber_align.nodes.ros.qos import sample_pub_qos, sample_qos
@@ -49,7 +49,7 @@ PUBLISHES = ('optical_power',)
 OPTICS_KEYS = so.SOURCE_KEYS + so.DETECTOR_KEYS
 
 
-class StationOpticsNode(Node):
+class StationOpticsNode(OpticsReadings, Node):
     """Transport, parameters and health around :class:`~so.StationLink`."""
 
     def __init__(self, bus=None, **kwargs):
@@ -95,24 +95,9 @@ class StationOpticsNode(Node):
         if i == 0 and all(v is not None for v in self.latest):
             self._read(stamp_to_s(msg.header.stamp), list(self.latest))
 
-    def _read(self, t_s, pos):
-        """Publish one detector reading (W) with the fibers at ``pos`` (m) at ``t_s``."""
-        if not all(math.isfinite(v) for v in pos):
-            # refused, not read: a NaN would stay in the detector's averaging for good;
-            # a NaN reading still goes out so that the index pairing holds
-            why = 'tip positions %r m: not all numbers, no reading' % (pos,)
-            self.get_logger().warning(why)
-            self.health.warn(why)
-            self._msg.data = math.nan
-        else:
-            self._msg.data = float(self.link.measure(t_s, pos, self.period_s))
-        self.pub.publish(self._msg)
-        self.n += 1
-        self.health.set_values(samples=self.n, optical_power_w=self._msg.data)
-
-    def sent_counts(self):
-        """Return published message counts per topic."""
-        return {'optical_power': self.n}
+    def _measure(self, t_s, pos):
+        """Return the detector reading (W) with the fibers at ``pos`` (four, m) at ``t_s``."""
+        return self.link.measure(t_s, pos, self.period_s)
 
 
 def main(args=None):

@@ -29,6 +29,7 @@ from fiber_align.nodes.bringup import interrupt
 from fiber_align.nodes.bringup.children import Child, wait_all
 from fiber_align.nodes.bringup.cli import expected_endpoints, TRACKING_SCENARIOS
 from fiber_align.nodes.bringup.observer import BadInput, BringupError, Observer, StartStall
+from fiber_align.nodes.ros.diagnostics import endpoint_node_name
 
 EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 #: realtime goals ``--strict`` holds a run to: share of missed cycles
@@ -157,8 +158,8 @@ class Harness:
 
         def matched():
             return all(not node.count_publishers(t) or any(
-                '%s/%s' % (i.node_namespace.rstrip('/'), i.node_name) == rec
-                for i in node.get_subscriptions_info_by_topic(t)) for t in topics)
+                endpoint_node_name(i) == rec for i in node.get_subscriptions_info_by_topic(t))
+                for t in topics)
         timeout = float(self.gp['startup_timeout_s'])
         self.obs.wait(matched, timeout, self.alive, 'the recorder on every recorded topic')
         t0 = time.monotonic()

@@ -131,7 +131,7 @@ class Health:
         node = self._node
         try:
             expected = {s.topic_name: type_name(s.msg_type) for s in node.subscriptions}
-            pubs = {t: [(_fqn(i), i.topic_type)
+            pubs = {t: [(endpoint_node_name(i), i.topic_type)
                         for i in node.get_publishers_info_by_topic(t)] for t in expected}
         except Exception:  # noqa: BLE001 - the context is shutting down
             return []
@@ -182,7 +182,7 @@ class Health:
             pass
 
 
-def _fqn(info):
+def endpoint_node_name(info):
     """Return the fully qualified node name of a TopicEndpointInfo."""
     ns = info.node_namespace.rstrip('/')
     return '%s/%s' % (ns, info.node_name)
