@@ -55,13 +55,23 @@ def test_station_takes_seeds_and_facets_from_the_offline_description(seed):
         'lockstep'
 
 
-def test_record_adds_the_recorder_of_every_axis_and_the_clock_waits_for_it(tmp_path):
+def test_record_hosts_the_recorder_in_the_composed_process_else_the_clock_waits(tmp_path):
     g = gs.build_station(record=str(tmp_path / 'bag'), namespace='bench2')
-    assert g.processes[-1].executable == 'bag_recorder'
-    assert g.processes[-1].namespace == 'bench2'
+    station = g.processes[0]
+    assert [p.executable for p in g.processes] == ['control_graph', 'lifecycle_manager']
+    assert ('bag_recorder', '/bench2') in station.hosted()
+    assert station.arguments[1].split(',')[-1] == 'bag_recorder'   # built last
+    # what it reads from the bus: every axis's recorded topics and the power
+    local = set(station.local_topics())
+    assert {'/bench2/%s/%s' % (a, t) for a in gs.AXES for t in gs.PER_AXIS_RECORDED} \
+        <= local and '/bench2/optical_power' in local
     rec = g.node_params('bag_recorder')
     assert rec['output'] == str(tmp_path / 'bag')
     assert 'out/y/setpoint' in rec['topics'] and 'optical_power' in rec['topics']
+    assert not g.node_params('in/y/simulated_actuator').get('start_after_reader')
+    g = gs.build_station(record=str(tmp_path / 'bag'), namespace='bench2', composed=False)
+    assert g.processes[-1].executable == 'bag_recorder'
+    assert g.processes[-1].namespace == 'bench2'
     assert g.node_params('in/y/simulated_actuator')['start_after_reader'] == \
         '/bench2/bag_recorder'
     with pytest.raises(GraphError, match='already exists'):

@@ -141,7 +141,8 @@ NODES = {
                                subscribes=('x/feedforward_voltage', 'y/feedforward_voltage')),
     'power_meter': NodeSpec('power_meter', 'power_meter', configs=('hardware.yaml',),
                             area=False, publishes=('optical_power',)),
-    RECORDER: NodeSpec(RECORDER, RECORDER, configs=('recorder.yaml',)),
+    # hostable: the composed station records in-process (nodes/bag_recorder.py)
+    RECORDER: NodeSpec(RECORDER, RECORDER, 'BagRecorder', configs=('recorder.yaml',)),
     LIFECYCLE_MANAGER: NodeSpec(LIFECYCLE_MANAGER, LIFECYCLE_MANAGER,
                                 configs=('lifecycle_manager.yaml',)),
     # reads the graph's topics (a parameter, graph/live.py), publishes none
@@ -149,6 +150,20 @@ NODES = {
 }
 #: Nodes a composed process can host: ``--nodes`` name -> spec, in build order.
 HOSTABLE = {k: v for k, v in NODES.items() if v.node_class}
+
+
+def provided_topics(node, namespace):
+    """
+    Return the fully qualified topics ``node`` publishes when it lives in ``namespace``.
+
+    The topics a composed process delivers in-process (its
+    :class:`~fiber_align.nodes.ros.bus.LocalBus`), which an in-process recorder reads
+    from the bus rather than from DDS.
+    """
+    ns = '/' + namespace.strip('/') if namespace.strip('/') else ''
+    return tuple(t if t.startswith('/') else ns + '/' + t for t in NODES[node].publishes)
+
+
 #: Per-area params files, in the order they are merged (names in ``config/``): the
 #: configs of the 1-D graph's nodes, plant first.
 AREA_FILES = tuple(f for n in (PLANT, CONTROLLER, COMPENSATOR, DRIVER, SEQUENCER, RECORDER,
@@ -194,6 +209,13 @@ class Process:
     node_name: Optional[str] = None
     ends_graph: bool = False
     namespace: Optional[str] = None
+
+    def local_topics(self, graph_namespace=''):
+        """Return the topics its nodes deliver in-process (composed), fully qualified."""
+        if self.executable != COMPOSED_EXECUTABLE:
+            return ()
+        return tuple(t for base, ns in self.hosted(graph_namespace)
+                     for t in provided_topics(base, ns))
 
     def hosted(self, graph_namespace=''):
         """

@@ -116,14 +116,16 @@ def rig_processes(ns, composed, axes=AXES, own=None, label='rig', record=False):
     :param axes: the axes' namespaces below ``ns``.
     :param own: ``{node: executable}`` of the nodes in ``ns`` itself (default the rig's).
     :param label: the composed process's name.
-    :param record: add the recorder (in ``ns``).
+    :param record: add the recorder (in ``ns``): composed, hosted in the one process (it
+        reads the axes' topics from the bus, no DDS between them); else a process.
     """
     own = RIG_NODES if own is None else own
     if composed:
         # one process: every axis and the optics exchange every sample in-process
-        nodes = tuple('%s/%s' % (a, n) for a in axes for n in AXIS_NODES) + tuple(own)
+        here = tuple(own) + ((RECORDER,) if record else ())
+        nodes = tuple('%s/%s' % (a, n) for a in axes for n in AXIS_NODES) + here
         hosted = ['%s/%s' % (a, AXIS_EXECUTABLES.get(n, n)) for a in axes
-                  for n in AXIS_NODES] + list(own)
+                  for n in AXIS_NODES] + list(here)
         procs = [g.Process(label, g.COMPOSED_EXECUTABLE, nodes, ('--nodes', ','.join(hosted)),
                            namespace=ns)]
     else:
@@ -133,7 +135,7 @@ def rig_processes(ns, composed, axes=AXES, own=None, label='rig', record=False):
                   for n, exe in own.items()]
     procs.append(g.Process(LIFECYCLE_MANAGER, LIFECYCLE_MANAGER, (LIFECYCLE_MANAGER,),
                            node_name=LIFECYCLE_MANAGER, namespace=ns))
-    if record:
+    if record and not composed:
         procs.append(g.Process(RECORDER, RECORDER, (RECORDER,), node_name=RECORDER,
                                namespace=ns))
     return tuple(procs)

@@ -16,7 +16,8 @@ unless told):
   services ``align``, ``release``, ``switch``;
 - ``/station/lifecycle_manager``: activates the four drivers;
 - with ``record``: ``/station/bag_recorder``, recording :data:`RECORDED` (every message
-  of those topics; a params file can name others).
+  of those topics; a params file can name others); composed, hosted in the station's one
+  process, where it takes the axes' messages from the bus instead of DDS.
 
 Layouts as the rig's: composed (default) is one ``control_graph`` process for the four
 axes, the optics and the sequencer; multi-process one process per node.
@@ -82,8 +83,10 @@ def build_station(namespace=STATION_NAMESPACE, composed=None, sync_mode='', cont
         if os.path.exists(record):
             raise GraphError('record %s already exists: give a new bag directory' % record)
         over[RECORDER] = {'output': record, 'topics': list(RECORDED)}
-        # realtime per-sample topics are volatile: the clock waits for the recorder
-        over[PLANT]['start_after_reader'] = '/%s/%s' % (ns, RECORDER) if ns else RECORDER
+        if not composed:
+            # realtime per-sample topics are volatile: the clock waits for the recorder
+            # (composed, it reads them in-process from before the first sample)
+            over[PLANT]['start_after_reader'] = '/%s/%s' % (ns, RECORDER) if ns else RECORDER
     over = g.add_overrides(over, overrides)
     sync, law = in_effect(files, over)
     return RigGraph(namespace=ns, composed=composed, sync_mode=sync, controller=law,

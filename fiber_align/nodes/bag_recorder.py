@@ -12,7 +12,15 @@ A topic is subscribed raw (the CDR bytes written as received, stamped with the
 wall-clock receive time in ns) once a publisher shows its type, with the publishers'
 QoS (reliable if all are, transient-local if all are) ``queue_depth`` deep. Every
 message is written in its callback; on SIGINT, SIGTERM or shutdown the bag is
-finalised. Nothing is lost silently: ``message_lost`` and ``incompatible_qos`` events
+finalised.
+
+In-process (hosted in ``control_graph`` on its :class:`~fiber_align.nodes.ros.bus.
+LocalBus`, the station composed with ``record``): a topic a node of the process
+publishes is taken from the bus as the message object, its CDR made here
+(:mod:`fiber_align.nodes.ros.cdr`) and written in the slack after the control tick, with
+the mcap chunk closed every ``flush_period_s``; nothing of it goes through DDS. Other
+topics (``/diagnostics``, ``alignment_state``) are read from DDS as above. Nothing is
+lost silently: ``message_lost`` and ``incompatible_qos`` events
 are counted, logged and reported on ``/diagnostics`` (``lost``, ``incompatible_qos``,
 ``recorded.<topic>``) and in ``recorder_counts.json``. Crash safety (mcap): every
 ``flush_period_s`` the pending chunk is written, so after a SIGKILL
@@ -33,6 +41,9 @@ from fiber_align import lifeline
 from fiber_align.analysis import bag as bagio
 from fiber_align.config import ConfigError
 from fiber_align.nodes._msgtypes import message_class
+from fiber_align.graph.endpoints import type_name
+from fiber_align.nodes.ros.bus import LocalSub, sender_of
+from fiber_align.nodes.ros.cdr import encoder
 from fiber_align.nodes.ros.diagnostics import Health, OK, WARN
 from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults, PRIORITY
 from fiber_align.nodes.ros.runtime import run_node
@@ -48,8 +59,13 @@ def _default_output():
 class BagRecorder(Node):
     """Subscribe raw to the requested topics as they appear and write them to a bag."""
 
-    def __init__(self, **kwargs):
-        """Declare the parameters, open the bag and start discovery."""
+    def __init__(self, bus=None, **kwargs):
+        """
+        Declare the parameters, open the bag and start discovery.
+
+        :param bus: the process's :class:`~fiber_align.nodes.ros.bus.LocalBus`
+            (composed): the topics its nodes publish are recorded in-process.
+        """
         super().__init__(NODE_NAME, **kwargs)
         d = node_defaults(NODE_NAME, AREA_FILES)
         ro = True
@@ -85,12 +101,26 @@ class BagRecorder(Node):
         self.counts = {}
         self.lost = 0
         self.incompatible = 0
-        self.timer = self.create_timer(period, self.discover)
-        flush = float(gp('flush_period_s').value)
-        if flush > 0:
-            self.create_timer(flush, self.flush)
+        self.flush_s = float(gp('flush_period_s').value)
+        self.bus = bus
+        self.local = {}         # topic -> _Local: recorded in-process
+        self.pending = []       # (_Local, receive time ns, CDR) not written yet
+        self._t_flush = time.monotonic()
+        if bus is not None:
+            for topic in self.wanted:
+                if topic in bus.topics:
+                    self.local[topic] = _Local(self, topic)
+                    self.counts[topic] = 0
+            # the control thread's slack runs the discovery and the writes
+            self.timer = self.create_timer(period, lambda: bus.slack.submit(self.discover))
+        else:
+            self.timer = self.create_timer(period, self.discover)
+            if self.flush_s > 0:
+                self.create_timer(self.flush_s, self.flush)
         self.health = Health(self, float(gp('diagnostics_period_s').value),
-                             update=self._diag_values)
+                             update=self._diag_values,
+                             slack=bus.slack if bus is not None else None,
+                             sender=sender_of(bus))
         self.get_logger().info('recording %s into %s (%s)'
                                % (', '.join(self.wanted), self.output, storage))
         self.discover()
@@ -109,11 +139,11 @@ class BagRecorder(Node):
 
     def discover(self):
         """Subscribe to every wanted topic whose type is now known."""
-        if self.closed:
+        if self.closed or all(t in self.subs or t in self.local for t in self.wanted):
             return
         types = dict(self.get_topic_names_and_types())
         for topic in self.wanted:
-            if topic in self.subs or topic not in types:
+            if topic in self.subs or topic in self.local or topic not in types:
                 continue
             msgtype = types[topic][0]
             if not self.get_publishers_info_by_topic(topic):
@@ -160,6 +190,22 @@ class BagRecorder(Node):
                                     % (topic, getattr(info, 'last_policy_kind', '?')))
         return cb
 
+    def write_pending(self):
+        """Write the in-process messages taken so far; close the chunk when it is due."""
+        if self.closed:
+            return
+        pending, self.pending = self.pending, []
+        write, counts = self.writer.write, self.counts
+        for rec, t_ns, data in pending:
+            if rec.conn is None:
+                rec.connect()
+            write(rec.conn, t_ns, data)
+            counts[rec.topic] += 1
+        now = time.monotonic()
+        if self.flush_s > 0 and now - self._t_flush >= self.flush_s:
+            self._t_flush = now
+            self.flush()
+
     def flush(self):
         """Close the pending mcap chunk and hand the file's buffer to the OS."""
         if self.closed:
@@ -175,8 +221,13 @@ class BagRecorder(Node):
     def _diag_values(self):
         """Report counts, lost and incompatible-QoS events on ``/diagnostics``."""
         bad = self.lost or self.incompatible
+        slow = ['%s (%s)' % (r.topic, r.encode.fallback) for r in self.local.values()
+                if r.encode is not None and r.encode.fallback]
         self.health.status(WARN if bad else OK, 'lost %d message(s), %d incompatible QoS' % (
             self.lost, self.incompatible) if bad else 'recording %s' % self.output)
+        if slow:
+            # still every message, at rclpy's cost: worth knowing, not an error
+            self.health.set_values(cdr_fallback='; '.join(slow))
         # every wanted topic, 0 until subscribed: a reader of these counts sees a
         # topic the recorder has not picked up yet as behind, not as absent
         self.health.set_values(lost=self.lost, incompatible_qos=self.incompatible,
@@ -192,7 +243,10 @@ class BagRecorder(Node):
         """Finalise the bag (idempotent); log and return the message counts per topic."""
         if self.closed:
             return self.counts
+        self.write_pending()
         self.closed = True
+        for rec in self.local.values():
+            rec.destroy()
         self.writer.close()
         msg = ', '.join('%s: %d' % kv for kv in sorted(self.counts.items())) or 'no topics'
         self.get_logger().info('bag %s closed; messages per topic: %s' % (self.output, msg))
@@ -204,6 +258,40 @@ class BagRecorder(Node):
                       encoding='utf-8') as f:
                 json.dump({'lost': self.lost, 'incompatible_qos': self.incompatible}, f)
         return self.counts
+
+
+class _Local:
+    """One topic recorded in-process: its bus subscription, CDR encoder and connection."""
+
+    def __init__(self, rec, topic):
+        """Subscribe on ``rec``'s bus; the type is the first message's."""
+        self.rec, self.topic = rec, topic
+        self.encode = None
+        self.conn = None
+        self.msgtype = ''
+        self.sub = LocalSub(rec.bus, topic, self._on_message)
+
+    def _on_message(self, msg):
+        rec = self.rec
+        if rec.closed:
+            return
+        if self.encode is None:
+            self.msgtype = type_name(type(msg))
+            self.encode = encoder(rec.typestore, self.msgtype, type(msg))
+        rec.pending.append((self, time.time_ns(), self.encode(msg)))
+        if len(rec.pending) == 1:
+            rec.bus.slack.submit(rec.write_pending)
+
+    def connect(self):
+        """Add the bag connection (once, on the first write)."""
+        self.conn = self.rec.writer.add_connection(self.topic, self.msgtype,
+                                                   typestore=self.rec.typestore)
+        self.rec.get_logger().info('recording %s (%s) in-process'
+                                   % (self.topic, self.msgtype))
+
+    def destroy(self):
+        """Leave the bus."""
+        self.sub.destroy()
 
 
 def _drain(executor, node, orphaned, quiet_s=0.2, limit_s=3.0, orphan_limit_s=0.5):

@@ -116,8 +116,7 @@ def build(names, bus=None, argv=()):
                   cli_args=['--ros-args'] + ros) if sub else {}
         specs.append((base, node_ns, kw, importlib.import_module(HOSTABLE[base][0])))
     for base, node_ns, _, _ in specs:
-        bus.provide(*(t if t.startswith('/') else node_ns.rstrip('/') + '/' + t
-                      for t in graph.HOSTABLE[base].publishes))
+        bus.provide(*graph.provided_topics(base, node_ns))
     nodes = []
     try:
         for base, _, kw, m in specs:

@@ -154,7 +154,11 @@ class Harness:
         """
         g, node = self.graph, self.obs.node
         rec = '/%s/%s' % (g.namespace, RECORDER) if g.namespace else '/' + RECORDER
-        topics = [node.resolve_topic_name(t) for t in g.node_params(RECORDER)['topics']]
+        # the topics it reads in-process (hosted in the composed process) need no match
+        host = self._recorder_host()
+        local = set(host.local_topics(g.namespace)) if host is not None else set()
+        topics = [t for t in (node.resolve_topic_name(t)
+                              for t in g.node_params(RECORDER)['topics']) if t not in local]
 
         def matched():
             return all(not node.count_publishers(t) or any(
@@ -183,8 +187,11 @@ class Harness:
         latest = self.obs.watch.latest if self.obs is not None else {}
         s['realtime'] = sm.realtime_figures(latest)
         s['cycles'] = {n: dict(w) for n, w in self.obs.watch.worst.items()} if self.obs else {}
-        nodes = [ch for ch in self.children if ch.name != RECORDER]
-        rec = [ch for ch in self.children if ch.name == RECORDER]
+        host = self._recorder_host()
+        # the recorder's process: its own (stopped after the others) or the composed one
+        rec = [ch for ch in self.children if host is not None and ch.name == host.name]
+        separate = bool(rec) and host.name == RECORDER
+        nodes = [ch for ch in self.children if not (separate and ch in rec)]
         if self.obs is not None:
             self.obs.active = False
             if self.plants and all(ch.alive() for ch in nodes):
@@ -203,8 +210,8 @@ class Harness:
                 s['recorder_short'] = {k: list(v) for k, v in short.items()}
         for ch in nodes:
             ch.interrupt()
-        wait_all(nodes, deadline - (1.5 if rec else 0.0) - time.monotonic())
-        for ch in rec:
+        wait_all(nodes, deadline - (1.5 if separate else 0.0) - time.monotonic())
+        for ch in (rec if separate else ()):
             ch.interrupt()
             # at least 4 s: the recorder drains while the graph still publishes, then
             # closes the bag; a SIGKILL before that leaves it without metadata
@@ -219,6 +226,11 @@ class Harness:
         if counts.is_file():
             s['recorded'] = json.loads(counts.read_text(encoding='utf-8'))
         return s
+
+    def _recorder_host(self):
+        """Return the process that hosts the recorder (its own, or composed), or None."""
+        return next((p for p in self.graph.processes
+                     if any(b == RECORDER for b, _ in p.hosted(self.graph.namespace))), None)
 
     def _wait_recorder(self, diag, ch, limit_s):
         """
