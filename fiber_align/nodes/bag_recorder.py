@@ -17,8 +17,8 @@ finalised.
 In-process (hosted in ``control_graph`` on its :class:`~fiber_align.nodes.ros.bus.
 LocalBus`, the station composed with ``record``): a topic a node of the process
 publishes is taken from the bus as the message object, its CDR made here
-(:mod:`fiber_align.nodes.ros.cdr`) and written in the slack after the control tick, with
-the mcap chunk closed every ``flush_period_s``; nothing of it goes through DDS. Other
+(:mod:`fiber_align.nodes.ros.cdr`) and written at once, the mcap chunk closed every
+``flush_period_s``; nothing of it goes through DDS. Other
 topics (``/diagnostics``, ``alignment_state``) are read from DDS as above. Nothing is
 lost silently: ``message_lost`` and ``incompatible_qos`` events
 are counted, logged and reported on ``/diagnostics`` (``lost``, ``incompatible_qos``,
@@ -104,8 +104,7 @@ class BagRecorder(Node):
         self.flush_s = float(gp('flush_period_s').value)
         self.bus = bus
         self.local = {}         # topic -> _Local: recorded in-process
-        self.pending = []       # (_Local, receive time ns, CDR) not written yet
-        self._t_flush = time.monotonic()
+        self.t_flush = time.monotonic()     # the last chunk close (monotonic s)
         if bus is not None:
             for topic in self.wanted:
                 if topic in bus.topics:
@@ -138,12 +137,22 @@ class BagRecorder(Node):
                           reliability=rel, durability=dur)
 
     def discover(self):
-        """Subscribe to every wanted topic whose type is now known."""
-        if self.closed or all(t in self.subs or t in self.local for t in self.wanted):
+        """
+        Subscribe to every wanted topic whose type is now known.
+
+        A publisher count per topic still missing first (one cheap graph query each,
+        which is all a look costs while, say, ``/clock`` of a realtime graph never
+        comes); the whole topic list only when one has a publisher now.
+        """
+        if self.closed:
+            return
+        new = [t for t in self.wanted if t not in self.subs and t not in self.local
+               and self.count_publishers(t)]
+        if not new:
             return
         types = dict(self.get_topic_names_and_types())
-        for topic in self.wanted:
-            if topic in self.subs or topic in self.local or topic not in types:
+        for topic in new:
+            if topic not in types:
                 continue
             msgtype = types[topic][0]
             if not self.get_publishers_info_by_topic(topic):
@@ -190,20 +199,11 @@ class BagRecorder(Node):
                                     % (topic, getattr(info, 'last_policy_kind', '?')))
         return cb
 
-    def write_pending(self):
-        """Write the in-process messages taken so far; close the chunk when it is due."""
-        if self.closed:
-            return
-        pending, self.pending = self.pending, []
-        write, counts = self.writer.write, self.counts
-        for rec, t_ns, data in pending:
-            if rec.conn is None:
-                rec.connect()
-            write(rec.conn, t_ns, data)
-            counts[rec.topic] += 1
+    def flush_due(self):
+        """Close the chunk (:meth:`flush`) when ``flush_period_s`` has passed (in-process)."""
         now = time.monotonic()
-        if self.flush_s > 0 and now - self._t_flush >= self.flush_s:
-            self._t_flush = now
+        if self.flush_s > 0 and now - self.t_flush >= self.flush_s and not self.closed:
+            self.t_flush = now
             self.flush()
 
     def flush(self):
@@ -243,7 +243,6 @@ class BagRecorder(Node):
         """Finalise the bag (idempotent); log and return the message counts per topic."""
         if self.closed:
             return self.counts
-        self.write_pending()
         self.closed = True
         for rec in self.local.values():
             rec.destroy()
@@ -278,9 +277,14 @@ class _Local:
         if self.encode is None:
             self.msgtype = type_name(type(msg))
             self.encode = encoder(rec.typestore, self.msgtype, type(msg))
-        rec.pending.append((self, time.time_ns(), self.encode(msg)))
-        if len(rec.pending) == 1:
-            rec.bus.slack.submit(rec.write_pending)
+        if self.conn is None:
+            self.connect()
+        # written at once, a few microseconds; so is the chunk close when due: its cost
+        # grows with the chunk, so it is kept small and regular (deferred to a later
+        # slack it only grew)
+        rec.writer.write(self.conn, time.time_ns(), self.encode(msg))
+        rec.counts[self.topic] += 1
+        rec.flush_due()
 
     def connect(self):
         """Add the bag connection (once, on the first write)."""

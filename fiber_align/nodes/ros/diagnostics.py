@@ -20,13 +20,15 @@ class Health:
     latch their level for ``hold_s`` seconds (wall time) so a short event is seen by
     every subscriber; ``condition`` sets a standing WARN (a protection turned off) that
     lasts until cleared; ``set_values`` adds key/value pairs (units in the key names).
-    Each periodic report also looks for publishers of another type on the node's
-    subscribed topics (their messages never arrive): a standing WARN naming them, and
-    one log line each time the set changes.
+    Every :attr:`ENDPOINT_EVERY` periodic reports it also looks for publishers of
+    another type on the node's subscribed topics (their messages never arrive): a
+    standing WARN naming them, and one log line each time the set changes.
     """
 
     #: the condition key of the publishers of a wrong type
     FOREIGN = 'foreign_publishers'
+    #: the endpoints are checked on every this many reports (the first included)
+    ENDPOINT_EVERY = 4
 
     def __init__(self, node, period_s=0.5, hold_s=2.0, hardware_id='fiber_align', slack=None,
                  update=None, name=None, sender=None):
@@ -61,8 +63,9 @@ class Health:
         #: a :class:`~fiber_align.control.cycle.CycleStats` whose window is reported with
         #: every publish (per-sample nodes set it), or ``None``
         self.cycle = None
-        report = self._report if slack is None else (lambda: slack.submit(self._report))
-        self._timer = node.create_timer(float(period_s), report,
+        self._slack = slack
+        self._reports = 0
+        self._timer = node.create_timer(float(period_s), self._report,
                                         clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def status(self, level, message):
@@ -147,9 +150,23 @@ class Health:
         return lines
 
     def _report(self):
-        """Check the endpoints, then publish the status (the periodic report)."""
-        self.check_endpoints()
-        self.publish()
+        """
+        Report periodically: publish the status; every few reports check the endpoints.
+
+        The check is a graph query per subscribed topic (0.1-1 ms a node, much of a
+        control period's slack) for a standing condition, so it runs every
+        :attr:`ENDPOINT_EVERY` reports, as a job of its own in the process's slack.
+        """
+        check = self._reports % self.ENDPOINT_EVERY == 0
+        self._reports += 1
+        if self._slack is None:
+            if check:
+                self.check_endpoints()
+            self.publish()
+            return
+        if check:
+            self._slack.submit(self.check_endpoints)
+        self._slack.submit(self.publish)
 
     def publish(self):
         """Publish the current status once (with the node's fresh ``sent.<topic>`` counts)."""
