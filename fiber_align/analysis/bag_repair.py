@@ -4,7 +4,7 @@ Repair an MCAP bag whose recorder was killed: ``fiber-align bag-repair BAG``.
 
 A recorder killed with SIGKILL (or a power cut) leaves ``BAG/BAG.mcap`` without its
 summary and footer and ``BAG`` without ``metadata.yaml``: no reader opens it. The
-recorder closes and writes its pending chunk every ``flush_period_s`` (0.5 s), so the
+recorder closes and writes its pending chunk every ``flush_period_s`` (0.01 s), so the
 file holds every message up to then in complete chunks. This module scans the file's
 records from the start (the MCAP format: magic, then opcode u8, length u64, content),
 takes the schemas, channels and messages of every complete record, chunked or not, and
