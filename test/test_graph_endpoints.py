@@ -1,7 +1,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """Publishers of the wrong type on a node's topics are named (graph.endpoints)."""
 
-from fiber_align.graph.endpoints import foreign_publishers, type_name
+from fiber_align.graph.endpoints import foreign_publishers, suspect_topics, type_name
 
 
 class Float64:
@@ -41,3 +41,13 @@ def test_two_wrong_publishers_each_get_a_line_in_a_stable_order():
                                {'/a': [('/z', 'std_msgs/msg/String'),
                                        ('/y', 'std_msgs/msg/Int32')]})
     assert [f.split(' ')[1] for f in found] == ['/y', '/z']
+
+
+def test_only_topics_carrying_another_type_are_suspects():
+    expected = {'/setpoint': 'std_msgs/msg/Float64', '/diagnostics':
+                'diagnostic_msgs/msg/DiagnosticArray', '/quiet': 'std_msgs/msg/Bool'}
+    graph = [('/setpoint', ['std_msgs/msg/Float64', 'std_msgs/msg/String']),
+             ('/diagnostics', ['diagnostic_msgs/msg/DiagnosticArray']),
+             ('/other', ['std_msgs/msg/String'])]
+    assert suspect_topics(expected, graph) == ['/setpoint']
+    assert suspect_topics(expected, []) == []

@@ -19,6 +19,22 @@ def type_name(msg_type):
     return '%s/%s/%s' % (pkg, kind, msg_type.__name__)
 
 
+def suspect_topics(expected, names_and_types):
+    """
+    Return the subscribed topics on which the graph carries a type other than expected.
+
+    One listing of the graph's topics is far cheaper than the endpoints of every topic
+    (each publisher of ``/diagnostics`` comes with its QoS), so only these are looked up.
+
+    :param expected: ``{topic: type name}``: the node's own subscriptions.
+    :param names_and_types: ``[(topic, [type name, ...]), ...]`` as rclpy's
+        ``get_topic_names_and_types`` (publishers' and subscribers' types together).
+    :returns: the sorted topics to look up with :func:`foreign_publishers`.
+    """
+    graph = dict(names_and_types)
+    return sorted(t for t, want in expected.items() if set(graph.get(t, ())) - {want})
+
+
 def foreign_publishers(expected, publishers):
     """
     Return one line for each publisher of a type other than the one subscribed with.

@@ -47,7 +47,7 @@ from std_msgs.msg import Float64
 
 from fiber_align.alignment import sequencer as sq
 from fiber_align.nodes._sequencer_node import SequencerNode
-from fiber_align.nodes.ros.bus import Pub, sender_of, stamp_to_s, subscription
+from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, stamp_to_s, subscription
 from fiber_align.nodes.ros.diagnostics import Health
 from fiber_align.nodes.ros.params import declare_graph_values, declare_si, node_defaults, PRIORITY
 from fiber_align.nodes.ros.qos import (REALTIME_QOS, REFERENCE_LATCHED_QOS, sample_pub_qos,
@@ -98,7 +98,7 @@ class AlignmentSequencerNode(SequencerNode, Node):
             subscription(self, JointState, 'displacement', self._on_disp, qos, bus)
             subscription(self, Float64, 'optical_power', self._on_power, qos, bus)
         self._serve()
-        self.health = Health(self, diag, sender=sender_of(bus))
+        self.health = Health(self, diag, slack=slack_of(bus), sender=sender_of(bus))
         self.y_q = []
         self.p_q = []
         self.n_sp = 0

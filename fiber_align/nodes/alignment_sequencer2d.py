@@ -56,7 +56,7 @@ from fiber_align.alignment import sequencer2d as s2d
 from fiber_align.graph.hardware_rig import AMPLIFIER
 from fiber_align.nodes._sequencer_node import SequencerNode
 from fiber_align.nodes.alignment_sequencer import MAX_GAP_PERIODS, POWER_QUEUE_LIMIT
-from fiber_align.nodes.ros.bus import Pub, sender_of, stamp_to_s, subscription
+from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, stamp_to_s, subscription
 from fiber_align.nodes.ros.diagnostics import Health
 from fiber_align.nodes.ros.params import declare_graph_values, node_defaults, PRIORITY
 from fiber_align.nodes.ros.qos import (REALTIME_QOS, REFERENCE_LATCHED_QOS, sample_pub_qos,
@@ -107,7 +107,7 @@ class AlignmentSequencer2DNode(SequencerNode, Node):
             subscription(self, JointState, 'y/displacement', self._on_y, qos, bus)
             subscription(self, Float64, 'optical_power', self._on_power, qos, bus)
         self._serve()
-        self.health = Health(self, diag, sender=sender_of(bus))
+        self.health = Health(self, diag, slack=slack_of(bus), sender=sender_of(bus))
         self.q = {'x': [], 'y': [], 'p': []}
         self.y_latest = None
         self.n = 0                      # updates done = index of the next sample

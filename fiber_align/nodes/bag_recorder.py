@@ -42,7 +42,7 @@ from fiber_align.analysis import bag as bagio
 from fiber_align.config import ConfigError
 from fiber_align.nodes._msgtypes import message_class
 from fiber_align.graph.endpoints import type_name
-from fiber_align.nodes.ros.bus import LocalSub, sender_of
+from fiber_align.nodes.ros.bus import LocalSub, sender_of, slack_of
 from fiber_align.nodes.ros.cdr import encoder
 from fiber_align.nodes.ros.diagnostics import Health, OK, WARN
 from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults, PRIORITY
@@ -118,8 +118,7 @@ class BagRecorder(Node):
                 self.create_timer(self.flush_s, self.flush)
         self.health = Health(self, float(gp('diagnostics_period_s').value),
                              update=self._diag_values,
-                             slack=bus.slack if bus is not None else None,
-                             sender=sender_of(bus))
+                             slack=slack_of(bus), sender=sender_of(bus))
         self.get_logger().info('recording %s into %s (%s)'
                                % (', '.join(self.wanted), self.output, storage))
         self.discover()

@@ -30,7 +30,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
-from fiber_align.nodes.ros.bus import Pub, sender_of, stamp_to_s, subscription
+from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, stamp_to_s, subscription
 from fiber_align.nodes.ros.diagnostics import Health, OK
 from fiber_align.nodes.ros.params import declare, declare_graph_values, flatten_defaults
 from fiber_align.nodes.ros.params import node_defaults, PRIORITY
@@ -115,7 +115,7 @@ class RigOpticsNode(OpticsReadings, Node):
         qos = sample_qos(self.lockstep)
         subscription(self, JointState, 'x/tip_position', self._on_x, qos, bus)
         subscription(self, JointState, 'y/tip_position', self._on_y, qos, bus)
-        self.health = Health(self, diag, sender=sender_of(bus))
+        self.health = Health(self, diag, slack=slack_of(bus), sender=sender_of(bus))
         self.x_q, self.y_q = [], []
         self.y_latest = None
         self.n = 0

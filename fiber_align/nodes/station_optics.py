@@ -31,7 +31,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from fiber_align.graph.description import STATION_AXES
-from fiber_align.nodes.ros.bus import Pub, sender_of, stamp_to_s, subscription
+from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, stamp_to_s, subscription
 from fiber_align.nodes.ros.diagnostics import Health, OK
 from fiber_align.nodes.rig_optics import declare_optics, OpticsReadings, optics_defaults
 from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults
@@ -75,7 +75,7 @@ class StationOpticsNode(OpticsReadings, Node):
         for i, a in enumerate(AXES):
             subscription(self, JointState, a + '/tip_position',
                          lambda msg, i=i: self._on_position(i, msg), qos, bus)
-        self.health = Health(self, diag, sender=sender_of(bus))
+        self.health = Health(self, diag, slack=slack_of(bus), sender=sender_of(bus))
         self.n = 0
         self._msg = Float64()
         self.health.status(OK, 'ready')

@@ -44,7 +44,7 @@ from std_msgs.msg import Float64
 from fiber_align.alignment import station as st
 from fiber_align.nodes._sequencer_node import SequencerNode
 from fiber_align.nodes.alignment_sequencer import POWER_QUEUE_LIMIT
-from fiber_align.nodes.ros.bus import Pub, sender_of, stamp_to_s, subscription
+from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, stamp_to_s, subscription
 from fiber_align.nodes.ros.diagnostics import Health
 from fiber_align.nodes.ros.params import declare_graph_values, node_defaults, PRIORITY
 from fiber_align.nodes.ros.qos import sample_pub_qos, sample_qos
@@ -84,7 +84,7 @@ class StationSequencerNode(SequencerNode, Node):
                          lambda msg, i=i: self._on_position(i, msg), qos, bus)
         subscription(self, Float64, 'optical_power', self._on_power, qos, bus)
         self._serve()
-        self.health = Health(self, diag, sender=sender_of(bus))
+        self.health = Health(self, diag, slack=slack_of(bus), sender=sender_of(bus))
         self.q = [[] for _ in AXES]     # lockstep: readings not yet used (m)
         self.q_p = []                   # power readings not yet used (W)
         self.latest = [None] * len(AXES)

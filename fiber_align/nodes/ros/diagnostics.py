@@ -5,7 +5,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
-from fiber_align.graph.endpoints import foreign_publishers, type_name
+from fiber_align.graph.endpoints import foreign_publishers, suspect_topics, type_name
 from fiber_align.nodes.ros.qos import DIAG_QOS
 
 #: DiagnosticStatus levels as ints (the message field is a byte).
@@ -65,6 +65,7 @@ class Health:
         self.cycle = None
         self._slack = slack
         self._reports = 0
+        self._check = None      # a check under way: (expected types, topics left, found)
         self._timer = node.create_timer(float(period_s), self._report,
                                         clock=Clock(clock_type=ClockType.STEADY_TIME))
 
@@ -127,35 +128,73 @@ class Health:
 
     def check_endpoints(self):
         """
-        Set or clear the WARN of publishers of a wrong type on the node's topics.
+        Set or clear the WARN of publishers of a wrong type on the node's topics, at once.
 
         :returns: the lines of :func:`~fiber_align.graph.endpoints.foreign_publishers`.
         """
-        node = self._node
         try:
-            expected = {s.topic_name: type_name(s.msg_type) for s in node.subscriptions}
-            pubs = {t: [(endpoint_node_name(i), i.topic_type)
-                        for i in node.get_publishers_info_by_topic(t)] for t in expected}
+            expected, todo = self._suspects()
+            pubs = {t: self._publishers(t) for t in todo}
         except Exception:  # noqa: BLE001 - the context is shutting down
             return []
+        return self._judge(expected, pubs)
+
+    def _suspects(self):
+        """Return the node's ``{topic: type}`` and the topics carrying another type."""
+        node = self._node
+        expected = {s.topic_name: type_name(s.msg_type) for s in node.subscriptions}
+        return expected, suspect_topics(expected, node.get_topic_names_and_types())
+
+    def _publishers(self, topic):
+        return [(endpoint_node_name(i), i.topic_type)
+                for i in self._node.get_publishers_info_by_topic(topic)]
+
+    def _judge(self, expected, pubs):
         lines = foreign_publishers(expected, pubs)
         text = ('publisher of a wrong type: ' + '; '.join(lines)) if lines else None
         if text != self._conditions.get(self.FOREIGN):
             if text is None:
                 self._conditions.pop(self.FOREIGN, None)
-                node.get_logger().info('no publisher of a wrong type on my topics now')
+                self._node.get_logger().info('no publisher of a wrong type on my topics now')
             else:
                 self._conditions[self.FOREIGN] = text
-                node.get_logger().warning(text)
+                self._node.get_logger().warning(text)
         return lines
+
+    def _check_step(self):
+        """
+        One step of the endpoint check: a job of the process's slack.
+
+        The first step lists the graph's topics (:func:`suspect_topics`); each next one
+        looks up the publishers of one topic that carries another type (a few tenths of
+        a millisecond on ``/diagnostics``); the last judges as :meth:`check_endpoints`.
+        A step submits the next itself, so no job holds a control period long.
+        """
+        try:
+            if self._check is None:
+                expected, todo = self._suspects()
+                self._check = (expected, todo, {})
+            else:
+                expected, todo, pubs = self._check
+                topic = todo.pop()
+                pubs[topic] = self._publishers(topic)
+        except Exception:  # noqa: BLE001 - the context is shutting down
+            self._check = None
+            return
+        expected, todo, pubs = self._check
+        if todo:
+            self._slack.submit(self._check_step)
+            return
+        self._check = None
+        self._judge(expected, pubs)
 
     def _report(self):
         """
         Report periodically: publish the status; every few reports check the endpoints.
 
-        The check is a graph query per subscribed topic (0.1-1 ms a node, much of a
-        control period's slack) for a standing condition, so it runs every
-        :attr:`ENDPOINT_EVERY` reports, as a job of its own in the process's slack.
+        The check is a graph query per subscribed topic for a standing condition, so it
+        runs every :attr:`ENDPOINT_EVERY` reports, one topic per job of the process's
+        slack (:meth:`_check_step`).
         """
         check = self._reports % self.ENDPOINT_EVERY == 0
         self._reports += 1
@@ -164,8 +203,8 @@ class Health:
                 self.check_endpoints()
             self.publish()
             return
-        if check:
-            self._slack.submit(self.check_endpoints)
+        if check and self._check is None:
+            self._slack.submit(self._check_step)
         self._slack.submit(self.publish)
 
     def publish(self):

@@ -1,0 +1,108 @@
+# SPDX-License-Identifier: Apache-2.0
+"""A node's Health: the endpoint check runs in the process's slack, a topic per job."""
+
+from types import SimpleNamespace
+
+from std_msgs.msg import Float64
+
+from fiber_align.control.cycle import Slack
+from fiber_align.nodes.ros.diagnostics import Health, WARN
+
+
+class FakeNode:
+    """The calls Health makes on a node; the graph queries are counted."""
+
+    def __init__(self, topics, graph, publishers):
+        self.subscriptions = [SimpleNamespace(topic_name=t, msg_type=m) for t, m in topics]
+        self.graph, self.publishers = graph, publishers
+        self.lookups = []
+        self.published = []
+
+    def get_topic_names_and_types(self):
+        self.lookups.append('*')
+        return self.graph
+
+    def get_publishers_info_by_topic(self, topic):
+        self.lookups.append(topic)
+        return [SimpleNamespace(node_namespace='/', node_name=n, topic_type=t)
+                for n, t in self.publishers.get(topic, ())]
+
+    def create_publisher(self, *args):
+        return SimpleNamespace(publish=self.published.append)
+
+    def create_timer(self, *args, **kwargs):
+        return None
+
+    def get_fully_qualified_name(self):
+        return '/compensator'
+
+    def get_clock(self):
+        return SimpleNamespace(now=lambda: SimpleNamespace(to_msg=lambda: _stamp()))
+
+    def get_logger(self):
+        return SimpleNamespace(info=lambda m: None, warning=lambda m: None)
+
+
+def _stamp():
+    from builtin_interfaces.msg import Time
+    return Time()
+
+
+FLOAT, STR = 'std_msgs/msg/Float64', 'std_msgs/msg/String'
+
+
+def _node(n_topics=12, clash='/t3'):
+    topics = [('/t%d' % i, Float64) for i in range(n_topics)]
+    graph = [('/t%d' % i, [FLOAT] + ([STR] if '/t%d' % i == clash else []))
+             for i in range(n_topics)]
+    pubs = {'/t%d' % i: [('ok_%d' % i, FLOAT)] for i in range(n_topics)}
+    pubs[clash] = pubs[clash] + [('outsider', STR)]
+    return FakeNode(topics, graph, pubs)
+
+
+def _running_slack():
+    slack = Slack(idle_s=60.0)
+    slack.after_cycle()             # a cycle just ran: jobs wait for the next ones
+    return slack
+
+
+def test_the_check_is_one_graph_query_per_cycle_and_names_the_foreign_publisher():
+    node = _node()
+    slack = _running_slack()
+    health = Health(node, slack=slack)
+    health._report()                # the first report checks the endpoints
+    assert node.lookups == [] and len(slack.jobs) == 2
+    per_cycle = []
+    for _ in range(6):
+        before = len(node.lookups)
+        slack.after_cycle()
+        per_cycle.append(len(node.lookups) - before)
+    assert max(per_cycle) <= 1
+    # the graph's listing, then only the topic that carries another type
+    assert node.lookups == ['*', '/t3']
+    health.publish()
+    status = node.published[-1].status[0]
+    assert status.level == bytes([WARN])
+    assert '/t3: /outsider publishes std_msgs/msg/String' in status.message
+
+
+def test_the_warn_clears_when_the_outsider_is_gone():
+    node = _node()
+    slack = _running_slack()
+    health = Health(node, slack=slack)
+    assert health.check_endpoints()             # at once: found
+    node.graph = [(t, [FLOAT]) for t, _ in node.graph]
+    for _ in range(Health.ENDPOINT_EVERY):
+        health._report()
+    for _ in range(4):
+        slack.after_cycle()
+    health.publish()
+    assert 'wrong type' not in node.published[-1].status[0].message
+
+
+def test_without_a_running_cycle_the_check_runs_at_once():
+    node = _node(clash='/t7')
+    health = Health(node, slack=Slack())        # no cycle yet: jobs run when submitted
+    health._report()
+    assert node.lookups == ['*', '/t7']
+    assert '/outsider' in node.published[-1].status[0].message
