@@ -31,7 +31,8 @@ from fiber_align.control.realtime import DriverStep
 from fiber_align.nodes._driver_device import DeviceBackend
 from fiber_align.nodes._driver_loop import DriverLoop
 from fiber_align.nodes._driver_params import declare_all, DriverParameters
-from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription, unsubscribe
+from fiber_align.nodes.ros.bus import Pub, release_timer, sample_timer, sender_of, slack_of
+from fiber_align.nodes.ros.bus import subscription, unsubscribe
 from fiber_align.nodes.ros.diagnostics import ERROR, Health, OK, WARN
 from fiber_align.nodes.ros.lifecycle import guard_change_state
 from fiber_align.nodes.ros.params import node_defaults
@@ -123,8 +124,8 @@ class ActuatorDriverNode(DriverParameters, DeviceBackend, DriverLoop, LifecycleN
                                            qos, self.bus))
         self._srv = self.create_service(SetBool, '~/enable', self._on_enable)
         if not self.lockstep:
-            self._timer = self.create_timer(self.watchdog_period_s(), self._on_tick,
-                                            clock=Clock(clock_type=ClockType.STEADY_TIME))
+            self._timer = sample_timer(self, self.bus, self.watchdog_period_s(), self._on_tick,
+                                       Clock(clock_type=ClockType.STEADY_TIME))
             self.health.cycle = CycleStats(1.0 / self.period_s)     # feedforward to drive
         self.health.resolve()                           # a refusal before this is over
         self.health.status(OK, 'configured (inactive): output %g V' % self.core.v)
@@ -196,7 +197,7 @@ class ActuatorDriverNode(DriverParameters, DeviceBackend, DriverLoop, LifecycleN
             unsubscribe(self, s)
         self._subs = []
         if self._timer is not None:
-            self.destroy_timer(self._timer)
+            release_timer(self, self._timer, self._on_tick)
             self._timer = None
         if self._srv is not None:
             self.destroy_service(self._srv)

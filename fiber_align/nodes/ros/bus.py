@@ -174,7 +174,10 @@ class SampleTimer:
     The plants of one process (the rig's two axes) tick from one timer callback, in the
     order they were built: each tick's scheduled time is the timer's, so a second plant
     is not counted late for the time the first one's loop took, and the executor wakes
-    once a period instead of once per plant.
+    once a period instead of once per plant. The drivers' watchdogs of the process tick
+    from it too, after the plants (each executor wake-up and callback costs tens of
+    microseconds, and four watchdog timers of their own woke the thread four more times
+    a period, between the plants' ticks).
     """
 
     def __init__(self, node, period_s, clock, slack=None):
@@ -205,6 +208,11 @@ class SampleTimer:
         """Return the time (ns) until the next tick, as rclpy's ``Timer``."""
         return self.timer.time_until_next_call()
 
+    def remove(self, callback):
+        """Tick ``callback`` no more (a driver cleaned up)."""
+        if callback in self.callbacks:
+            self.callbacks.remove(callback)
+
 
 def sample_timer(node, bus, period_s, callback, clock):
     """
@@ -220,6 +228,14 @@ def sample_timer(node, bus, period_s, callback, clock):
         shared = bus.timers[period_s] = SampleTimer(node, period_s, clock, bus.slack)
     shared.callbacks.append(callback)
     return shared
+
+
+def release_timer(node, timer, callback):
+    """Stop a timer made by :func:`sample_timer` for ``callback`` (shared or ``node``'s own)."""
+    if isinstance(timer, SampleTimer):
+        timer.remove(callback)
+    else:
+        node.destroy_timer(timer)
 
 
 def writer_of(pub, volatile, bus=None):
