@@ -49,3 +49,41 @@ def test_a_second_signal_inside_the_handler_still_stops():
 def test_the_harness_reproduces_the_deadlock_of_an_event():
     # why StopFlag exists: the same nested signal with threading.Event never returns
     assert _run('event', 5.0) is None
+
+
+#: A process whose node's teardown never ends (as rcl's ``destroy_when_not_in_use`` was
+#: seen to): its bag-like file must be closed first, and the guard must end the process
+#: with its exit code and a line that names the stall.
+HANGING = textwrap.dedent('''
+    import signal, sys, threading, time
+    from fiber_align.nodes.ros.runtime import finish, StopFlag
+
+    class Node:
+        context = None
+
+        def close(self):
+            print('closed', flush=True)
+
+        def destroy_node(self):
+            threading.Event().wait()        # never returns
+
+    stop = StopFlag()
+    stop.note(signal.SIGINT)
+    if sys.argv[1] == 'twice':
+        stop.note(signal.SIGINT)
+    t0 = time.monotonic()
+    try:
+        finish([Node()], stop, limit_s=0.5)
+    finally:
+        print('not reached', time.monotonic() - t0, flush=True)
+''')
+
+
+@pytest.mark.parametrize('how, code', [('once', 0), ('twice', 130)])
+def test_a_teardown_that_hangs_ends_the_process_with_its_code(how, code):
+    out = subprocess.run([sys.executable, '-c', HANGING, how], capture_output=True,
+                         text=True, timeout=30)
+    assert out.returncode == code, (out.stdout, out.stderr)
+    assert out.stdout.splitlines() == ['closed']
+    assert 'teardown: the middleware did not end within 0.5 s; exiting %d' % code \
+        in out.stderr

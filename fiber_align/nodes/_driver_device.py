@@ -282,9 +282,13 @@ class DeviceBackend:
             self.pub_rb.destroy(self)
             self.pub_rb = None
 
-    def destroy_node(self):
+    def close(self):
         """Process exit (SIGINT, no lifecycle shutdown): ramp to the safe voltage, close."""
         if getattr(self, 'out', None) is not None:
             self._ramp_device()
             self._close_device()
+
+    def destroy_node(self):
+        """Ramp and close the device (:meth:`close`), then destroy the node."""
+        self.close()
         return super().destroy_node()

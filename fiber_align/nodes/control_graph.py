@@ -167,7 +167,7 @@ def main(args=None):
         left = bus.sender.stop()
         if left and nodes:
             nodes[0].get_logger().error('%d messages not handed to DDS at exit' % left)
-        c.finish(nodes)
+        c.finish(nodes, stop)
     return c.exit_code(stop)
 
 

@@ -354,12 +354,16 @@ class Mdt693bDriverNode(LifecycleNode):
             self.get_logger().error('device lost during the ramp: %s' % why)
         return why
 
-    def destroy_node(self):
-        """Process exit (SIGINT, no lifecycle shutdown): ramp every axis, close."""
+    def close(self):
+        """Process exit (SIGINT, no lifecycle shutdown): ramp every axis, shut the port."""
         if getattr(self, 'out', None) is not None:
             self._ramp_device()
             self.out.close()
             self.out = None
+
+    def destroy_node(self):
+        """Ramp and close the device (:meth:`close`), then destroy the node."""
+        self.close()
         return super().destroy_node()
 
     # -- the loop -------------------------------------------------------------------

@@ -173,11 +173,18 @@ class PowerMeterNode(Node):
         msg.header.stamp = self.get_clock().now().to_msg()
         self._publish(self.diag_pub, msg)
 
-    def destroy_node(self):
-        """Stop the reading thread (bounded) and close the meter."""
+    def close(self):
+        """Stop the reading thread (bounded) and close the meter (idempotent)."""
+        if getattr(self, '_closed', False):
+            return
+        self._closed = True
         self.stop.set()
         self.thread.join(2.0 + self.p['timeout_s'])
         self.meter.close()
+
+    def destroy_node(self):
+        """Close the meter (:meth:`close`), then destroy the node."""
+        self.close()
         return super().destroy_node()
 
 

@@ -186,33 +186,78 @@ def refuse(name, exc):
     return 2
 
 
-def finish(nodes):
+def finish(nodes, stop=None, limit_s=None):
     """
-    Print each node's exit report, destroy the nodes, shut rclpy down (idempotent).
+    Print each node's exit report, close its files, destroy the nodes, shut rclpy down.
 
     The contexts are destroyed and the frozen objects collected here too, so the
     middleware's teardown (the DDS participants) runs under this process's handlers:
     in the interpreter's exit SIGINT and SIGTERM have their default action again, and a
     second signal there would kill the process (exit -2, no bag report, no clean code).
+    Every file is closed (a recorder's bag: its ``close()``) before any node is
+    destroyed, and the teardown is bounded (:func:`teardown_guard`): once the reports
+    are out and the bag is whole, a middleware teardown that hangs ends the process
+    with its code and a line that says so, instead of the launcher's SIGKILL.
+
+    :param stop: the process's :class:`StopFlag` (its exit code if the guard fires).
+    :param limit_s: the teardown's bound (s); ``None``: :data:`TEARDOWN_S`.
     """
     import gc
 
     import rclpy
-    contexts = []
-    for node in nodes if isinstance(nodes, (list, tuple)) else [nodes]:
-        if node is None:
-            continue
+    nodes = [n for n in (nodes if isinstance(nodes, (list, tuple)) else [nodes])
+             if n is not None]
+    for node in nodes:
         if hasattr(node, 'sent_counts'):
             report_sent(node, node.sent_counts())
-        if node.context not in contexts:
-            contexts.append(node.context)
-        node.destroy_node()
-    rclpy.try_shutdown()
-    for context in contexts:
-        context.try_shutdown()
-        context.destroy()
-    gc.unfreeze()
-    gc.collect()
+    for node in nodes:
+        close = getattr(node, 'close', None)
+        if callable(close):
+            close()
+    guard = teardown_guard(TEARDOWN_S if limit_s is None else limit_s, stop)
+    try:
+        contexts = []
+        for node in nodes:
+            if node.context not in contexts:
+                contexts.append(node.context)
+            node.destroy_node()
+        rclpy.try_shutdown()
+        for context in contexts:
+            context.try_shutdown()
+            context.destroy()
+        gc.unfreeze()
+        gc.collect()
+    finally:
+        guard.cancel()
+
+
+#: s: the longest a node process's teardown (nodes, contexts, DDS participants) may take
+#: once its reports are out and its files closed; under bringup's and launch's stop
+#: timeouts (about 5 s), so the process ends itself first
+TEARDOWN_S = 3.0
+
+
+def teardown_guard(limit_s, stop=None):
+    """
+    Return a started timer that ends the process if the teardown outlasts ``limit_s``.
+
+    rcl's node teardown (``destroy_when_not_in_use``, the DDS participant's) has been
+    seen to wait for seconds; the process has nothing left to save then. The timer
+    prints one line naming the stall and exits with the process's code (:func:`exit_code`
+    of ``stop``), without the interpreter's exit. Cancel it when the teardown ended.
+    """
+    import os
+    import threading
+
+    def abandon():
+        code = stop.exit_code(0) if stop is not None else 0
+        print('teardown: the middleware did not end within %g s; exiting %d without it'
+              % (limit_s, code), file=sys.stderr, flush=True)
+        os._exit(code)
+    timer = threading.Timer(float(limit_s), abandon)
+    timer.daemon = True
+    timer.start()
+    return timer
 
 
 def exit_code(stop, code=0):
@@ -302,7 +347,7 @@ def run_node(factory, name, args=None, realtime=None, threads=1, then=None):
     except NODE_ERRORS as exc:
         return refuse(name, exc)
     finally:
-        finish(node)
+        finish(node, stop)
     return exit_code(stop)
 
 
