@@ -87,3 +87,39 @@ def test_a_teardown_that_hangs_ends_the_process_with_its_code(how, code):
     assert out.stdout.splitlines() == ['closed']
     assert 'teardown: the middleware did not end within 0.5 s; exiting %d' % code \
         in out.stderr
+
+
+#: What a realtime process does for the first time inside a control period: a
+#: ``/diagnostics`` report's percentiles and the in-process recorder's first CDR.
+FIRST_USE = textwrap.dedent('''
+    import sys
+    import numpy as np
+    from fiber_align.control.cycle import CycleStats
+    from fiber_align.nodes.ros.runtime import warm_imports
+    from rosbags.typesys import get_typestore, Stores
+    from std_msgs.msg import Float64
+    from fiber_align.nodes.ros.cdr import encoder
+    from rclpy.type_support import check_for_type_support
+    store = get_typestore(Stores.ROS2_JAZZY)     # the recorder's, made when it starts
+    check_for_type_support(Float64)              # as the publisher of the topic did
+    if sys.argv[1] == 'warm':
+        warm_imports()
+    before = set(sys.modules)
+    stats = CycleStats(1000.0)
+    stats.window(0)
+    for k in range(10):
+        stats.record(1e-4 * k, k)
+    stats.window(10 ** 7)
+    encoder(store, 'std_msgs/msg/Float64', Float64)(Float64(data=1.0))   # checked once
+    print(sorted(set(sys.modules) - before))
+''')
+
+
+def test_warm_imports_leave_nothing_to_import_inside_a_control_period():
+    def new_modules(how):
+        out = subprocess.run([sys.executable, '-c', FIRST_USE, how], capture_output=True,
+                             text=True, timeout=60)
+        assert out.returncode == 0, out.stderr
+        return out.stdout.strip()
+    assert 'numpy.ma' in new_modules('cold')      # what the warm-up is for
+    assert new_modules('warm') == '[]'

@@ -272,6 +272,25 @@ def exit_code(stop, code=0):
     return stop.exit_code(code)
 
 
+#: Modules imported on first use deep inside a control period, each once per process:
+#: numpy's percentile imports ``numpy.ma`` (a first ``/diagnostics`` report took 6-8 ms),
+#: the in-process recorder's first message of a topic imports ``rosidl_runtime_py``,
+#: rclpy's serialisation and rosbags' serialiser (a tick of 3-15 ms). Imported before the
+#: spin instead.
+WARM_IMPORTS = ('numpy.ma', 'rosidl_runtime_py.utilities', 'rclpy.serialization',
+                'rosbags.serde.primitives')
+
+
+def warm_imports(names=WARM_IMPORTS):
+    """Import ``names`` now (those missing from this install are skipped)."""
+    import importlib
+    for name in names:
+        try:
+            importlib.import_module(name)
+        except ImportError:
+            pass
+
+
 def spin(nodes, realtime=False, priority=0, stop=None, threads=1, then=None):
     """
     Spin ``nodes`` (one node or a list) until the context shuts down.
@@ -304,6 +323,7 @@ def spin(nodes, realtime=False, priority=0, stop=None, threads=1, then=None):
     executor = make_executor(realtime, threads)
     for node in nodes:
         executor.add_node(node)
+    warm_imports()
     gc.collect()
     gc.freeze()
     try:
