@@ -4,11 +4,12 @@ Realtime soak: new random setpoints for minutes, every one checked, memory watch
 
 Starts ``bringup --scenario none --sync realtime`` (the default composed graph) and an
 outside rclpy client that publishes a new setpoint drawn uniformly from 10..80 um every
-``--interval`` s (0.5), reads ``displacement`` and, ``--check-after`` s (0.3) after
-each setpoint left it (its ``publish`` returned), takes the mean of the samples in the following 20 ms as where the
-actuator is. Reported: how many setpoints were missed by more than 1 um (median and worst
-miss), the driver's watchdog trips (``/diagnostics``), and each process's resident
-memory after the first minute and at the end (MB; the goal: within 5 MB).
+``--interval`` s (0.5), reads ``displacement`` and, ``--check-after`` s (0.3) after each
+setpoint left it (its ``publish`` returned), takes the mean of the samples in the
+following 20 ms as where the actuator is. Reported: how many setpoints were missed by more
+than 1 um (median and worst miss), the driver's watchdog trips (``/diagnostics``), and
+each process's resident memory after the first minute and at the end (MB; the goal: within
+5 MB).
 
 With ``--cli`` a user works beside it with the upstream ``ros2`` CLI: every ``--cli-period``
 s (2) one round of ``ros2 node list``, ``param list``, ``param get`` and ``param set`` (the
