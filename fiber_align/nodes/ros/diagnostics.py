@@ -192,9 +192,10 @@ class Health:
         """
         Report periodically: publish the status; every few reports check the endpoints.
 
-        The check is a graph query per subscribed topic for a standing condition, so it
-        runs every :attr:`ENDPOINT_EVERY` reports, one topic per job of the process's
-        slack (:meth:`_check_step`).
+        The check (one listing of the graph's topics, then a query per topic that
+        carries another type) is for a standing condition, so it runs every
+        :attr:`ENDPOINT_EVERY` reports, one query per job of the process's slack
+        (:meth:`_check_step`).
         """
         check = self._reports % self.ENDPOINT_EVERY == 0
         self._reports += 1
