@@ -188,16 +188,17 @@ def refuse(name, exc):
 
 def finish(nodes, stop=None, limit_s=None):
     """
-    Print each node's exit report, close its files, destroy the nodes, shut rclpy down.
+    Print each node's exit report, close it, destroy the nodes, shut rclpy down.
 
     The contexts are destroyed and the frozen objects collected here too, so the
     middleware's teardown (the DDS participants) runs under this process's handlers:
     in the interpreter's exit SIGINT and SIGTERM have their default action again, and a
     second signal there would kill the process (exit -2, no bag report, no clean code).
-    Every file is closed (a recorder's bag: its ``close()``) before any node is
-    destroyed, and the teardown is bounded (:func:`teardown_guard`): once the reports
-    are out and the bag is whole, a middleware teardown that hangs ends the process
-    with its code and a line that says so, instead of the launcher's SIGKILL.
+    Every node with a ``close()`` (a recorder's bag finalised, a driver's device ramped
+    to its safe voltage and shut) is closed before any node is destroyed, and the
+    teardown is bounded (:func:`teardown_guard`): once the reports are out, the bag is
+    whole and the devices safe, a middleware teardown that hangs ends the process with
+    its code and a line that says so, instead of the launcher's SIGKILL.
 
     :param stop: the process's :class:`StopFlag` (its exit code if the guard fires).
     :param limit_s: the teardown's bound (s); ``None``: :data:`TEARDOWN_S`.
