@@ -127,6 +127,20 @@ def test_controller_feeds_the_setpoint_one_sample_old_and_resets_after_a_long_ga
     assert st.traj.value == 50e-6 and st.ctl.pid.e_prev is not None
 
 
+def test_a_late_sample_advances_both_paths_one_period():
+    """The compensator's and the controller's paths stay one: a late sample delays both."""
+    ff = CompensatorStep(FakeFeedforward(), T, 2e-3)
+    fb = ControllerStep(law(), T, 2e-3)
+    fb.setpoint()
+    for st in (ff, fb):
+        st.drive(0.0)
+    for k in (0, 1, 4, 5, 9):                          # samples 2-3 and 6-8 skipped
+        ff.sample(stamp(k), 0.0, 50e-6, 0.0)
+        fb.sample(stamp(k), 0.0, 50e-6, 0.0)
+        assert fb.traj.value == ff.traj.value
+    assert fb.traj.value == pytest.approx(10e-6)       # five samples: five periods
+
+
 def test_controller_step_without_a_law_is_zero():
     assert ControllerStep(None, T, 2e-3).step(1e-6, 0.0) == (0.0, 1e-6, 0.0, (0.0, 0.0, 0.0))
 

@@ -157,8 +157,11 @@ class ControllerStep(LoopClock):
     position) while the drive is held or before the first setpoint, so every resume is
     bumpless; a gap of more than :data:`MAX_CATCH_UP` periods clears the stale integral
     and parks. The drive stale: the output held, nothing integrated, the trajectory and
-    reference model wait. Else the reference model gets the trajectory's value one
-    sample old for each period since the last sample (the realtime loop's extra delay).
+    reference model wait. Else the trajectory advances one period per answered sample,
+    as :class:`CompensatorStep`'s (a late sample delays the path, never jumps it), and
+    the reference model gets its value one sample old (the realtime loop's extra delay)
+    for each period since the last sample: over the skipped periods the value the path
+    waited at.
 
     :param ctl: the feedback law (``step(r, y)``, ``reset()``, ``u``, ``gains``,
         ``pid``, ``reference_filter``) or ``None``; :attr:`ctl` may be replaced.
@@ -221,7 +224,12 @@ class ControllerStep(LoopClock):
             ctl = self.ctl
             return (ctl.u if ctl is not None else 0.0, math.nan, 0.0,
                     getattr(ctl, 'gains', (0.0, 0.0, 0.0)))
-        seq = [self.r_prev] + self.traj.advance(target, n)
+        # one path period per answered sample, as the compensator's path: the feedforward
+        # and the reference follow one path, or the feedback pushes against the
+        # feedforward by their difference after every late sample. Over the periods the
+        # sample skipped the path waited (as the plant's drive did): the reference model
+        # is stepped over them at the path's value.
+        seq = [self.r_prev] * n + self.traj.advance(target, 1)
         self.r_prev = seq[-1]
         pid = getattr(self.ctl, 'pid', None)
         if pid is not None:

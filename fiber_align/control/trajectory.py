@@ -42,14 +42,15 @@ class SetpointTrajectory:
     model swings the drive by the width of the hysteresis loop at a rate proportional to
     the path's speed, and an abrupt reversal rang the bending mode by several
     micrometres past the commanded range. The compensator and the controller run the
-    same trajectory. The controller advances it by the number of sample periods between
-    the stamps of the displacement samples it processes (:meth:`periods`), so its
-    reference model stays on the time line; the compensator advances it one period per
-    sample it answers: catching a stall up at once made its feedforward jump (the
-    ``hysteresis_compensator`` docstring). A ramp also keeps each missed cycle of a
-    non-realtime OS a small disturbance; a step through the resonance shaper is a 2-3
-    sample burst that a missed cycle turns into an unshaped jump (the bending mode has
-    3 % damping).
+    same trajectory, each one period per sample it answers: catching a stall up at once
+    made the feedforward jump (the ``hysteresis_compensator`` docstring), and a
+    controller whose path caught up while the compensator's did not pushed against the
+    feedforward by their difference. The controller counts the sample periods between
+    the stamps of the samples it processes (:meth:`periods`) for its reference model,
+    which waits over the skipped periods at the path's value. A ramp also keeps each
+    missed cycle of a non-realtime OS a small disturbance; a step through the resonance
+    shaper is a 2-3 sample burst that a missed cycle turns into an unshaped jump (the
+    bending mode has 3 % damping).
     """
 
     def __init__(self, period_s, rate_m_per_s, accel_m_per_s2=0.0):
