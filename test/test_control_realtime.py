@@ -41,37 +41,58 @@ class FakeFeedforward:
         return -y
 
 
+def answer(st, k, y, target):
+    """Answer sample ``k`` as the loop does: the drive comes back after every answer."""
+    out = st.sample(stamp(k), y, target)
+    st.drive()
+    return out
+
+
 def test_compensator_steps_one_trajectory_period_per_sample_whatever_the_gap():
     st = CompensatorStep(FakeFeedforward(), T, 2e-3)
-    st.drive(0.0)
-    assert st.sample(stamp(0), 0.0, 50e-6, 0.0) == pytest.approx(2.0)
+    st.drive()
+    assert st.sample(stamp(0), 0.0, 50e-6) == pytest.approx(2.0)
     # ten periods skipped: still one period of the ramp (a stall delays, never jumps)
-    assert st.sample(stamp(10), 0.0, 50e-6, 0.0) == pytest.approx(4.0)
+    assert st.sample(stamp(10), 0.0, 50e-6) == pytest.approx(4.0)
     assert st.ff.steps == pytest.approx([2e-6, 4e-6])
 
 
 def test_compensator_rests_while_held_and_after_a_long_gap():
     st = CompensatorStep(FakeFeedforward(), T, 2e-3)
-    st.sample(stamp(0), 10e-6, 50e-6, 0.0)
+    st.sample(stamp(0), 10e-6, 50e-6)
     st.held = True
-    assert st.sample(stamp(1), 12e-6, 50e-6, 0.0) == -12e-6
+    assert st.sample(stamp(1), 12e-6, 50e-6) == -12e-6
     assert st.traj.value == 12e-6 and st.ff.starts == [12e-6]
     st.held = False
-    st.sample(stamp(2), 12e-6, 50e-6, 0.0)
+    st.sample(stamp(2), 12e-6, 50e-6)
     assert st.ff.steps[-1] == pytest.approx(14e-6)      # on from the rest position
-    assert st.sample(stamp(3 + MAX_CATCH_UP), -1.0, 50e-6, 0.0) == 0.0   # rest at >= 0 m
+    assert st.sample(stamp(3 + MAX_CATCH_UP), -1.0, 50e-6) == 0.0   # rest at >= 0 m
     assert st.ff.starts[-1] == 0.0
 
 
 def test_compensator_repeats_the_last_feedforward_while_the_drive_is_stale():
     st = CompensatorStep(FakeFeedforward(), T, 2e-3)
-    assert st.sample(stamp(0), 0.0, 50e-6, 5.0) == pytest.approx(2.0)   # no drive yet
-    st.drive(5.0)
-    late = 5.0 + (DRIVE_STALE_PERIODS + 1) * T
-    assert st.sample(stamp(1), 0.0, 50e-6, late) == pytest.approx(2.0)
-    assert st.traj.value == pytest.approx(2e-6)          # the trajectory waited
-    st.drive(late)
-    assert st.sample(stamp(2), 0.0, 50e-6, late) == pytest.approx(4.0)
+    assert st.sample(stamp(0), 0.0, 50e-6) == pytest.approx(2.0)      # no drive yet
+    st.drive()
+    for k in range(1, DRIVE_STALE_PERIODS + 1):                     # no drive since
+        st.sample(stamp(k), 0.0, 50e-6)
+    value = st.traj.value
+    late = DRIVE_STALE_PERIODS + 1                                   # one sample more
+    assert st.sample(stamp(late), 0.0, 50e-6) == pytest.approx(st.ff.steps[-1] * 1e6)
+    assert st.traj.value == value                                    # the trajectory waited
+    st.drive()
+    st.sample(stamp(late + 1), 0.0, 50e-6)
+    assert st.traj.value > value
+
+
+def test_a_late_sample_is_not_a_stale_drive():
+    """The drive's age is counted in samples: one late sample after a drive is fresh."""
+    st = CompensatorStep(FakeFeedforward(), T, 2e-3)
+    st.drive()
+    st.sample(stamp(0), 0.0, 50e-6)
+    st.drive()
+    st.sample(stamp(10 * DRIVE_STALE_PERIODS), 0.0, 50e-6)          # a late tick
+    assert st.traj.value == pytest.approx(4e-6)                      # moved on: 2 periods
 
 
 def law(period_s=T):
@@ -83,35 +104,35 @@ def law(period_s=T):
 
 def test_controller_parks_until_the_first_setpoint_and_while_held():
     st = ControllerStep(law(), T, 2e-3)
-    assert st.sample(stamp(0), 5e-6, 50e-6, 0.0) == PARKED     # no setpoint yet
+    assert st.sample(stamp(0), 5e-6, 50e-6) == PARKED     # no setpoint yet
     assert st.setpoint() and not st.setpoint()                  # only the first parks
     assert st.traj.value == 5e-6 and st.ctl.reference_filter.x == 5e-6
-    st.drive(0.0)
-    assert st.sample(stamp(1), 5e-6, 50e-6, 0.0)[1] == 0.0     # the setpoint one old
-    outs = [st.sample(stamp(k), 5e-6, 50e-6, 0.0) for k in range(2, 10)]
+    st.drive()
+    assert answer(st, 1, 5e-6, 50e-6)[1] == 0.0            # the setpoint one old
+    outs = [answer(st, k, 5e-6, 50e-6) for k in range(2, 10)]
     assert outs[0][1] > 0.0 and outs[-1][0] > 0.0
     assert st.ctl.pid.integral == 0.0               # the path's own ramp is not learnt
     k_end = 10 + INTEGRAL_SETTLE_PERIODS - 1
     for k in range(10, k_end):                       # at its setpoint, the integral waits
-        st.sample(stamp(k), 5e-6, st.traj.value, 0.0)
+        answer(st, k, 5e-6, st.traj.value)
     assert st.ctl.pid.integral == 0.0
-    st.sample(stamp(k_end), 5e-6, st.traj.value, 0.0)
+    answer(st, k_end, 5e-6, st.traj.value)
     assert st.ctl.pid.integral > 0.0                # ... the settling periods, then acts
     st.set_held(True)
     assert st.ctl.pid.integral == 0.0                            # nothing winds up held
-    assert st.sample(stamp(k_end + 1), 7e-6, 50e-6, 0.0) == PARKED
+    assert st.sample(stamp(k_end + 1), 7e-6, 50e-6) == PARKED
     assert st.traj.value == 7e-6 and st.r_prev == 7e-6           # bumpless resume
 
 
 def test_controller_holds_its_output_while_the_drive_is_stale():
     st = ControllerStep(law(), T, 2e-3)
     st.setpoint()
-    assert st.sample(stamp(0), 0.0, 50e-6, 0.0)[0] == 0.0        # never heard: held at 0
-    st.drive(0.0)
-    u = st.sample(stamp(1), 0.0, 50e-6, 0.0)[0]
+    assert st.sample(stamp(0), 0.0, 50e-6)[0] == 0.0        # never heard: held at 0
+    st.drive()
+    for k in range(1, DRIVE_STALE_PERIODS + 1):
+        u = st.sample(stamp(k), 0.0, 50e-6)[0]
     integral, value = st.ctl.pid.integral, st.traj.value
-    late = (DRIVE_STALE_PERIODS + 1) * T
-    out = st.sample(stamp(2), 0.0, 50e-6, late)
+    out = st.sample(stamp(DRIVE_STALE_PERIODS + 1), 0.0, 50e-6)
     assert out[0] == u and math.isnan(out[1])
     assert st.ctl.pid.integral == integral and st.traj.value == value
 
@@ -119,11 +140,11 @@ def test_controller_holds_its_output_while_the_drive_is_stale():
 def test_controller_feeds_the_setpoint_one_sample_old_and_resets_after_a_long_gap():
     st = ControllerStep(law(), T, 0.0)                           # no rate limit
     st.setpoint()
-    st.drive(0.0)
-    assert st.sample(stamp(0), 0.0, 50e-6, 0.0)[1] == 0.0       # the setpoint one old
+    st.drive()
+    assert st.sample(stamp(0), 0.0, 50e-6)[1] == 0.0       # the setpoint one old
     assert st.r_prev == 50e-6                                    # used at the next sample
-    assert st.sample(stamp(1), 0.0, 50e-6, 0.0)[1] == 50e-6
-    st.sample(stamp(2 + MAX_CATCH_UP + 1), 3e-6, 50e-6, 0.0)
+    assert st.sample(stamp(1), 0.0, 50e-6)[1] == 50e-6
+    st.sample(stamp(2 + MAX_CATCH_UP + 1), 3e-6, 50e-6)
     assert st.traj.value == 50e-6 and st.ctl.pid.e_prev is not None
 
 
@@ -133,10 +154,10 @@ def test_a_late_sample_advances_both_paths_one_period():
     fb = ControllerStep(law(), T, 2e-3)
     fb.setpoint()
     for st in (ff, fb):
-        st.drive(0.0)
+        st.drive()
     for k in (0, 1, 4, 5, 9):                          # samples 2-3 and 6-8 skipped
-        ff.sample(stamp(k), 0.0, 50e-6, 0.0)
-        fb.sample(stamp(k), 0.0, 50e-6, 0.0)
+        answer(ff, k, 0.0, 50e-6)
+        answer(fb, k, 0.0, 50e-6)
         assert fb.traj.value == ff.traj.value
     assert fb.traj.value == pytest.approx(10e-6)       # five samples: five periods
 
@@ -277,10 +298,10 @@ def test_the_compensators_lead_never_predicts_past_the_setpoint():
     from fiber_align.control.feedforward import Feedforward
     ff = Feedforward(gain_v_per_m=1e6, lead=Lead(T, 3 * T, 1e3))
     st = CompensatorStep(ff, T, 2e-3, 0.0)
-    st.drive(0.0)
+    st.drive()
     refs = []
     for k in range(60):
-        st.sample(stamp(k), 0.0, 50e-6, 0.0)
+        answer(st, k, 0.0, 50e-6)
         refs.append(ff.r_shaped)
     assert max(refs) == pytest.approx(50e-6, abs=1e-15) and refs[-1] == 50e-6
     assert refs[10] == pytest.approx(11 * 2e-6 + 3 * T * 2e-3, rel=1e-9)   # mid-ramp: led
@@ -291,9 +312,9 @@ def test_a_streamed_reference_is_led_freely():
     from fiber_align.control.feedforward import Feedforward
     ff = Feedforward(gain_v_per_m=1e6, lead=Lead(T, 3 * T, 1e3))
     st = CompensatorStep(ff, T, 2e-3, 0.4)
-    st.drive(0.0)
+    st.drive()
     speed = 1e-4                                    # m/s: 0.1 um a period
     for k in range(30):
-        st.sample(stamp(k), 0.0, speed * T * (k + 1), 0.0)
+        answer(st, k, 0.0, speed * T * (k + 1))
     assert not st.traj.ramping and st.traj.value == pytest.approx(speed * T * 30, rel=1e-12)
     assert ff.r_shaped == pytest.approx(speed * T * 30 + 3 * T * speed, rel=1e-9)

@@ -120,11 +120,11 @@ def run_realtime_step(target_m=50e-6, n=200, missed_share=0.0, setpoint_one_old=
     for k in range(n):
         r = target_m if k >= 5 else 0.0
         now = k * T
-        ff_step.drive(now)
-        fb_step.drive(now)
-        ff = ff_step.sample(sample_stamp(k), y, r, now)
+        ff_step.drive()
+        fb_step.drive()
+        ff = ff_step.sample(sample_stamp(k), y, r)
         if setpoint_one_old:
-            fb = fb_step.sample(sample_stamp(k), y, r, now)[0]
+            fb = fb_step.sample(sample_stamp(k), y, r)[0]
         else:
             fb = fb_step.step(r, y)[0]
         v = drv.command(ff, fb, now)
@@ -185,11 +185,11 @@ def run_disturbed_step(rate_m_per_s, seed, skip=0.2, missed=0.3, n=200):
     for k in range(n):
         target = 50e-6 if k >= 5 else 0.0
         now = k * T
-        ff_step.drive(now)
-        fb_step.drive(now)
+        ff_step.drive()
+        fb_step.drive()
         if rng.random() >= skip:
-            ff = ff_step.sample(sample_stamp(k), y, target, now)
-        fb = fb_step.sample(sample_stamp(k), y, target, now)[0]
+            ff = ff_step.sample(sample_stamp(k), y, target)
+        fb = fb_step.sample(sample_stamp(k), y, target)[0]
         v = drv.command(ff, fb, now)
         out.append(plant.x)
         y = plant.step(latched)
@@ -250,10 +250,10 @@ def run_flood_with_late_ticks(late_ticks, late_periods, seed, flood_s=2.0, rest_
         k += dac.tick(k, now, now, 0, fresh=False)
         if i >= rest:
             out.append(plant.x)
-        ff_step.drive(now)
-        fb_step.drive(now)
-        ff = ff_step.sample(sample_stamp(k), plant.y_meas, target, now)
-        fb = fb_step.sample(sample_stamp(k), plant.y_meas, target, now)[0]
+        ff_step.drive()
+        fb_step.drive()
+        ff = ff_step.sample(sample_stamp(k), plant.y_meas, target)
+        fb = fb_step.sample(sample_stamp(k), plant.y_meas, target)[0]
         dac.write(drv.command(ff, fb, now))
     return min(out), max(out)
 

@@ -54,6 +54,12 @@ class LoopClock:
     """
     The realtime inputs every loop node tracks: held drive, drive age, latest position.
 
+    The drive's age is counted in the samples this node answered since the newest
+    ``drive_voltage``, not in wall time: the compensator and the controller answer the
+    same samples and hear the same drives, so they judge it alike, and their paths wait
+    or advance together (a wall-clock age read a few microseconds apart split them after
+    a late tick of about :data:`DRIVE_STALE_PERIODS` periods).
+
     :param period_s: control period (s).
     :param rate_m_per_s: rate limit of the setpoint trajectory (m/s; <= 0: none).
     :param accel_m_per_s2: its acceleration limit (m/s^2; <= 0: none).
@@ -64,23 +70,27 @@ class LoopClock:
         self.period_s = float(period_s)
         self.traj = SetpointTrajectory(period_s, rate_m_per_s, accel_m_per_s2)
         self.held = False           # the driver holds its output (``drive_held``)
-        self.t_drive = None         # monotonic s of the newest ``drive_voltage``
+        self.heard = False          # a ``drive_voltage`` was heard
+        self.unanswered = 0         # samples answered since the newest ``drive_voltage``
         self.y_latest = 0.0         # newest measured position (m)
 
-    def drive(self, now):
-        """Note a ``drive_voltage`` arriving at ``now`` (monotonic s)."""
-        self.t_drive = now
+    def drive(self):
+        """Note a ``drive_voltage`` arriving."""
+        self.heard = True
+        self.unanswered = 0
 
-    def drive_stale(self, now, never=True):
+    def drive_stale(self, never=True):
         """
-        Return True when the newest drive is older than :data:`DRIVE_STALE_PERIODS`.
+        Return True when more than :data:`DRIVE_STALE_PERIODS` samples went unanswered.
+
+        Counts the sample being answered (call once per sample, from ``sample``).
 
         :param never: the answer while no drive has been heard yet.
         """
-        t = self.t_drive
-        if t is None:
+        self.unanswered += 1
+        if not self.heard:
             return never
-        return now - t > DRIVE_STALE_PERIODS * self.period_s
+        return self.unanswered > DRIVE_STALE_PERIODS
 
     def present(self):
         """Return the latest measured position (m), finite and at least 0 m."""
@@ -92,10 +102,11 @@ class CompensatorStep(LoopClock):
     The compensator's realtime step: one feedforward (V) per answered sample.
 
     The drive held, or a gap of more than :data:`MAX_CATCH_UP` periods (this node was
-    stalled and may have missed ``drive_held``): rest at the present position. The drive
-    stale for :data:`DRIVE_STALE_PERIODS` (a stalled driver): the last feedforward again
-    and the trajectory waits. Else one trajectory period per answered sample, whatever
-    the gap: a stall delays the move, never jumps it.
+    stalled and may have missed ``drive_held``): rest at the present position. More than
+    :data:`DRIVE_STALE_PERIODS` samples without a drive (a stalled driver): the last
+    feedforward again and the trajectory waits. Else one trajectory period per answered
+    sample, whatever the gap: a stall delays the move, never jumps it. The drive's age is
+    counted in samples (:class:`LoopClock`).
 
     :param ff: the :class:`~fiber_align.control.feedforward.Feedforward` (``step(r)``,
         ``start_at(y)``: V from m); :attr:`ff` may be replaced (a model reload).
@@ -107,21 +118,21 @@ class CompensatorStep(LoopClock):
         self.ff = ff
         self.ff_last = 0.0
 
-    def sample(self, stamp, y, target, now):
+    def sample(self, stamp, y, target):
         """
         Answer one ``displacement`` sample; return the feedforward (V).
 
         :param stamp: its header stamp (counts the sample periods).
         :param y: its position (m) or ``None``.
         :param target: the latest valid setpoint (m).
-        :param now: monotonic s.
         """
         if y is not None:
             self.y_latest = y
         n = self.traj.periods(stamp)
+        stale = self.drive_stale(never=False)
         if self.held or n > MAX_CATCH_UP:
             v = self.rest(self.present())
-        elif self.drive_stale(now, never=False):
+        elif stale:
             v = self.ff_last
         else:
             r = self.traj.advance(target, 1)[0]
@@ -204,15 +215,16 @@ class ControllerStep(LoopClock):
         self.reset()
         return True
 
-    def sample(self, stamp, y, target, now):
+    def sample(self, stamp, y, target):
         """
         Answer one ``displacement`` sample; return ``(fb V, e m, de m/s, gains)``.
 
         :param stamp: its header stamp; :param y: its position (m);
-        :param target: the latest valid setpoint (m); :param now: monotonic s.
+        :param target: the latest valid setpoint (m).
         """
         self.y_latest = y
         n = self.traj.periods(stamp)
+        stale = self.drive_stale()
         if n > MAX_CATCH_UP and self.ctl is not None:
             self.reset()
             n = 1
@@ -220,7 +232,7 @@ class ControllerStep(LoopClock):
             if self.held:
                 self.park()
             return PARKED
-        if self.drive_stale(now):
+        if stale:
             ctl = self.ctl
             return (ctl.u if ctl is not None else 0.0, math.nan, 0.0,
                     getattr(ctl, 'gains', (0.0, 0.0, 0.0)))

@@ -18,9 +18,10 @@ REALTIME_SETPOINT_RATE_M_PER_S = 2e-3
 #: 50 ms at 1 kHz, as long as the driver's default watchdog timeout) cannot know what
 #: the output did meanwhile and restarts at rest at the measured position.
 MAX_CATCH_UP = 50
-#: Realtime: the loop is open while the newest ``drive_voltage`` is older than this many
-#: periods (the driver is stalled): the controller holds its output, and the compensator
-#: and the controller hold the trajectory, so both go on from there when the drive does.
+#: Realtime: the loop is open while more than this many samples went without a
+#: ``drive_voltage`` (the driver is stalled): the controller holds its output, and the
+#: compensator and the controller hold the trajectory, so both go on from there when the
+#: drive does.
 DRIVE_STALE_PERIODS = 3
 
 

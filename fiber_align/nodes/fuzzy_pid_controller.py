@@ -199,8 +199,8 @@ class FuzzyPidControllerNode(Node):
         self.step.set_held(msg.data)
 
     def _on_drive(self, msg):
-        """Realtime: note when the newest drive command arrived (wall time)."""
-        self.step.drive(time.monotonic())
+        """Realtime: note that a drive command arrived (the loop is closed)."""
+        self.step.drive()
 
     def _on_disp(self, msg):
         y = msg.position[0] if len(msg.position) else math.nan
@@ -213,7 +213,7 @@ class FuzzyPidControllerNode(Node):
             return
         st = msg.header.stamp
         self._stamp_ns = stamp_ns(st)
-        self._publish(*self.step.sample(st, y, self.sp.value, time.monotonic()))
+        self._publish(*self.step.sample(st, y, self.sp.value))
 
     def _wire(self):
         """Realtime: True once the driver and compensator are heard (then start parked)."""

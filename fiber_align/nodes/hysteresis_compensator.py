@@ -233,7 +233,7 @@ class HysteresisCompensatorNode(Node):
         """Realtime: step the feedforward (:class:`CompensatorStep`); count the latency."""
         st, cyc = msg.header.stamp, self.health.cycle
         self._publish(self.step.sample(st, msg.position[0] if len(msg.position) else None,
-                                       self.sp.value, time.monotonic()))
+                                       self.sp.value))
         ns = stamp_ns(st)
         cyc.record((time.time_ns() - ns) * 1e-9, cyc.index(ns))
 
@@ -242,8 +242,8 @@ class HysteresisCompensatorNode(Node):
         self.step.held = bool(msg.data)
 
     def _on_drive(self, msg):
-        """Realtime: note when the newest drive command arrived (wall time)."""
-        self.step.drive(time.monotonic())
+        """Realtime: note that a drive command arrived (the loop is closed)."""
+        self.step.drive()
 
     def _on_reset(self, request, response):
         """Restart the feedforward at rest at the present position (m)."""
