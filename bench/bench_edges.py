@@ -11,17 +11,22 @@ outside rclpy client that reads ``displacement`` and, in turn:
   (0.5 s inactive, 1 s active): the lowest and highest displacement;
 - **enable**: five ``~/enable`` false / true of the driver at 60 um: the same.
 
+With ``--stall-ms MS`` the control process is stopped (``SIGSTOP`` / ``SIGCONT``) for
+``MS`` ms every 0.25 s of the flood: the late ticks a busy machine gives, on purpose.
+
 The goal (issue "The loop holds under a user's hands"): at most 2 um beyond the range the
 client commanded (here 0..80 um for the flood, 60 um for the others, whose lowest value is
 where the driver's ramp to 0 V leaves the bimorph).
 
-Usage: ``python -m bench.bench_edges [--runs 3] [--json FILE] [-p NODE:NAME:=VALUE ...]``
+Usage: ``python -m bench.bench_edges [--runs 3] [--stall-ms MS] [--json FILE]
+[-p NODE:NAME:=VALUE ...]``
 (``-p`` is passed to ``bringup``, e.g. ``-p '**:realtime_setpoint_accel_m_per_s2:=0.0'``).
 The caller's ``ROS_DOMAIN_ID`` and discovery settings are used as they are.
 """
 
 import argparse
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -31,6 +36,8 @@ import time
 import numpy as np
 
 FLOOD_S = 10.0
+#: s between two stalls of the control process during the flood (``--stall-ms``)
+STALL_EVERY_S = 0.25
 
 
 def _wait(future, timeout_s=5.0):
@@ -40,11 +47,44 @@ def _wait(future, timeout_s=5.0):
     return future.result() if future.done() else None
 
 
-def one_run(params=(), flood_s=FLOOD_S, cycles=5):
+def _control_pid(graph_pid):
+    """Return the pid of ``bringup``'s ``control_graph`` child, or None."""
+    try:
+        with open('/proc/%d/task/%d/children' % (graph_pid, graph_pid)) as f:
+            kids = [int(x) for x in f.read().split()]
+    except OSError:
+        return None
+    for pid in kids:
+        try:
+            with open('/proc/%d/cmdline' % pid, 'rb') as f:
+                if b'control_graph' in f.read():
+                    return pid
+        except OSError:
+            continue
+    return None
+
+
+def _stall(pid, stall_s, until):
+    """Stop ``pid`` for ``stall_s`` every :data:`STALL_EVERY_S` until ``until``; return n."""
+    n = 0
+    while time.monotonic() + STALL_EVERY_S < until:
+        time.sleep(STALL_EVERY_S)
+        try:
+            os.kill(pid, signal.SIGSTOP)
+            time.sleep(stall_s)
+        finally:
+            os.kill(pid, signal.SIGCONT)
+        n += 1
+    return n
+
+
+def one_run(params=(), flood_s=FLOOD_S, cycles=5, stall_ms=0.0):
     """
     Run the three sequences once on a fresh graph; return ``{name: {min_um, max_um}}``.
 
     :param flood_s: length of the flood (s); :param cycles: lifecycle and enable cycles.
+    :param stall_ms: stop the control process this long (ms) every
+        :data:`STALL_EVERY_S` of the flood (0: never).
     """
     import rclpy
     from lifecycle_msgs.msg import Transition
@@ -99,12 +139,23 @@ def one_run(params=(), flood_s=FLOOD_S, cycles=5):
         setpoint(60e-6)
         time.sleep(1.5)
         t0, k = time.monotonic(), 0
+        stalls = {}
+        if stall_ms > 0:
+            pid = _control_pid(graph.pid)
+            if pid is None:
+                raise RuntimeError('no control_graph process under bringup %d' % graph.pid)
+            stopper = threading.Thread(target=lambda: stalls.update(
+                n=_stall(pid, stall_ms * 1e-3, t0 + flood_s)), daemon=True)
+            stopper.start()
         while time.monotonic() - t0 < flood_s:
             setpoint(0.0 if k % 2 == 0 else 80e-6)
             k += 1
             time.sleep(max(0.0, t0 + k * 1e-3 - time.monotonic()))
         time.sleep(1.0)
-        out['flood'] = dict(span(t0), sent=k, commanded_um=[0.0, 80.0])
+        if stall_ms > 0:
+            stopper.join(5.0)
+        out['flood'] = dict(span(t0), sent=k, commanded_um=[0.0, 80.0],
+                            stalls=stalls.get('n', 0), stall_ms=stall_ms)
         setpoint(60e-6)
         time.sleep(1.0)
         cs = node.create_client(ChangeState, '/actuator_driver/change_state')
@@ -146,10 +197,13 @@ def main(argv=None):
     """Run ``--runs`` graphs one after the other; print a table; return an exit code."""
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     ap.add_argument('--runs', type=int, default=3)
+    ap.add_argument('--stall-ms', type=float, default=0.0,
+                    help='stop the control process this long every %g s of the flood'
+                    % STALL_EVERY_S)
     ap.add_argument('--json', default=None)
     ap.add_argument('-p', dest='params', action='append', default=[])
     a = ap.parse_args(argv if argv is not None else sys.argv[1:])
-    runs = [one_run(a.params) for _ in range(a.runs)]
+    runs = [one_run(a.params, stall_ms=a.stall_ms) for _ in range(a.runs)]
     print('| run | flood min / max (um) | lifecycle max (um) | enable max (um) | worst beyond |')
     print('|---|---|---|---|---|')
     for i, r in enumerate(runs):
