@@ -138,21 +138,22 @@ class PlantClock:
             self.wait_since = time.monotonic()
 
     def _on_tick(self):
-        """Realtime: one tick of the sample clock (:class:`DacClock`)."""
+        """Realtime: one tick of the sample clock (:class:`DacClock`); True while it runs."""
         if not self.running:
             self.dac.writes.clear()
-            return
+            return False
         until = self.timer.time_until_next_call()
         now = time.perf_counter()
         # scheduled time of this tick: the timer's next call minus one period
         sched = now + (until * 1e-9 if until is not None else 0.0) - self.period_s
         steps = self.dac.tick(self.k, now, sched, time.time_ns(), self.n_disp == 0)
         if steps is None:
-            return
+            return True
         self.k += steps
         self.drive_seen = False
         self.t_pub = time.perf_counter()
         self._publish_sample(0.0)
+        return True
 
     def reset_stats(self, warmup=WARMUP_SAMPLES):
         """Restart the realtime statistics ``warmup`` samples from now (0: at once)."""

@@ -125,7 +125,7 @@ class ActuatorDriverNode(DriverParameters, DeviceBackend, DriverLoop, LifecycleN
         self._srv = self.create_service(SetBool, '~/enable', self._on_enable)
         if not self.lockstep:
             self._timer = sample_timer(self, self.bus, self.watchdog_period_s(), self._on_tick,
-                                       Clock(clock_type=ClockType.STEADY_TIME))
+                                       Clock(clock_type=ClockType.STEADY_TIME), watchdog=True)
             self.health.cycle = CycleStats(1.0 / self.period_s)     # feedforward to drive
         self.health.resolve()                           # a refusal before this is over
         self.health.status(OK, 'configured (inactive): output %g V' % self.core.v)

@@ -177,7 +177,9 @@ class SampleTimer:
     once a period instead of once per plant. The drivers' watchdogs of the process tick
     from it too, after the plants (each executor wake-up and callback costs tens of
     microseconds, and four watchdog timers of their own woke the thread four more times
-    a period, between the plants' ticks).
+    a period, between the plants' ticks). A watchdog pauses while every plant of the
+    process is held (``~/run`` false: the simulated world stopped, so no input is late);
+    a plant's callback returns True while its clock runs.
     """
 
     def __init__(self, node, period_s, clock, slack=None):
@@ -188,6 +190,7 @@ class SampleTimer:
             housekeeping runs after the whole tick, every sample clock answered.
         """
         self.callbacks = []
+        self.watchdogs = set()      # callbacks that pause while every plant is held
         self.slack = slack
         self.timer = node.create_timer(period_s, self._tick, clock=clock)
 
@@ -196,13 +199,20 @@ class SampleTimer:
         if slack is not None and len(self.callbacks) > 1:
             slack.in_tick = True
             try:
-                for cb in self.callbacks:
-                    cb()
+                self._run()
             finally:
                 slack.end_tick()
             return
+        self._run()
+
+    def _run(self):
+        ran = None                  # a plant's clock ran this tick (None: no plant)
+        watchdogs = self.watchdogs
         for cb in self.callbacks:
-            cb()
+            if cb not in watchdogs:
+                ran = bool(cb()) or bool(ran)
+            elif ran is not False:
+                cb()
 
     def time_until_next_call(self):
         """Return the time (ns) until the next tick, as rclpy's ``Timer``."""
@@ -212,14 +222,18 @@ class SampleTimer:
         """Tick ``callback`` no more (a driver cleaned up)."""
         if callback in self.callbacks:
             self.callbacks.remove(callback)
+        self.watchdogs.discard(callback)
 
 
-def sample_timer(node, bus, period_s, callback, clock):
+def sample_timer(node, bus, period_s, callback, clock, watchdog=False):
     """
     Return the timer of a realtime sample clock calling ``callback`` every ``period_s``.
 
     Composed (``bus`` given): the process's :class:`SampleTimer` of that period, shared
     with the other sample clocks of the process; else a timer of ``node`` of its own.
+
+    :param watchdog: ``callback`` is a driver's watchdog: composed, it pauses while every
+        plant of the process is held.
     """
     if bus is None:
         return node.create_timer(period_s, callback, clock=clock)
@@ -227,6 +241,8 @@ def sample_timer(node, bus, period_s, callback, clock):
     if shared is None:
         shared = bus.timers[period_s] = SampleTimer(node, period_s, clock, bus.slack)
     shared.callbacks.append(callback)
+    if watchdog:
+        shared.watchdogs.add(callback)
     return shared
 
 
