@@ -109,7 +109,7 @@ def test_pure_core_faults_and_api():
     assert isinstance(sp, tuple) and len(sp) == 2 and sp == (0.0, 0.0)
     assert seq.switch(True)[0] is False                 # nothing aligned yet
     assert seq.align()[0] and seq.state == s2d.SEARCHING
-    for k in range(1, 30):                              # a reading that never changes
+    for k in range(1, int(seq.p['floor_samples']) + 5):  # a reading that never changes
         seq.update(k * 1e-3, 0.0, 0.0, 1e-10)
     assert seq.state == s2d.FAULT and 'stuck' in seq.fault_reason
     seq.release()
