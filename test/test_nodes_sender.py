@@ -231,3 +231,69 @@ def test_a_durable_writer_without_readers_sends_its_newest_once_per_refresh(node
         assert s.published - before >= 100
     finally:
         s.stop()
+
+
+def _rosout_reader(node):
+    from rcl_interfaces.msg import Log
+    from rclpy.qos import QoSDurabilityPolicy, QoSProfile
+    got = []
+    node.create_subscription(Log, '/rosout', got.append, QoSProfile(
+        depth=100, durability=QoSDurabilityPolicy.TRANSIENT_LOCAL))
+    return got
+
+
+def test_log_lines_go_through_the_thread_to_rosout_with_the_callers_place(node):
+    """A queued line reaches /rosout with its level, the node's name and where it was written."""
+    from fiber_align.nodes.ros.sender import QueuedLogger, Sender
+    got = _rosout_reader(node)
+    s = Sender()
+    assert s.start()
+    s.queue_logs(node)
+    assert isinstance(node.get_logger(), QueuedLogger)
+    try:
+        for i in range(3):
+            node.get_logger().warn('queued %d' % i)
+        node.get_logger().debug('below the level: not written')
+        mine = lambda: [m for m in got if m.msg.startswith('queued')]  # noqa: E731
+        assert _spin_until(node, lambda: len(mine()) == 3, 10.0)
+    finally:
+        assert s.stop() == 0
+    assert [m.msg for m in mine()] == ['queued 0', 'queued 1', 'queued 2']
+    m = mine()[0]
+    assert m.level == 30 and m.name == 'sender_test'
+    assert m.function == ('test_log_lines_go_through_the_thread_to_rosout_with_the_callers'
+                          '_place') and m.file.endswith('test_nodes_sender.py')
+    with open(__file__, encoding='utf-8') as f:
+        src = f.read().splitlines()
+    assert m.line == next(i + 1 for i, t in enumerate(src) if "warn('queued %d'" in t)
+    assert s.logged == 3 and not any('below the level' in m.msg for m in got)
+    node.get_logger().info('after the stop')      # the sender stopped: at once, by rclpy
+    assert _spin_until(node, lambda: any(m.msg == 'after the stop' for m in got), 10.0)
+    assert s.logged == 3
+
+
+def test_a_log_line_that_waits_in_dds_does_not_hold_up_the_loop(node):
+    """rcutils_log (console and /rosout) waiting 0.3 s on the thread: the loop runs on."""
+    from fiber_align.nodes.ros.sender import Sender
+    libc = ctypes.CDLL(None)
+    s = Sender()
+    assert s.start()
+    real = s._rcl.log
+    calls = []
+
+    def slow_log(*args):
+        if not calls:
+            libc.usleep(300000)
+        calls.append(1)
+        return real(*args)
+    s._rcl.log = slow_log
+    s.queue_logs(node)
+    try:
+        t0 = time.monotonic()
+        for i in range(20):
+            node.get_logger().info('line %d' % i)
+        took = time.monotonic() - t0
+    finally:
+        assert s.stop() == 0
+    assert took < 0.1, took
+    assert len(calls) == 20

@@ -155,9 +155,13 @@ def main(args=None):
         realtime = is_realtime(nodes)
         # realtime: the DDS publishes leave the control thread (ros/sender.py); lockstep
         # has no deadline and keeps them on the executor's thread
-        if realtime and publish_thread(nodes) and not bus.sender.start():
-            nodes[0].get_logger().warn('DDS publishes stay on the control thread: %s'
-                                       % bus.sender.error)
+        if realtime and publish_thread(nodes):
+            if bus.sender.start():
+                for n in nodes:         # their log lines too (/rosout is a DDS publish)
+                    bus.sender.queue_logs(n)
+            else:
+                nodes[0].get_logger().warn('DDS publishes stay on the control thread: %s'
+                                           % bus.sender.error)
         c.spin(nodes, realtime=realtime, priority=c.node_priority(nodes), stop=stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -14,10 +14,15 @@ of the call, so a publish that waits holds up nobody but that thread. (Not
 ``rcl_publish_serialized_message`` of ``serialize_message``'s bytes: those carry the
 middleware's size estimate, 4 bytes too long for a JointState, which strict CDR readers
 such as rosbags refuse.)
+
+A node's log lines take the same way (:class:`QueuedLogger`): rcl's ``/rosout`` handler
+publishes each line to DDS inside ``rcutils_log``, under the GIL when rclpy calls it;
+the sender thread calls ``rcutils_log`` by ``ctypes`` instead, in the FIFO's order.
 """
 
 import collections
 import ctypes
+import sys
 import threading
 import time
 
@@ -42,6 +47,76 @@ class _Rcl:
         self.reset_error = ut.rcutils_reset_error
         self.reset_error.argtypes = []
         self.reset_error.restype = None
+        self.log = ut.rcutils_log       # (location, severity, name, format, ...)
+        self.log.restype = None
+
+
+class _Location(ctypes.Structure):
+    """``rcutils_log_location_t``: where a log line was written."""
+
+    _fields_ = [('function_name', ctypes.c_char_p), ('file_name', ctypes.c_char_p),
+                ('line_number', ctypes.c_size_t)]
+
+
+def _c_text(text):
+    return str(text).encode('utf-8', 'replace')
+
+
+class QueuedLogger:
+    """
+    A node's rclpy logger whose lines the :class:`Sender` thread writes, in its order.
+
+    The severity check and the caller's function, file and line are taken here (the
+    control thread); ``rcutils_log`` (console and ``/rosout``) runs on the sender thread
+    without the GIL. While the sender does not run, or for the ``once`` / ``throttle``
+    keywords, the line goes to rclpy's logger at once. Everything else is rclpy's.
+    """
+
+    def __init__(self, logger, sender):
+        """Wrap ``logger`` (an rclpy ``RcutilsLogger``) for ``sender``."""
+        self._logger = logger
+        self._sender = sender
+
+    def __getattr__(self, name):
+        """Return the wrapped logger's attribute (name, levels, children)."""
+        return getattr(self._logger, name)
+
+    def _log(self, message, severity, kwargs):
+        s = self._sender
+        if kwargs or not s.running:
+            return self._logger.log(message, severity, **kwargs)
+        if not self._logger.is_enabled_for(severity):
+            return False
+        f = sys._getframe(2)
+        s.put_log(int(severity), self._logger.name, message, f.f_code.co_name,
+                  f.f_code.co_filename, f.f_lineno)
+        return True
+
+    def log(self, message, severity, **kwargs):
+        """Log ``message`` at ``severity`` (rclpy's ``LoggingSeverity``)."""
+        return self._log(message, severity, kwargs)
+
+    def debug(self, message, **kwargs):
+        """Log ``message`` at DEBUG."""
+        return self._log(message, 10, kwargs)
+
+    def info(self, message, **kwargs):
+        """Log ``message`` at INFO."""
+        return self._log(message, 20, kwargs)
+
+    def warning(self, message, **kwargs):
+        """Log ``message`` at WARN."""
+        return self._log(message, 30, kwargs)
+
+    warn = warning
+
+    def error(self, message, **kwargs):
+        """Log ``message`` at ERROR."""
+        return self._log(message, 40, kwargs)
+
+    def fatal(self, message, **kwargs):
+        """Log ``message`` at FATAL."""
+        return self._log(message, 50, kwargs)
 
 
 class MessageType:
@@ -149,7 +224,13 @@ class Sender:
         self.failed = 0
         self.dropped = 0
         self.backlog_max = 0
+        self.logged = 0
         self.error = ''
+
+    def queue_logs(self, node):
+        """Let the sender thread write ``node``'s log lines (:class:`QueuedLogger`)."""
+        if not isinstance(node._logger, QueuedLogger):
+            node._logger = QueuedLogger(node._logger, self)
 
     def writer(self, pub, volatile):
         """Return the :class:`Writer` of rclpy publisher ``pub`` on this sender."""
@@ -218,13 +299,22 @@ class Sender:
         if not self._thread.is_alive():
             while self._q:
                 w, msg = self._q.popleft()
-                w.ctype.destroy(msg)
+                if w is not None:
+                    w.ctype.destroy(msg)
         return left
 
     def put(self, writer, msg):
         """Convert ``msg`` for ``writer`` and queue it (the control thread's side)."""
+        self._queue(writer, writer.ctype.to_c(msg))
+
+    def put_log(self, severity, name, message, function, file, line):
+        """Queue a log line: severity (rcutils), logger name, text, caller's place."""
+        self._queue(None, (int(severity), _c_text(name), _c_text(message),
+                           _c_text(function), _c_text(file), int(line)))
+
+    def _queue(self, writer, item):
         q = self._q
-        q.append((writer, writer.ctype.to_c(msg)))
+        q.append((writer, item))
         n = len(q)
         if n > self.backlog_max:
             self.backlog_max = n
@@ -234,7 +324,8 @@ class Sender:
             except IndexError:       # the thread took it meanwhile
                 pass
             else:
-                w.ctype.destroy(ptr)
+                if w is not None:
+                    w.ctype.destroy(ptr)
                 self.dropped += 1
         if not self._wake.is_set():
             self._wake.set()
@@ -267,6 +358,12 @@ class Sender:
         return {'sender.published': self.published, 'sender.dropped': self.dropped,
                 'sender.failed': self.failed, 'sender.backlog_max': self.backlog_max}
 
+    def _write_log(self, severity, name, message, function, file, line):
+        loc = _Location(function, file, line)
+        self._rcl.log(ctypes.byref(loc), ctypes.c_int(severity), ctypes.c_char_p(name),
+                      ctypes.c_char_p(b'%s'), ctypes.c_char_p(message))
+        self.logged += 1
+
     def _refresh(self):
         n = ctypes.c_size_t()
         with self._lock:
@@ -282,6 +379,9 @@ class Sender:
             wake.clear()
             while q:
                 w, msg = q.popleft()
+                if w is None:
+                    self._write_log(*msg)
+                    continue
                 with lock:
                     if w.ptr is None:
                         self.dropped += 1
