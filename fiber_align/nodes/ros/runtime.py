@@ -233,9 +233,10 @@ def finish(nodes, stop=None, limit_s=None):
 
 
 #: s: the longest a node process's teardown (nodes, contexts, DDS participants) may take
-#: once its reports are out and its files closed; under bringup's and launch's stop
-#: timeouts (about 5 s), so the process ends itself first
-TEARDOWN_S = 3.0
+#: once its reports are out and its files closed: a node whose launcher was killed is
+#: gone within 2 s (the lifeline's notice, the close, this), and well under bringup's and
+#: launch's stop timeouts (about 5 s), so the process ends itself first
+TEARDOWN_S = 1.0
 
 
 def teardown_guard(limit_s, stop=None):
