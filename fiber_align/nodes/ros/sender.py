@@ -26,6 +26,8 @@ import sys
 import threading
 import time
 
+from rclpy.logging import LoggingSeverity
+
 
 class _Rcl:
     """The rcl calls of the sender thread, bound from the librcl rclpy loaded."""
@@ -98,25 +100,25 @@ class QueuedLogger:
 
     def debug(self, message, **kwargs):
         """Log ``message`` at DEBUG."""
-        return self._log(message, 10, kwargs)
+        return self._log(message, LoggingSeverity.DEBUG, kwargs)
 
     def info(self, message, **kwargs):
         """Log ``message`` at INFO."""
-        return self._log(message, 20, kwargs)
+        return self._log(message, LoggingSeverity.INFO, kwargs)
 
     def warning(self, message, **kwargs):
         """Log ``message`` at WARN."""
-        return self._log(message, 30, kwargs)
+        return self._log(message, LoggingSeverity.WARN, kwargs)
 
     warn = warning
 
     def error(self, message, **kwargs):
         """Log ``message`` at ERROR."""
-        return self._log(message, 40, kwargs)
+        return self._log(message, LoggingSeverity.ERROR, kwargs)
 
     def fatal(self, message, **kwargs):
         """Log ``message`` at FATAL."""
-        return self._log(message, 50, kwargs)
+        return self._log(message, LoggingSeverity.FATAL, kwargs)
 
 
 class MessageType:
