@@ -196,3 +196,46 @@ def test_power_meter_with_resource_only_reads_the_resource_given(files, tmp_path
             procs.stop(proc)
         stop_process(emu)
     assert proc.returncode == 0, log_of('power_meter', tmp_path)
+
+
+def test_driver_whose_launcher_died_ramps_to_0_v_and_exits_0(tmp_path):
+    """
+    The launcher gone (its output pipe without a reader), SIGTERM: ramped to 0 V, exit 0.
+
+    ``ros2 launch`` reads its processes' output through pipes; killed with SIGKILL, it
+    leaves them without a reader. The driver's exit report then meets a broken pipe: the
+    stop must still ramp the amplifier to its safe voltage and end in order.
+    """
+    with emulated(seed=0) as (_, mdt, _pm):
+        err = open(tmp_path / 'stderr.log', 'w')
+        proc = subprocess.Popen(
+            [sys.executable, '-m', 'fiber_align.nodes.actuator_driver', '--ros-args',
+             '-p', 'backend:=mdt693b', '-p', 'port:=%s' % mdt.port],
+            stdout=subprocess.PIPE, stderr=err, start_new_session=True)
+        err.close()
+        probe = None
+        try:
+            probe = Probe()
+            n = probe.node
+            ff = n.create_publisher(Float64, '/feedforward_voltage', PUB_QOS)
+            fb = n.create_publisher(Float64, '/feedback_voltage', PUB_QOS)
+            change = n.create_client(ChangeState, '/actuator_driver/change_state')
+            assert transition(probe, change, 1), (tmp_path / 'stderr.log').read_text()
+            assert transition(probe, change, 3)
+            t0 = time.monotonic()
+
+            def at_30_v():
+                ff.publish(Float64(data=30.0))
+                fb.publish(Float64(data=0.0))
+                sent = [v for t, ch, _, v in list(mdt.command_log) if t > t0 and ch == 'x']
+                return sent and abs(sent[-1] - 30.0) < 1e-6
+            assert probe.until(at_30_v, 10.0), mdt.command_log[-5:]
+            proc.stdout.close()                 # the launcher and its pipe are gone
+            proc.terminate()
+            assert proc.wait(timeout=BOUND_S) == 0, (tmp_path / 'stderr.log').read_text()
+        finally:
+            if probe is not None:
+                probe.close()
+            procs.stop(proc)
+        assert abs(mdt.command_log[-1][3]) < 1e-9, mdt.command_log[-5:]
+        assert 'Traceback' not in (tmp_path / 'stderr.log').read_text()

@@ -89,6 +89,48 @@ def test_a_teardown_that_hangs_ends_the_process_with_its_code(how, code):
         in out.stderr
 
 
+#: A node process whose launcher was killed: its output pipes have no reader; its exit
+#: report and the teardown guard's line meet a broken pipe.
+READER_GONE = textwrap.dedent('''
+    import signal, sys, threading
+    from fiber_align.nodes.ros.runtime import StopFlag, finish
+
+    class Node:
+        context = None
+
+        def get_fully_qualified_name(self):
+            return '/node'
+
+        def sent_counts(self):
+            return {'/topic': 1}
+
+        def close(self):
+            with open(sys.argv[1], 'w') as f:
+                f.write('closed')
+
+        def destroy_node(self):
+            threading.Event().wait()        # never returns
+
+    stop = StopFlag()
+    stop.note(signal.SIGTERM)
+    finish([Node()], stop, limit_s=0.5)
+''')
+
+
+def test_a_stop_whose_output_has_no_reader_closes_the_nodes_and_exits_0(tmp_path):
+    closed = tmp_path / 'closed'
+    proc = subprocess.Popen([sys.executable, '-c', READER_GONE, str(closed)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()
+    proc.stderr.close()
+    try:
+        assert proc.wait(timeout=30) == 0
+    finally:
+        proc.kill()
+        proc.wait()
+    assert closed.read_text() == 'closed'
+
+
 #: What a realtime process does for the first time inside a control period: a
 #: ``/diagnostics`` report's percentiles and the in-process recorder's first CDR.
 FIRST_USE = textwrap.dedent('''

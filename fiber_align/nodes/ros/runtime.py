@@ -8,6 +8,7 @@ Every executable's ``main()`` is :func:`run_node`, the demo_nodes_py idiom (:fun
 
 import faulthandler
 import json
+import os
 import signal
 import sys
 
@@ -29,8 +30,32 @@ SENT_PREFIX = 'FIBER_ALIGN_SENT '
 
 def report_sent(node, counts):
     """Print the exit report: ``counts`` (topic -> messages published), one JSON line."""
-    print(SENT_PREFIX + json.dumps({'node': node.get_fully_qualified_name(),
-                                    'sent': dict(counts)}), flush=True)
+    say(SENT_PREFIX + json.dumps({'node': node.get_fully_qualified_name(),
+                                  'sent': dict(counts)}))
+
+
+def say(line, stream=None):
+    """
+    Write one line to ``stream`` (``sys.stdout``); a reader that is gone ends nothing.
+
+    A launcher killed with SIGKILL leaves its children's output pipes without a reader:
+    a write raises ``BrokenPipeError``, which would end the stop before the nodes are
+    closed (a driver's device left at its voltage). The stream is pointed at
+    ``/dev/null`` instead, so the interpreter's own flush at exit cannot fail either.
+    Return True if the line was written.
+    """
+    stream = sys.stdout if stream is None else stream
+    try:
+        print(line, file=stream, flush=True)
+        return True
+    except (OSError, ValueError):       # EPIPE, EIO of a closed terminal, a closed file
+        try:
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, stream.fileno())
+            os.close(null)
+        except (OSError, ValueError):
+            pass
+        return False
 
 
 def make_executor(realtime=False, threads=1):
@@ -182,7 +207,7 @@ def init(args=None):
 
 def refuse(name, exc):
     """Print one line for a node that cannot start (bad input); return exit code 2."""
-    print('%s: error: %s' % (name, exc), file=sys.stderr, flush=True)
+    say('%s: error: %s' % (name, exc), sys.stderr)
     return 2
 
 
@@ -248,14 +273,15 @@ def teardown_guard(limit_s, stop=None):
     prints one line naming the stall and exits with the process's code (:func:`exit_code`
     of ``stop``), without the interpreter's exit. Cancel it when the teardown ended.
     """
-    import os
     import threading
 
     def abandon():
         code = stop.exit_code(0) if stop is not None else 0
-        print('teardown: the middleware did not end within %g s; exiting %d without it'
-              % (limit_s, code), file=sys.stderr, flush=True)
-        os._exit(code)
+        try:
+            say('teardown: the middleware did not end within %g s; exiting %d without it'
+                % (limit_s, code), sys.stderr)
+        finally:
+            os._exit(code)
     timer = threading.Timer(float(limit_s), abandon)
     timer.daemon = True
     timer.start()
