@@ -106,3 +106,39 @@ def test_without_a_running_cycle_the_check_runs_at_once():
     health._report()
     assert node.lookups == ['*', '/t7']
     assert '/outsider' in node.published[-1].status[0].message
+
+
+class FakeSender:
+    """A running sender: the process's graph listing, made on its own thread."""
+
+    running = True
+
+    def __init__(self, graph):
+        self.graph, self.watched = graph, []
+
+    def writer(self, pub, volatile):
+        return pub
+
+    def watch_graph(self, node, period_s):
+        self.watched.append(period_s)
+
+    def graph_topics(self):
+        return self.graph
+
+    def stats(self):
+        return {}
+
+
+def test_with_a_sender_the_listing_is_the_processs_not_a_query_on_the_control_thread():
+    node = _node()
+    sender = FakeSender(node.graph)
+    slack = _running_slack()
+    health = Health(node, period_s=0.5, slack=slack, sender=sender)
+    assert sender.watched == [0.5 * Health.ENDPOINT_EVERY]
+    health._report()
+    for _ in range(6):
+        slack.after_cycle()
+    assert node.lookups == ['/t3']          # no listing of its own: the sender's
+    health.publish()
+    assert '/t3: /outsider publishes std_msgs/msg/String' in \
+        node.published[-1].status[0].message

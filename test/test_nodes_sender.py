@@ -297,3 +297,26 @@ def test_a_log_line_that_waits_in_dds_does_not_hold_up_the_loop(node):
         assert s.stop() == 0
     assert took < 0.1, took
     assert len(calls) == 20
+
+
+def test_the_threads_graph_listing_is_rclpys(node):
+    from std_msgs.msg import Float64, String
+
+    from fiber_align.nodes.ros.sender import Sender
+    node.create_publisher(Float64, '/listed_a', 10)
+    node.create_publisher(String, '/listed_b', 10)
+    sender = Sender()
+    sender.watch_graph(node, 0.05)
+    assert sender.start(), sender.error
+    try:
+        def same():
+            got = sender.graph_topics()
+            return got is not None and '/listed_b' in dict(got) and \
+                sorted(got) == sorted(node.get_topic_names_and_types())
+        assert _spin_until(node, same, 5.0), (sender.graph_topics(),
+                                              node.get_topic_names_and_types())
+        n = sender.graph_listings
+        assert _spin_until(node, lambda: sender.graph_listings >= n + 2, 2.0)
+    finally:
+        sender.stop()
+    assert sender.graph_topics() is None        # stopped: no listing of a node gone

@@ -68,6 +68,8 @@ class Health:
         self._check = None      # a check under way: (expected types, topics left, found)
         self._timer = node.create_timer(float(period_s), self._report,
                                         clock=Clock(clock_type=ClockType.STEADY_TIME))
+        if sender is not None:      # the listing of the check, off the control thread
+            sender.watch_graph(node, float(period_s) * self.ENDPOINT_EVERY)
 
     def status(self, level, message):
         """
@@ -140,10 +142,21 @@ class Health:
         return self._judge(expected, pubs)
 
     def _suspects(self):
-        """Return the node's ``{topic: type}`` and the topics carrying another type."""
+        """
+        Return the node's ``{topic: type}`` and the topics carrying another type.
+
+        While the process's sender thread runs, the graph's listing is the one it made
+        for the whole process (none yet: nothing to look up this time); else this node
+        lists the graph itself.
+        """
         node = self._node
         expected = {s.topic_name: type_name(s.msg_type) for s in node.subscriptions}
-        return expected, suspect_topics(expected, node.get_topic_names_and_types())
+        sender = self._sender
+        if sender is not None and sender.running:
+            listing = sender.graph_topics() or ()
+        else:
+            listing = node.get_topic_names_and_types()
+        return expected, suspect_topics(expected, listing)
 
     def _publishers(self, topic):
         return [(endpoint_node_name(i), i.topic_type)

@@ -18,6 +18,12 @@ such as rosbags refuse.)
 A node's log lines take the same way (:class:`QueuedLogger`): rcl's ``/rosout`` handler
 publishes each line to DDS inside ``rcutils_log``, under the GIL when rclpy calls it;
 the sender thread calls ``rcutils_log`` by ``ctypes`` instead, in the FIFO's order.
+
+The process's listing of the graph's topics (each node's ``/diagnostics`` check for
+publishers of a wrong type) is the sender thread's too (:meth:`Sender.watch_graph`): one
+``rcl_get_topic_names_and_types`` per period for all the nodes of the process, without
+the GIL, instead of one per node on the control thread (a listing takes up to a
+millisecond or two on a busy graph, and rclpy's holds the GIL for it).
 """
 
 import collections
@@ -51,6 +57,56 @@ class _Rcl:
         self.reset_error.restype = None
         self.log = ut.rcutils_log       # (location, severity, name, format, ...)
         self.log.restype = None
+        self.topics = lib.rcl_get_topic_names_and_types
+        self.topics.argtypes = [ctypes.c_void_p, ctypes.POINTER(_Allocator), ctypes.c_bool,
+                                ctypes.POINTER(_NamesAndTypes)]
+        self.topics.restype = ctypes.c_int
+        self.topics_fini = lib.rcl_names_and_types_fini
+        self.topics_fini.argtypes = [ctypes.POINTER(_NamesAndTypes)]
+        self.topics_fini.restype = ctypes.c_int
+        default_allocator = ut.rcutils_get_default_allocator
+        default_allocator.argtypes = []
+        default_allocator.restype = _Allocator
+        self.allocator = default_allocator()
+
+    def topic_names_and_types(self, node_ptr):
+        """
+        Return the graph's ``[(topic, [type, ...]), ...]`` as seen by an rcl node.
+
+        rclpy's ``get_topic_names_and_types`` (the same rcl call); ``None`` if it failed.
+        """
+        nat = _NamesAndTypes()
+        if self.topics(node_ptr, ctypes.byref(self.allocator), False, ctypes.byref(nat)):
+            self.reset_error()
+            return None
+        try:
+            return [(nat.names.data[i].decode(),
+                     [nat.types[i].data[k].decode() for k in range(nat.types[i].size)])
+                    for i in range(nat.names.size)]
+        finally:
+            if self.topics_fini(ctypes.byref(nat)):
+                self.reset_error()
+
+
+class _Allocator(ctypes.Structure):
+    """``rcutils_allocator_t``."""
+
+    _fields_ = [('allocate', ctypes.c_void_p), ('deallocate', ctypes.c_void_p),
+                ('reallocate', ctypes.c_void_p), ('zero_allocate', ctypes.c_void_p),
+                ('state', ctypes.c_void_p)]
+
+
+class _StringArray(ctypes.Structure):
+    """``rcutils_string_array_t``."""
+
+    _fields_ = [('size', ctypes.c_size_t), ('data', ctypes.POINTER(ctypes.c_char_p)),
+                ('allocator', _Allocator)]
+
+
+class _NamesAndTypes(ctypes.Structure):
+    """``rcl_names_and_types_t`` (zero-initialised as ctypes makes it)."""
+
+    _fields_ = [('names', _StringArray), ('types', ctypes.POINTER(_StringArray))]
 
 
 class _Location(ctypes.Structure):
@@ -228,6 +284,30 @@ class Sender:
         self.backlog_max = 0
         self.logged = 0
         self.error = ''
+        self._graph_ptr = None      # the rcl node the graph is listed through
+        self.graph_period_s = None  # s between listings (None: nobody asked)
+        self._graph = None          # (monotonic s, [(topic, [type, ...]), ...])
+        self.graph_listings = 0
+
+    def watch_graph(self, node, period_s):
+        """
+        List the graph's topics every ``period_s`` (s) on the sender thread.
+
+        One listing serves every node of the process (they share one DDS participant,
+        so one graph); the shortest period asked for wins. Read it with
+        :meth:`graph_topics`.
+        """
+        with self._lock:
+            if self._graph_ptr is None:
+                self._graph_ptr = node.handle.pointer
+            period_s = float(period_s)
+            if self.graph_period_s is None or period_s < self.graph_period_s:
+                self.graph_period_s = period_s
+
+    def graph_topics(self):
+        """Return the newest listing ``[(topic, [type, ...]), ...]``; ``None``: none yet."""
+        g = self._graph
+        return None if g is None else g[1]
 
     def queue_logs(self, node):
         """Let the sender thread write ``node``'s log lines (:class:`QueuedLogger`)."""
@@ -289,6 +369,7 @@ class Sender:
         self._wake.set()
         self._thread.join(timeout_s)
         self.running = False
+        self._graph = None
         # a thread still inside a publish: wait for it (bounded) and detach every writer,
         # so the publishers can be destroyed under it
         if self._lock.acquire(timeout=timeout_s):
@@ -296,6 +377,7 @@ class Sender:
                 w.ptr = None
                 self._drop_pending(w)
             self._writers = []
+            self._graph_ptr = None
             self._lock.release()
         left = len(self._q)
         if not self._thread.is_alive():
@@ -373,9 +455,18 @@ class Sender:
                 if self._rcl.count(w.ptr, ctypes.byref(n)) == 0:
                     w.readers = n.value
 
+    def _list_graph(self):
+        with self._lock:
+            if self._graph_ptr is None:
+                return
+            listing = self._rcl.topic_names_and_types(self._graph_ptr)
+        if listing is not None:
+            self._graph = (time.monotonic(), listing)
+            self.graph_listings += 1
+
     def _run(self):
         q, wake, rcl, lock = self._q, self._wake, self._rcl, self._lock
-        t_refresh = time.monotonic()
+        t_refresh, t_graph = time.monotonic(), None
         while True:
             wake.wait(self.refresh_s)
             wake.clear()
@@ -398,5 +489,9 @@ class Sender:
                 t_refresh = now
                 self._refresh()
                 self._take_pending()
+            if self.graph_period_s is not None and (t_graph is None or now - t_graph
+                                                    >= self.graph_period_s):
+                t_graph = now
+                self._list_graph()
             if self._stopping and not q:
                 return
