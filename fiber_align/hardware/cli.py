@@ -147,7 +147,10 @@ def _run(args):
                 time.sleep(0.2)
             stats = dict(stopped=True, mdt693b_commands=mdt.commands,
                          voltage_commands=len(mdt.command_log), pm100_readings=pm.readings)
-            print(json.dumps(stats), file=sys.stderr, flush=True)
+            try:
+                print(json.dumps(stats), file=sys.stderr, flush=True)
+            except OSError:     # a launcher killed with SIGKILL took the reader along
+                pass
     finally:
         for s, h in old.items():
             signal.signal(s, h)
