@@ -4,6 +4,7 @@
 import subprocess
 import sys
 import textwrap
+import time
 
 import pytest
 
@@ -65,6 +66,9 @@ HANGING = textwrap.dedent('''
             print('closed', flush=True)
 
         def destroy_node(self):
+            if sys.argv[1] == 'gil':        # waits in C holding the GIL, as rclpy's does
+                import ctypes
+                ctypes.PyDLL(None).sleep(20)
             threading.Event().wait()        # never returns
 
     stop = StopFlag()
@@ -129,6 +133,18 @@ def test_a_stop_whose_output_has_no_reader_closes_the_nodes_and_exits_0(tmp_path
         proc.kill()
         proc.wait()
     assert closed.read_text() == 'closed'
+
+
+def test_a_teardown_that_hangs_holding_the_gil_still_ends_the_process():
+    """The timer thread cannot run then; the C backstop ends it, with every stack."""
+    t0 = time.monotonic()
+    out = subprocess.run([sys.executable, '-c', HANGING, 'gil'], capture_output=True,
+                         text=True, timeout=10)
+    took = time.monotonic() - t0
+    assert out.returncode == 1, (out.stdout, out.stderr)
+    assert out.stdout.splitlines() == ['closed']
+    assert 'destroy_node' in out.stderr, out.stderr      # where it hung, for the log
+    assert took < 5.0, took
 
 
 #: What a realtime process does for the first time inside a control period: a

@@ -266,26 +266,52 @@ TEARDOWN_S = 1.0
 
 def teardown_guard(limit_s, stop=None):
     """
-    Return a started timer that ends the process if the teardown outlasts ``limit_s``.
+    Return a started guard that ends the process if the teardown outlasts ``limit_s``.
 
     rcl's node teardown (``destroy_when_not_in_use``, the DDS participant's) has been
-    seen to wait for seconds; the process has nothing left to save then. The timer
+    seen to wait for seconds; the process has nothing left to save then. A timer thread
     prints one line naming the stall and exits with the process's code (:func:`exit_code`
-    of ``stop``), without the interpreter's exit. Cancel it when the teardown ended.
+    of ``stop``), without the interpreter's exit. A teardown that waits while it holds
+    the GIL (rclpy's ``destroy_node`` does) stops that thread too; for that case
+    ``faulthandler``'s watchdog, a C thread that needs no GIL, ends the process
+    :data:`BACKSTOP_S` later with every thread's stack and exit code 1. Cancel the guard
+    (:meth:`TeardownGuard.cancel`) when the teardown ended.
     """
-    import threading
+    return TeardownGuard(limit_s, stop)
 
-    def abandon():
-        code = stop.exit_code(0) if stop is not None else 0
+
+#: s: after the teardown guard's bound, the GIL-free backstop's (:func:`teardown_guard`)
+BACKSTOP_S = 0.3
+
+
+class TeardownGuard:
+    """The two exits of :func:`teardown_guard`: its timer thread and the C backstop."""
+
+    def __init__(self, limit_s, stop=None):
+        """Start both; ``limit_s`` in s."""
+        import threading
+        self.limit_s = float(limit_s)
+        self.stop = stop
+        self.timer = threading.Timer(self.limit_s, self._abandon)
+        self.timer.daemon = True
+        self.timer.start()
+        try:
+            faulthandler.dump_traceback_later(self.limit_s + BACKSTOP_S, exit=True)
+        except (OSError, ValueError, RuntimeError):     # no usable stderr
+            pass
+
+    def _abandon(self):
+        code = self.stop.exit_code(0) if self.stop is not None else 0
         try:
             say('teardown: the middleware did not end within %g s; exiting %d without it'
-                % (limit_s, code), sys.stderr)
+                % (self.limit_s, code), sys.stderr)
         finally:
             os._exit(code)
-    timer = threading.Timer(float(limit_s), abandon)
-    timer.daemon = True
-    timer.start()
-    return timer
+
+    def cancel(self):
+        """The teardown ended: disarm both exits."""
+        self.timer.cancel()
+        faulthandler.cancel_dump_traceback_later()
 
 
 def exit_code(stop, code=0):
