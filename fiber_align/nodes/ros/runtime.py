@@ -309,7 +309,7 @@ class TeardownGuard:
             os._exit(code)
 
     def cancel(self):
-        """The teardown ended: disarm both exits."""
+        """Disarm both exits (the teardown ended)."""
         self.timer.cancel()
         faulthandler.cancel_dump_traceback_later()
 
