@@ -68,22 +68,24 @@ def assert_bag_equals(bag, res):
 
 @pytest.fixture(scope='module')
 def step_runs(tmp_path_factory):
-    """Two multi-process lockstep step runs, the first recorded."""
+    """
+    Run a recorded multi-process lockstep step run; return (folder, its trace and summary).
+
+    Reruns equal it sample for sample: the composed run in a namespace and the run
+    restarted after a stalled start below are compared with it exactly.
+    """
     tmp = tmp_path_factory.mktemp('step')
     a = run_bringup(tmp, 'a', '--scenario', 'step', '--duration', str(STEP_S),
                     '--record', str(tmp / 'bag_a'), '--multi-process')
-    b = run_bringup(tmp, 'b', '--scenario', 'step', '--duration', str(STEP_S),
-                    '--multi-process')
-    return tmp, a, b
+    return tmp, a
 
 
-def test_step_bag_reproduces_simulate_and_runs_are_identical(step_runs):
-    """The recorded displacement equals `fiber-align simulate` to 1 nm; reruns are equal."""
-    tmp, (trace_a, sum_a), (trace_b, _) = step_runs
+def test_step_bag_reproduces_simulate(step_runs):
+    """The recorded displacement equals `fiber-align simulate` to 1 nm, its metrics too."""
+    tmp, (trace_a, sum_a) = step_runs
     res = simulate('step', STEP_S)
     assert_bag_equals(tmp / 'bag_a', res)
     assert np.max(np.abs(trace_a[:, 2] - res.y_meas)) <= 1e-9
-    assert np.array_equal(trace_a, trace_b), 'two lockstep runs differ'
     # the run's own metrics are simulate's (same function on the same samples)
     for k in ('settling_time_s', 'overshoot_pct', 'rms_error_m', 'max_error_m'):
         assert sum_a['metrics'][k] == pytest.approx(res.metrics[k], rel=1e-9, abs=1e-15), k
@@ -107,7 +109,7 @@ def test_sine_bag_reproduces_simulate(tmp_path):
 
 def test_composed_in_a_namespace_equals_multi_process(step_runs, tmp_path):
     """All nodes in one process, in namespace /rig1: the same trace as separate processes."""
-    _, (trace_a, _), _ = step_runs
+    _, (trace_a, _) = step_runs
     trace_c, sum_c = run_bringup(tmp_path, 'composed', '--scenario', 'step', '--duration',
                                  str(STEP_S), '--composed', '--namespace', 'rig1')
     assert sum_c['composed'] and sum_c['namespace'] == 'rig1'
@@ -138,7 +140,7 @@ sys.exit(b.main(sys.argv[1:]))
 
 def test_a_stalled_start_restarts_the_graph_and_gives_the_same_run(step_runs, tmp_path):
     """A first sample left unanswered (a message lost at start-up) restarts the graph."""
-    _, (trace_a, _), _ = step_runs
+    _, (trace_a, _) = step_runs
     trace = tmp_path / 'retry.csv'
     summary = tmp_path / 'retry.json'
     proc = subprocess.Popen([sys.executable, '-c', RETRY, '--scenario', 'step', '--sync',
