@@ -29,6 +29,8 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 NAMESPACE = 'paths'
 UP_WITHIN_S = 60.0
+#: s: a service request without an answer this long is sent again
+RESEND_S = 2.0
 
 
 def dump(nodes, within_s=UP_WITHIN_S):
@@ -52,8 +54,15 @@ def dump(nodes, within_s=UP_WITHIN_S):
                 cli = node.create_client(srv, '%s/%s' % (full, name))
                 while not cli.wait_for_service(timeout_sec=0.2):
                     assert time.monotonic() < end, '%s/%s not up in time' % (full, name)
-                fut = cli.call_async(req)
-                ex.spin_until_future_complete(fut, timeout_sec=max(0.1, end - time.monotonic()))
+                # asked again after RESEND_S without an answer: a server may drop its
+                # response while its discovery of this client is still under way
+                while True:
+                    fut = cli.call_async(req)
+                    ex.spin_until_future_complete(
+                        fut, timeout_sec=max(0.1, min(RESEND_S, end - time.monotonic())))
+                    if fut.done() or time.monotonic() >= end:
+                        break
+                    cli.remove_pending_request(fut)
                 assert fut.done(), '%s/%s did not answer' % (full, name)
                 return fut.result()
             names = sorted(call(ListParameters, 'list_parameters',
