@@ -286,7 +286,7 @@ class Sender:
         self.error = ''
         self._graph_ptr = None      # the rcl node the graph is listed through
         self.graph_period_s = None  # s between listings (None: nobody asked)
-        self._graph = None          # (monotonic s, [(topic, [type, ...]), ...])
+        self._graph = None          # the newest listing: [(topic, [type, ...]), ...]
         self.graph_listings = 0
 
     def watch_graph(self, node, period_s):
@@ -306,8 +306,7 @@ class Sender:
 
     def graph_topics(self):
         """Return the newest listing ``[(topic, [type, ...]), ...]``; ``None``: none yet."""
-        g = self._graph
-        return None if g is None else g[1]
+        return self._graph
 
     def queue_logs(self, node):
         """Let the sender thread write ``node``'s log lines (:class:`QueuedLogger`)."""
@@ -461,7 +460,7 @@ class Sender:
                 return
             listing = self._rcl.topic_names_and_types(self._graph_ptr)
         if listing is not None:
-            self._graph = (time.monotonic(), listing)
+            self._graph = listing
             self.graph_listings += 1
 
     def _run(self):
