@@ -9,6 +9,8 @@ composite loop, the rate) stay one value for both whatever node an override name
 Nodes are built in this process on their own rclpy context (no graph, no spinning).
 """
 
+import time
+
 import pytest
 import rclpy
 from rclpy.exceptions import InvalidParameterValueException, ParameterException
@@ -32,6 +34,9 @@ pytestmark = pytest.mark.ros
 REFUSED = (InvalidParameterValueException, ParameterException, ConfigError, ValueError,
            TypeError)
 
+
+#: DiagnosticStatus WARN (the message field is a byte).
+WARN_LEVEL = b'\x01'
 
 #: Namespace of the nodes built here.
 NAMESPACE = 'parameters_test'
@@ -191,6 +196,37 @@ def test_bad_live_values_are_refused_with_the_reason(ctx):
     res = ctl.set_parameters([Parameter('ki', value=-1.0)])[0] if ctl.has_parameter('ki') \
         else ctl.set_parameters([Parameter('pid.ki', value=[-1.0, -1.0])])[0]
     assert not res.successful and 'range' in res.reason
+
+
+def test_a_refused_change_is_logged_and_reported_on_diagnostics(ctx):
+    """``ros2 param set``'s path (set_parameters_atomically) and in-process set_parameters."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    context, _ = ctx
+    drv = configured(make(ctx, ActuatorDriverNode))
+    seen = []
+    watcher = rclpy.create_node('refusal_watcher', context=context)
+    watcher.create_subscription(DiagnosticArray, '/diagnostics', lambda m: seen.extend(
+        (s.level, s.message) for s in m.status if s.name.endswith('actuator_driver')), 50)
+    ex = SingleThreadedExecutor(context=context)
+    ex.add_node(watcher)
+    try:
+        ex.spin_once(timeout_sec=0.5)       # the reader matched before the refusals
+        res = drv.set_parameters_atomically([Parameter('v_max', value=1000.0)])
+        assert not res.successful
+        res = drv.set_parameters([Parameter('safe_voltage_v', value=-200.0)])[0]
+        assert not res.successful
+        end = time.monotonic() + 10.0
+        words = ('parameter change refused: v_max', 'parameter change refused: '
+                 'safe_voltage_v')
+        while time.monotonic() < end and not all(
+                any(lv == WARN_LEVEL and w in m for lv, m in seen) for w in words):
+            ex.spin_once(timeout_sec=0.1)
+    finally:
+        ex.shutdown()
+        watcher.destroy_node()
+    for w in words:
+        assert any(lv == WARN_LEVEL and w in m for lv, m in seen), (w, seen[-5:])
 
 
 def test_shared_shaping_is_one_value_for_compensator_and_controller(ctx, tmp_path):

@@ -12,6 +12,53 @@ from fiber_align.nodes.ros.qos import DIAG_QOS
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 
 
+def report_refusals(node, health):
+    """
+    Log every parameter change ``node`` refuses and report it on ``health`` (a WARN).
+
+    Every path of a change ends in ``Node.set_parameters_atomically`` (the
+    SetParameters and SetParametersAtomically services: ``ros2 param set``, a client) or
+    ``Node.set_parameters`` (in-process): a descriptor's range, a read-only name, an
+    undeclared one and the node's own check alike. The refusal goes to the caller with
+    its reason and, here, to the node's log and ``/diagnostics``. Once per node (a node
+    with several healths reports on its first).
+    """
+    if getattr(node, '_fiber_align_refusals', None) is not None:
+        return
+    atomically, one_by_one = node.set_parameters_atomically, node.set_parameters
+
+    def checked(call, parameter_list):
+        try:
+            return call(parameter_list)
+        except Exception as exc:    # an undeclared name: rclpy tells the caller
+            _refused(node, health, parameter_list, exc)
+            raise
+
+    def set_parameters_atomically(parameter_list):
+        result = checked(atomically, parameter_list)
+        if not result.successful:
+            _refused(node, health, parameter_list, result.reason)
+        return result
+
+    def set_parameters(parameter_list):
+        results = checked(one_by_one, parameter_list)
+        for p, result in zip(parameter_list, results):
+            if not result.successful:
+                _refused(node, health, [p], result.reason)
+        return results
+
+    node._fiber_align_refusals = health
+    node.set_parameters_atomically = set_parameters_atomically
+    node.set_parameters = set_parameters
+
+
+def _refused(node, health, parameters, reason):
+    names = ', '.join(p.name for p in parameters)
+    text = 'parameter change refused: %s: %s' % (names, reason)
+    node.get_logger().warning(text)
+    health.warn(text)
+
+
 class Health:
     """
     Publish the node's health on ``/diagnostics`` (diagnostic_msgs/DiagnosticArray).
@@ -68,8 +115,11 @@ class Health:
         self._check = None      # a check under way: (expected types, topics left, found)
         self._timer = node.create_timer(float(period_s), self._report,
                                         clock=Clock(clock_type=ClockType.STEADY_TIME))
-        if sender is not None:      # the listing of the check, off the control thread
-            sender.watch_graph(node, float(period_s) * self.ENDPOINT_EVERY)
+        report_refusals(node, self)
+        if sender is not None:
+            # the listing of the check, off the control thread; fresh at every report,
+            # so a check sees the graph of one report period ago, not of one check ago
+            sender.watch_graph(node, float(period_s))
 
     def status(self, level, message):
         """
