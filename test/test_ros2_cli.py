@@ -41,11 +41,11 @@ TARGET_M = 50e-6
 TOL_M = 0.5e-6
 SETTLE_WITHIN_S = 2.0
 STOP_WITHIN_S = 5.0
-#: ``ros2`` without a daemon waits this long for discovery (s). A new participant is
-#: sometimes found only at the graph's next periodic announcement (every 3 s): with 2 s,
-#: 9 of 15 ``ros2 lifecycle get`` calls missed the node on the launched graph, with 5 s
-#: none of 10 (``ros2 node list``: 5 of 15 and 0 of 10).
-NO_DAEMON = ('--no-daemon', '--spin-time', '5')
+#: ``ros2`` without a daemon waits this long for discovery (s). A new participant
+#: learns of the graph's participants at their next periodic announcement, every 1 s
+#: with the graph's Fast DDS profile: with 1 s, 3 of 15 ``ros2 lifecycle get`` calls
+#: missed the node on the launched graph, with 2 s none of 15.
+NO_DAEMON = ('--no-daemon', '--spin-time', '2')
 #: On the launched graph the ``ros2`` verbs use a daemon of this module's own (started
 #: before the launch, so it knows every node; stopped with the graph): a verb then takes
 #: about 2 s, where each of its two direct nodes waits the whole spin time without one.

@@ -32,7 +32,6 @@ import json
 import time
 
 import numpy as np
-from scipy.optimize import nnls
 
 from fiber_align.config import load_params
 from fiber_align.hysteresis import data as hdata
@@ -79,8 +78,16 @@ def bounded_lsq(basis, y, lower):
     except np.linalg.LinAlgError:
         z = None
     if z is None or np.any(z < 0.0):
-        z = nnls(r, qy, maxiter=50 * r.shape[1])[0]
+        z = _nnls(r, qy, maxiter=50 * r.shape[1])[0]
     return z + lower
+
+
+def _nnls(a, b, maxiter):
+    """Return :func:`scipy.optimize.nnls` of ``a, b``: scipy imported at first use only."""
+    # scipy.optimize takes about 0.3 s to import, paid by every process that imports
+    # this module (bringup, the CLIs) though few ever identify
+    from scipy.optimize import nnls
+    return nnls(a, b, maxiter=maxiter)
 
 
 def bounded_lsq_batch(basis, y, lower):
@@ -109,7 +116,7 @@ def bounded_lsq_batch(basis, y, lower):
         v = np.linalg.solve(chol, h[p])
         zp = np.linalg.solve(chol.T, v)
         if np.any(zp < 0.0):
-            zp = nnls(chol.T, v, maxiter=50 * g.shape[1])[0]
+            zp = _nnls(chol.T, v, maxiter=50 * g.shape[1])[0]
         z[p] = zp
     sq = c - 2.0 * np.einsum('pn,pn->p', z, h) + np.einsum('pn,pnm,pm->p', z, g, z)
     return z + lower, np.sqrt(np.maximum(sq, 0.0) / n_samples)
