@@ -219,3 +219,32 @@ def test_a_node_started_alone_takes_the_graphs_dds_profile_unless_the_user_chose
     period_s = int(lease.findtext('p:sec', '0', ns)) + 1e-9 * int(
         lease.findtext('p:nanosec', '0', ns))
     assert 0.0 < period_s <= 1.0
+
+
+#: A node whose callbacks are still queued in a multi-threaded executor when it stops.
+BUSY_AT_STOP = textwrap.dedent('''
+    import threading, time
+    from rclpy.callback_groups import ReentrantCallbackGroup
+    from rclpy.node import Node
+    from fiber_align.nodes.ros import runtime
+    stop = runtime.init([])
+    node = Node('busy_at_stop')
+    group = ReentrantCallbackGroup()        # more ready than threads: a queue in the pool
+    for _ in range(4):
+        node.create_timer(0.02, lambda: time.sleep(0.1), callback_group=group)
+    threading.Timer(0.5, stop.set).start()
+    runtime.spin(node, stop=stop, threads=2)
+    runtime.finish([node], stop)
+    print('stopped')
+''')
+
+
+def test_callbacks_in_flight_at_the_stop_end_before_the_executor_is_destroyed():
+    """No ``exception was never retrieved`` at exit (rclpy's shutdown does not wait)."""
+    outs = []
+    for _ in range(3):
+        out = subprocess.run([sys.executable, '-c', BUSY_AT_STOP], capture_output=True,
+                             text=True, timeout=60)
+        assert out.returncode == 0 and 'stopped' in out.stdout, out.stderr
+        outs.append(out.stderr)
+    assert not any('never retrieved' in e or 'Destroyable' in e for e in outs), outs

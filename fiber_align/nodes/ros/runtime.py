@@ -394,7 +394,29 @@ def spin(nodes, realtime=False, priority=0, stop=None, threads=1, then=None):
                 executor.remove_node(node)
             except Exception:  # noqa: BLE001 - context already shut down
                 pass
+        drain(executor, 1.0)
         executor.shutdown(timeout_sec=1.0)
+
+
+def drain(executor, timeout_s):
+    """
+    Wait up to ``timeout_s`` (s) for the callbacks a multi-threaded executor has in flight.
+
+    rclpy's ``Executor.shutdown`` destroys the executor's guard condition without waiting
+    for them (its wait is skipped once the shutdown flag is set), and a callback still
+    running then fails on it; its task's error is printed at the interpreter's exit
+    (``The following exception was never retrieved: cannot use Destroyable ...``). Call
+    it once the spin loop ended (nothing new is started). An error of a callback that
+    ends here is printed as one line.
+    """
+    import time
+    end = time.monotonic() + float(timeout_s)
+    for task in list(getattr(executor, '_futures', ())):
+        while not task.done() and time.monotonic() < end:
+            time.sleep(0.005)
+        exc = task.exception() if task.done() else None     # fetched: not printed at exit
+        if exc is not None:
+            say('stop: a callback failed: %s: %s' % (type(exc).__name__, exc), sys.stderr)
 
 
 def run_node(factory, name, args=None, realtime=None, threads=1, then=None):
