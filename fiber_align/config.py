@@ -65,10 +65,9 @@ def with_dds_profile(env):
     Return ``env`` (a mapping, changed in place) with the graph's Fast DDS profile.
 
     Unless the user chose a profile (:data:`DDS_PROFILE_VAR` set), it names
-    ``config/fastdds_profile.xml``; nothing else in ``env`` changes. The one rule for
-    every process of the graph: ``bringup`` and the launch file pass it to their children
-    (:func:`fiber_align.graph.description.dds_environment`), a node started alone
-    (``ros2 run``) applies it to itself before its participant exists.
+    ``config/fastdds_profile.xml``; nothing else in ``env`` changes. ``bringup`` and the
+    launch file pass it to their children
+    (:func:`fiber_align.graph.description.dds_environment`).
     """
     if DDS_PROFILE_VAR not in env:
         env[DDS_PROFILE_VAR] = str(config_path('fastdds_profile.xml'))

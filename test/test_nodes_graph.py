@@ -211,6 +211,18 @@ def test_dds_environment_keeps_the_users_ros_environment():
     assert mine['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SUBNET'
 
 
+def test_the_graphs_participants_announce_themselves_every_second():
+    """A new participant (each ``ros2`` command) finds them at their next announcement."""
+    from xml.etree import ElementTree
+    ns = {'p': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
+    path = graph.dds_environment({})['FASTRTPS_DEFAULT_PROFILES_FILE']
+    lease = ElementTree.parse(path).find(
+        'p:participant/p:rtps/p:builtin/p:discovery_config/p:leaseAnnouncement', ns)
+    period_s = int(lease.findtext('p:sec', '0', ns)) + 1e-9 * int(
+        lease.findtext('p:nanosec', '0', ns))
+    assert 0.0 < period_s <= 1.0
+
+
 @pytest.mark.parametrize('text, words', [
     ('actuator_driver:\n  ros__parameters:\n    v_maks: 80.0\n', "unknown parameter 'v_maks'"),
     ('no_node:\n  ros__parameters:\n    x: 1\n', 'unknown node'),

@@ -38,6 +38,8 @@ NODES = ('simulated_actuator', 'hysteresis_compensator', 'fuzzy_pid_controller',
 TARGET_M = 50e-6
 TOL_M = 0.5e-6
 OK, WARN, ERROR = b'\x00', b'\x01', b'\x02'
+#: s: a service request unanswered this long is sent again (``Client.call``).
+RESEND_S = 2.0
 
 
 def spawn(name, log_dir, ros_args=()):
@@ -118,13 +120,29 @@ class Client:
             return True
         return procs.spin_until(self.executor, until, seconds)
 
-    def call(self, client, request, timeout=10.0):
-        """Call a service with a bounded wait; return the response."""
+    def call(self, client, request, timeout=10.0, resend_s=RESEND_S):
+        """
+        Call a service with a bounded wait; return the response.
+
+        The request is sent again every ``resend_s`` (s) without an answer (every call
+        here is idempotent): a server drops its response when its discovery of this
+        client's new response reader is not done within rmw_fastrtps's 100 ms, which a
+        busy machine's SCHED_FIFO graph can make it miss.
+        """
         assert client.wait_for_service(timeout_sec=timeout), client.srv_name
-        fut = client.call_async(request)
-        self.spin_for(timeout, fut.done)
-        assert fut.done(), 'no answer from %s within %g s' % (client.srv_name, timeout)
-        return fut.result()
+        end = time.monotonic() + timeout
+        futs = []
+        while time.monotonic() < end and not any(f.done() for f in futs):
+            futs.append(client.call_async(request))
+            self.spin_for(min(resend_s, max(0.0, end - time.monotonic())),
+                          lambda: any(f.done() for f in futs))
+        done = [f for f in futs if f.done()]
+        for f in futs:
+            if not f.done():
+                client.remove_pending_request(f)
+        assert done, 'no answer from %s within %g s (%d requests)' % (
+            client.srv_name, timeout, len(futs))
+        return done[0].result()
 
     def matched(self):
         """Return True when every control topic has all its endpoints (this client too)."""
@@ -236,7 +254,8 @@ def running_graph(log_dir, ros_args=None):
         for tid in (1, 3):      # configure, activate
             req = ChangeState.Request()
             req.transition.id = tid
-            assert cl.call(cli, req, timeout=30).success
+            # sent once: a transition repeated is refused (it is not idempotent)
+            assert cl.call(cli, req, timeout=30, resend_s=30).success
         assert cl.spin_for(30, lambda: cl.matched() and len(cl.drives) > 100), \
             'graph not running: see %s' % log_dir
         yield cl, procs, log_dir

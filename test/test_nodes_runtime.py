@@ -183,44 +183,6 @@ def test_warm_imports_leave_nothing_to_import_inside_a_control_period():
     assert new_modules('warm') == '[]'
 
 
-#: A node process's start (``runtime.init``): which Fast DDS profile its participant reads.
-PROFILE_CHILD = textwrap.dedent('''
-    import os
-    from fiber_align.nodes.ros import runtime
-    stop = runtime.init([])
-    print(os.environ.get('FASTRTPS_DEFAULT_PROFILES_FILE'))
-    import rclpy
-    rclpy.shutdown()
-''')
-
-
-@pytest.mark.parametrize('mine', [None, '/somewhere/my_profile.xml'])
-def test_a_node_started_alone_takes_the_graphs_dds_profile_unless_the_user_chose_one(mine):
-    """``ros2 run`` gives a node the launch file's profile; a user's own profile is kept."""
-    import os
-    from xml.etree import ElementTree
-
-    env = {k: v for k, v in os.environ.items() if k != 'FASTRTPS_DEFAULT_PROFILES_FILE'}
-    if mine:
-        env['FASTRTPS_DEFAULT_PROFILES_FILE'] = mine
-    out = subprocess.run([sys.executable, '-c', PROFILE_CHILD], env=env, capture_output=True,
-                         text=True, timeout=60)
-    assert out.returncode == 0, out.stderr
-    path = out.stdout.strip().splitlines()[-1]
-    if mine:
-        assert path == mine
-        return
-    assert path.endswith('fastdds_profile.xml'), out.stdout
-    # the profile's participants announce themselves at least every second (a new
-    # participant, each `ros2` command, finds them at that announcement)
-    ns = {'p': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
-    lease = ElementTree.parse(path).find(
-        'p:participant/p:rtps/p:builtin/p:discovery_config/p:leaseAnnouncement', ns)
-    period_s = int(lease.findtext('p:sec', '0', ns)) + 1e-9 * int(
-        lease.findtext('p:nanosec', '0', ns))
-    assert 0.0 < period_s <= 1.0
-
-
 #: A node whose callbacks are still queued in a multi-threaded executor when it stops.
 BUSY_AT_STOP = textwrap.dedent('''
     import threading, time

@@ -15,7 +15,7 @@ import sys
 from rclpy.exceptions import ParameterException
 
 from fiber_align import lifeline
-from fiber_align.config import ConfigError, with_dds_profile
+from fiber_align.config import ConfigError
 
 #: The signals that stop a node in order: Ctrl-C, ``kill`` and launch's escalation, and
 #: the hang-up of a closed or crashed terminal (sent to the launcher's whole group).
@@ -189,9 +189,7 @@ def init(args=None):
     changes only the exit code (:meth:`StopFlag.exit_code`). The handlers are installed
     whatever the inherited disposition (a background job inherits SIGINT ignored), for
     :data:`STOP_SIGNALS`. The process stops the same way when the process that started
-    it dies (:func:`fiber_align.lifeline.watch_parent`: ``SIGTERM``). A node started
-    alone (``ros2 run``) takes the graph's Fast DDS profile, as the launch file's do,
-    unless the user chose one (:func:`fiber_align.config.with_dds_profile`).
+    it dies (:func:`fiber_align.lifeline.watch_parent`: ``SIGTERM``).
     """
     import rclpy
     from rclpy.signals import SignalHandlerOptions
@@ -203,7 +201,6 @@ def init(args=None):
         signal.signal(signum, on_signal)
     faulthandler.register(STACKS_SIGNAL, all_threads=True)
     lifeline.watch_parent(lifeline.PARENT_PID, signal.SIGTERM)
-    with_dds_profile(os.environ)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     return stop
 
