@@ -139,7 +139,7 @@ def test_with_a_sender_the_listing_is_the_processs_not_a_query_on_the_control_th
     sender = FakeSender(node.graph)
     slack = _running_slack()
     health = Health(node, period_s=0.5, slack=slack, sender=sender)
-    assert sender.watched == [0.5]          # fresh at every report, not every check
+    assert sender.watched == [0.5 * Health.ENDPOINT_EVERY]
     health._report()
     for _ in range(6):
         slack.after_cycle()

@@ -377,7 +377,9 @@ def test_wrong_type_publisher_burst_and_odd_service_calls_crash_nothing(graph):
         return [m for t, n, lv, m in cl.diags if t > t0 and n.endswith('hysteresis_compensator')
                 and lv == WARN and '/wrong_type_client publishes std_msgs/msg/String' in m]
     # the compensator, which reads /setpoint, names the publisher it never hears from
-    assert cl.spin_for(5.0, lambda: named()), [
+    # within the discovery of the new participant, one listing of the graph by the
+    # sender thread and one check (every 2 s each: ``Health.ENDPOINT_EVERY``)
+    assert cl.spin_for(8.0, lambda: named()), [
         (n, m) for t, n, lv, m in cl.diags if t > t0 and lv != OK][-5:]
     print('named on /diagnostics: %s' % named()[-1])
     for i in range(1000):                   # 1 kHz: 10..80 um, every tenth NaN or 1 m

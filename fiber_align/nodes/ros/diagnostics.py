@@ -117,9 +117,8 @@ class Health:
                                         clock=Clock(clock_type=ClockType.STEADY_TIME))
         report_refusals(node, self)
         if sender is not None:
-            # the listing of the check, off the control thread; fresh at every report,
-            # so a check sees the graph of one report period ago, not of one check ago
-            sender.watch_graph(node, float(period_s))
+            # the listing of the check, off the control thread
+            sender.watch_graph(node, float(period_s) * self.ENDPOINT_EVERY)
 
     def status(self, level, message):
         """
