@@ -56,24 +56,6 @@ def config_path(name):
     return q
 
 
-#: The variable Fast DDS 2.x (ROS 2 Jazzy) reads its default XML profile from.
-DDS_PROFILE_VAR = 'FASTRTPS_DEFAULT_PROFILES_FILE'
-
-
-def with_dds_profile(env):
-    """
-    Return ``env`` (a mapping, changed in place) with the graph's Fast DDS profile.
-
-    Unless the user chose a profile (:data:`DDS_PROFILE_VAR` set), it names
-    ``config/fastdds_profile.xml``; nothing else in ``env`` changes. ``bringup`` and the
-    launch file pass it to their children
-    (:func:`fiber_align.graph.description.dds_environment`).
-    """
-    if DDS_PROFILE_VAR not in env:
-        env[DDS_PROFILE_VAR] = str(config_path('fastdds_profile.xml'))
-    return env
-
-
 def read_yaml(path):
     """Read a YAML file; raise :class:`ConfigError` with the path on any failure."""
     p = Path(path)

@@ -47,7 +47,7 @@ import os
 import re
 from typing import Dict, Optional, Tuple
 
-from fiber_align.config import config_dir, dump_params, with_dds_profile
+from fiber_align.config import config_dir, config_path, dump_params
 from fiber_align.graph.params import (
     check_user, COMPENSATOR, CONTROLLER, DRIVER, effective, GraphError, LIFECYCLE_MANAGER,
     LIVE_VIEW, merge_params, PLANT, RECORDER, SCENARIO_RUNNER, SEQUENCER)
@@ -355,15 +355,17 @@ def dds_environment(env=None):
     ``RMW_IMPLEMENTATION``) is kept as it is: discovery follows ROS's rules
     (docs/network.md).
 
-    Unless the user chose a Fast DDS profile, ``config/fastdds_profile.xml`` is used
-    (:func:`fiber_align.config.with_dds_profile`): a 50 ms heartbeat, so a reliable
-    sample dropped in a burst is resent at once instead of after 3 s (when its writer may
-    have exited), larger socket buffers, and a participant announcement every 1 s
-    instead of 3 s, so a newcomer (each ``ros2`` command) finds the graph about three
-    times sooner. The profile sets no domain, discovery range, peer, transport or
-    interface; other RMWs ignore the variable.
+    Unless the user chose a Fast DDS profile, ``config/fastdds_profile.xml`` is used: a
+    50 ms heartbeat, so a reliable sample dropped in a burst is resent at once instead
+    of after 3 s (when its writer may have exited), larger socket buffers, and a
+    participant announcement every 1 s instead of 3 s, so a newcomer (each ``ros2``
+    command) finds the graph about three times sooner. The profile sets no domain,
+    discovery range, peer, transport or interface; other RMWs ignore the variable.
     """
-    return with_dds_profile(dict(os.environ if env is None else env))
+    out = dict(os.environ if env is None else env)
+    if 'FASTRTPS_DEFAULT_PROFILES_FILE' not in out:
+        out['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(config_path('fastdds_profile.xml'))
+    return out
 
 
 def area_files(directory=None):
