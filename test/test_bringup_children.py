@@ -60,3 +60,21 @@ def test_a_child_that_stops_in_time_reports_its_stop_time():
         code = child.wait(5.0)
     assert code != -9 and not child.killed
     assert 0.0 <= child.stop_s < 5.0
+
+
+def test_a_quiet_child_that_fails_prints_why_once(capsys):
+    code = ("import sys, time; print('ready', flush=True); time.sleep(0.2); "
+            "print('the reason it failed', flush=True); sys.exit(1)")
+    with started(code) as child:
+        assert child.wait(5.0) == 1
+        assert child.wait(5.0) == 1
+    out = capsys.readouterr().out
+    assert out.count('stuck exited 1; its last output:') == 1, out
+    assert '| the reason it failed' in out, out
+
+
+def test_a_clean_or_refused_exit_prints_nothing_more(capsys):
+    for rc in (0, 2):
+        with started("import sys; print('ready', flush=True); sys.exit(%d)" % rc) as child:
+            assert child.wait(5.0) == rc
+    assert 'its last output' not in capsys.readouterr().out

@@ -24,6 +24,9 @@ from fiber_align.nodes.ros.runtime import SENT_PREFIX, STACKS_SIGNAL
 
 #: lines of a child's output kept for the report of a stop that overran
 TAIL_LINES = 60
+#: exit codes that say why themselves: a clean stop (0; 130 / 143: a second SIGINT /
+#: SIGTERM during it) and bad parameters (2: the node's one-line refusal, relayed)
+CLEAN_EXITS = (0, 2, 130, 143)
 
 
 class Child:
@@ -40,6 +43,7 @@ class Child:
         self.t_interrupt = None      # monotonic s of the first SIGINT
         self.stop_s = None           # s from the SIGINT to the exit (None: not stopped)
         self.killed = False          # escalated to SIGKILL
+        self.reported = False        # an unclean exit's output was printed
         self.proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True, bufsize=1,
                                      start_new_session=True)
@@ -85,11 +89,18 @@ class Child:
         if self.t_interrupt is not None and self.stop_s is None:
             self.stop_s = time.monotonic() - self.t_interrupt
         self.thread.join(timeout=1.0)
+        code = self.proc.returncode
         if self.killed:
             print('bringup: %s did not exit %.1f s after SIGINT: killed (SIGKILL); its last'
                   ' output:\n%s' % (self.name, self.stop_s or 0.0,
                                     ''.join('  | ' + ln for ln in self.tail)), flush=True)
-        return self.proc.returncode
+        elif code not in CLEAN_EXITS and not self.reported:
+            # a quiet run relays nothing: the exit's reason is in these lines
+            print('bringup: %s exited %d; its last output:\n%s' % (
+                self.name, code, ''.join('  | ' + ln for ln in list(self.tail)[-20:])),
+                flush=True)
+        self.reported = True
+        return code
 
     def _dump_stacks(self, wait_s=0.3):
         """Ask the overrunning child for its threads' stacks (it prints them)."""
