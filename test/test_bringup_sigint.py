@@ -74,9 +74,12 @@ def test_sigint_mid_scenario_stops_cleanly_and_finalises_the_bag(tmp_path):
         code = proc.wait(timeout=STOP_LIMIT_S + 5)
         stop_s = time.monotonic() - t0
         reader.join(timeout=2)
-        # the recorder, the control_graph process and lifecycle_manager
+        # the recorder, the control_graph process, lifecycle_manager and the machine's
+        # floor probe of the realtime run
         pids = _pids(lines)
-        assert len(pids) == 3, ''.join(lines)
+        assert sorted(re.findall(r'bringup: started (\S+) \(pid', ''.join(lines))) == [
+            'bag_recorder', 'control_graph', 'lifecycle_manager', 'machine_floor'], \
+            ''.join(lines)
         left = [p for p in pids if _alive(p)]
         assert stop_s <= STOP_LIMIT_S, 'bringup took %.2f s to exit' % stop_s
         assert code == 130, ''.join(lines)
@@ -93,6 +96,9 @@ def test_sigint_mid_scenario_stops_cleanly_and_finalises_the_bag(tmp_path):
     assert s['interrupted']
     assert 0 < s['samples'] < 10000, 'stopped part-way'
     assert all(ch['exit_code'] == 0 for ch in s['children'].values()), s['children']
+    # the machine's floor was measured beside the realtime run, and its probe is gone
+    assert 'error' not in s['floor'] and s['floor']['periods'] > 0, s['floor']
+    assert not _alive(s['floor']['pid'])
     counts = _bag_counts(bag)
     sent = {}
     for node, c in s['sent'].items():

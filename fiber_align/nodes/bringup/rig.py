@@ -104,9 +104,17 @@ def run_rig(a, g):
         if g.sync_mode == 'realtime':
             # before the hold: a held plant stops the drivers' input (a watchdog trip)
             summary['axes'] = axis_figures(obs.watch.by_status, g.namespace, g.axes)
+            floor = h.floor_figures()
+            if floor is not None:
+                summary['floor'] = floor
+            per_axis = [(axis, {'realtime': rt, 'floor': floor})
+                        for axis, rt in summary['axes'].items()]
             summary['goals_missed'] = [
-                '%s: %s' % (axis, m) for axis, rt in summary['axes'].items()
-                for m in sm.goals_missed({'realtime': rt}, 'realtime', MISSED_SHARE_GOAL)]
+                '%s: %s' % (axis, m) for axis, s in per_axis
+                for m in sm.goals_missed(s, 'realtime', MISSED_SHARE_GOAL)]
+            summary['machine_limits'] = [
+                '%s: %s' % (axis, m) for axis, s in per_axis
+                for m in [sm.machine_limit(s, 'realtime', MISSED_SHARE_GOAL)] if m]
         h.run(False)
         summary.update(state=obs.status.get('state'), samples=clock())
         if g.sync_mode == 'lockstep' and not (a.cycles or a.duration):
@@ -237,5 +245,13 @@ def _report(summary, a):
     if procs:
         print('rig CPU: %.2f core in all (%s)' % (sum(procs.values()), ', '.join(
             '%s %.2f' % kv for kv in sorted(procs.items()))), flush=True)
+    fl = summary.get('floor')
+    if fl:
+        print('rig: machine floor (bare loop beside the graph): %s' % (
+            fl['error'] if 'error' in fl else 'lost %.3f %% of %d periods, %d stalls, the '
+            'longest %.0f ms' % (100 * fl['lost_share'], fl['periods'], fl['stalls'],
+                                 1e3 * fl['worst_stall_s'])), flush=True)
     for m in summary.get('goals_missed') or ():
         print('rig: GOAL MISSED: %s' % m, flush=True)
+    for m in summary.get('machine_limits') or ():
+        print('rig: MACHINE: %s' % m, flush=True)

@@ -27,6 +27,7 @@ from fiber_align.jsonout import json_default
 from fiber_align.nodes._recording import recorder_counts, recorder_short, recorder_short_full
 from fiber_align.nodes.bringup import interrupt
 from fiber_align.nodes.bringup.children import Child, wait_all
+from fiber_align.nodes.machine_floor import Floor
 from fiber_align.nodes.bringup.cli import expected_endpoints, TRACKING_SCENARIOS
 from fiber_align.nodes.bringup.observer import BadInput, BringupError, Observer, StartStall
 from fiber_align.nodes.ros.diagnostics import endpoint_node_name
@@ -64,6 +65,7 @@ class Harness:
         self.tmp = tempfile.TemporaryDirectory(prefix='fiber_align_bringup_')
         self.params = graph.write_params(os.path.join(self.tmp.name, 'params.yaml'))
         self.children, self.obs, self.summary = [], None, {}
+        self.floor = None           # the machine-floor probe of a realtime run
         self._next_check, self.stopping = 0.0, False
         self.plants = tuple(n for n in graph.nodes if n.rsplit('/', 1)[-1] == PLANT)
         #: the recorded and sent counts when the recorder had matched every writer
@@ -136,6 +138,15 @@ class Harness:
         for p in self.plants:
             self.obs.call(self.obs.client(SetBool, p + '/run'), SetBool.Request(data=on),
                           5.0 if on else 0.5, self.alive)
+        if on and self.floor is None and self.plants and self.graph.sync_mode == 'realtime' \
+                and self.gp['machine_floor']:
+            plant = self.graph.node_params(self.plants[0])
+            self.floor = Floor(plant['rate_hz'], plant['realtime_priority'], self.tmp.name)
+            print('bringup: started machine_floor (pid %d)' % self.floor.proc.pid, flush=True)
+
+    def floor_figures(self):
+        """Stop the machine-floor probe of the run; return its figures (``None``: none)."""
+        return self.floor.stop() if self.floor is not None else None
 
     @property
     def full_nodes(self):
@@ -186,6 +197,9 @@ class Harness:
         # loop's input, which the driver's watchdog then reports as a trip
         latest = self.obs.watch.latest if self.obs is not None else {}
         s['realtime'] = sm.realtime_figures(latest)
+        floor = self.floor_figures()
+        if floor is not None:
+            s['floor'] = floor
         s['cycles'] = {n: dict(w) for n, w in self.obs.watch.worst.items()} if self.obs else {}
         host = self._recorder_host()
         # the recorder's process: its own (stopped after the others) or the composed one
@@ -258,6 +272,7 @@ class Harness:
 
     def close(self):
         """Destroy the observer (its threads leave rclpy first) and the params file."""
+        self.floor_figures()
         if self.obs is not None:
             self.obs.destroy()
             self.obs = None
@@ -447,6 +462,8 @@ class Bringup:
                 np.savetxt(a.trace, np.column_stack([t, ref, y]), delimiter=',',
                            header='t_s,r_m,y_m', comments='')
         s['goals_missed'] = sm.goals_missed(s, self.sync, MISSED_SHARE_GOAL)
+        s['machine_limits'] = [m for m in [sm.machine_limit(s, self.sync, MISSED_SHARE_GOAL)]
+                               if m]
         print(sm.format_summary(s), flush=True)
         if a.summary:
             with open(a.summary, 'w', encoding='utf-8') as f:

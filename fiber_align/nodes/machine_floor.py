@@ -1,0 +1,135 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The machine's floor beside a realtime graph: a bare loop at the graph's rate and priority.
+
+Not a ROS node: a process of its own that ``bringup`` starts beside every realtime run
+(:class:`Floor`), light to start (no rclpy) and with nothing of the graph's.
+
+A virtual machine can stop every one of its CPUs at once for milliseconds (the host runs
+something else); no program inside it keeps its periods then, and the graph's plant
+counts those periods as missed. This process measures what the machine allowed over the
+same seconds: a bare Python loop that sleeps to each deadline of the graph's rate, at
+the graph's ``SCHED_FIFO`` priority plus one (so the graph's own threads never delay
+it), and counts the periods it lost by the plant's rule
+(:class:`~fiber_align.control.cycle.DeadlineGrid`). ``bringup`` runs it for the length
+of every realtime run and puts its figures beside the graph's in the summary
+(:class:`Floor`).
+
+Run alone: ``python -m fiber_align.nodes.machine_floor --rate-hz 1000 --priority 51
+--out FILE``; it stops at the end of its standard input (the pipe :class:`Floor` holds:
+closed by :meth:`Floor.stop`, or by the kernel when the process that started it is gone,
+however it ended), on SIGINT or on SIGTERM, and then writes its figures to ``FILE``
+(JSON). Nothing is written while it runs.
+"""
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+from fiber_align.control.cycle import DeadlineGrid
+
+#: s: how long :meth:`Floor.stop` waits for the probe's figures
+STOP_WAIT_S = 2.0
+
+
+def probe(rate_hz, priority, stop):
+    """
+    Run the bare loop until ``stop()``; return its :meth:`DeadlineGrid.figures`.
+
+    :param rate_hz: the loop's rate (Hz). :param priority: ``SCHED_FIFO`` priority
+        (0: the normal policy); refused, the loop runs at the normal policy and says so
+        in ``scheduling``.
+    """
+    sched = 'SCHED_OTHER'
+    if priority > 0:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(priority)))
+            sched = 'SCHED_FIFO %d' % priority
+        except (AttributeError, OSError) as exc:
+            sched = 'SCHED_OTHER (SCHED_FIFO %d refused: %s)' % (priority, exc)
+    clock = time.monotonic
+    grid = DeadlineGrid(1.0 / float(rate_hz), clock())
+    deadline = grid.deadline
+    while not stop():
+        wait = deadline - clock()
+        if wait > 0:
+            time.sleep(wait)
+        deadline = grid.wake(clock())
+    out = grid.figures(clock())
+    out.update(scheduling=sched, rate_hz=float(rate_hz), t0_s=grid.t0_s,
+               stall_times_s=[round(t, 4) for t, _ in grid.stalls[:1000]])
+    return out
+
+
+def main(argv=None):
+    """Probe until a stop signal (or the parent is gone); write the figures; return 0."""
+    ap = argparse.ArgumentParser(prog='floor', description=__doc__.split('\n\n')[0])
+    ap.add_argument('--rate-hz', type=float, required=True, help='loop rate (Hz)')
+    ap.add_argument('--priority', type=int, required=True,
+                    help='SCHED_FIFO priority (0: normal)')
+    ap.add_argument('--out', required=True, help='JSON file the figures go to at the stop')
+    a = ap.parse_args(argv)
+    flag = []
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: flag.append(1))
+
+    def until_eof():
+        # the launcher's end of the pipe closes at its stop and when it dies, SIGKILL too
+        while sys.stdin.buffer.read(4096):
+            pass
+        flag.append(1)
+    threading.Thread(target=until_eof, name='eof', daemon=True).start()
+    figures = probe(a.rate_hz, a.priority, lambda: flag)
+    tmp = a.out + '.part'
+    with open(tmp, 'w', encoding='utf-8') as f:
+        json.dump(figures, f)
+    os.replace(tmp, a.out)
+    return 0
+
+
+class Floor:
+    """
+    The probe process of one run, started by ``bringup`` beside the graph.
+
+    :param rate_hz: the graph's rate (Hz). :param priority: the graph's
+        ``realtime_priority`` (the probe takes one more; 0: both normal).
+    :param directory: where the figures are written.
+    """
+
+    def __init__(self, rate_hz, priority, directory):
+        """Start the probe (it ends with this process, or at :meth:`stop`)."""
+        self.out = os.path.join(directory, 'floor.json')
+        prio = min(99, int(priority) + 1) if int(priority) > 0 else 0
+        self.proc = subprocess.Popen(
+            [sys.executable, '-m', 'fiber_align.nodes.machine_floor', '--rate-hz',
+             repr(float(rate_hz)), '--priority', str(prio), '--out', self.out],
+            stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+            text=True, start_new_session=True)
+        self.figures = None
+
+    def stop(self):
+        """Stop the probe; return its figures (``{'error': ...}`` if it gave none)."""
+        if self.figures is not None:
+            return self.figures
+        try:
+            _, err = self.proc.communicate(timeout=STOP_WAIT_S)    # closes its stdin
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            _, err = self.proc.communicate(timeout=5.0)
+        try:
+            with open(self.out, encoding='utf-8') as f:
+                self.figures = json.load(f)
+        except (OSError, ValueError):
+            self.figures = {'error': 'the machine-floor probe gave no figures (exit %s): %s'
+                            % (self.proc.returncode, (err or '').strip()[-300:])}
+        self.figures['pid'] = self.proc.pid
+        return self.figures
+
+
+if __name__ == '__main__':
+    sys.exit(main())

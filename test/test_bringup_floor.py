@@ -1,0 +1,115 @@
+# SPDX-License-Identifier: Apache-2.0
+"""The machine-floor probe beside a realtime run: its count, its stop, its summary lines."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from fiber_align.analysis import run_summary as sm
+from fiber_align.control.cycle import DeadlineGrid
+from fiber_align.nodes.machine_floor import Floor
+
+GOAL = 0.001
+
+
+def test_a_wake_up_on_time_loses_nothing_and_a_late_one_the_deadlines_it_passed():
+    g = DeadlineGrid(0.001, 10.0)
+    assert g.wake(10.0012) == pytest.approx(10.002)     # the first deadline, 0.2 ms late
+    assert g.wake(10.0020001) == pytest.approx(10.003)
+    # woken 27.5 periods after the deadline it slept for: 27 deadlines passed unserved
+    assert g.wake(10.0305) == pytest.approx(10.031)
+    assert (g.ticks, g.lost) == (3, 27)
+    assert g.stalls == [(10.0305, 27)]
+    f = g.figures(10.0310)
+    assert f['periods'] == 31 and f['lost'] == 27
+    assert f['lost_share'] == pytest.approx(27 / 31)
+    assert f['stalls'] == 1 and f['worst_stall_s'] == pytest.approx(0.028)
+
+
+def test_the_graph_is_held_to_its_goal_beyond_the_machines_floor():
+    floor = {'lost_share': 0.0020, 'stalls': 9, 'worst_stall_s': 0.049}
+    # all of it the machine's: no goal missed, one MACHINE line that says why
+    s = {'realtime': {'missed_share': 0.0025}, 'floor': floor}
+    assert sm.beyond_floor(0.0025, floor) == pytest.approx(0.0005)
+    assert sm.goals_missed(s, 'realtime', GOAL) == []
+    line = sm.machine_limit(s, 'realtime', GOAL)
+    assert '0.25 %' in line and '0.2 %' in line and '9 stalls' in line and '49 ms' in line
+    text = sm.format_summary(dict(s, machine_limits=[line]))
+    assert '| MACHINE |' in text and '| machine floor (bare loop beside the graph) | lost 0.2 %' \
+        in text
+    # beyond the floor by more than the goal: the graph's own
+    s = {'realtime': {'missed_share': 0.0035}, 'floor': floor}
+    assert sm.goals_missed(s, 'realtime', GOAL) == [
+        "missed 0.35 % of the cycles (goal <= 0.1 %), 0.15 % beyond the machine's floor"]
+    assert sm.machine_limit(s, 'realtime', GOAL) is None
+    # no floor (or its error): every missed cycle counts
+    for fl in (None, {'error': 'no figures'}):
+        s = {'realtime': {'missed_share': 0.0025}, 'floor': fl}
+        assert sm.goals_missed(s, 'realtime', GOAL) == [
+            'missed 0.25 % of the cycles (goal <= 0.1 %)']
+        assert sm.machine_limit(s, 'realtime', GOAL) is None
+    # within the goal: nothing to say
+    s = {'realtime': {'missed_share': 0.0005}, 'floor': floor}
+    assert sm.goals_missed(s, 'realtime', GOAL) == []
+    assert sm.machine_limit(s, 'realtime', GOAL) is None
+
+
+def _alive(pid):
+    try:
+        with open('/proc/%d/stat' % pid) as f:
+            return f.read().split(')')[-1].split()[0] != 'Z'
+    except OSError:
+        return False
+
+
+@pytest.mark.ros  # starts processes
+def test_the_probe_counts_the_periods_of_its_run_and_stops_on_sigint(tmp_path):
+    probe = Floor(1000.0, 0, str(tmp_path))
+    try:
+        time.sleep(1.0)
+        t0 = time.monotonic()
+        f = probe.stop()
+        assert time.monotonic() - t0 < 2.0
+    finally:
+        if probe.proc.poll() is None:
+            probe.proc.kill()
+    assert 'error' not in f, f
+    assert probe.proc.returncode == 0
+    # about a second of 1 kHz periods (start-up of the interpreter not counted)
+    assert 500 <= f['periods'] <= 1500 and f['rate_hz'] == 1000.0
+    assert f['scheduling'] == 'SCHED_OTHER' and 0.0 <= f['lost_share'] <= 1.0
+    assert f['lost'] >= f['stalls'] == len(f['stall_times_s'])
+    assert probe.stop() is f
+
+
+@pytest.mark.ros  # starts processes
+def test_the_probe_ends_and_writes_its_figures_when_its_launcher_is_killed(tmp_path):
+    code = ('import sys, time\n'
+            'from fiber_align.nodes.machine_floor import Floor\n'
+            'p = Floor(1000.0, 0, sys.argv[1])\n'
+            'print(p.proc.pid, flush=True)\n'
+            'time.sleep(60)\n')
+    launcher = subprocess.Popen([sys.executable, '-c', code, str(tmp_path)],
+                                stdout=subprocess.PIPE, text=True)
+    pid = None
+    try:
+        pid = int(launcher.stdout.readline())
+        time.sleep(1.0)
+        launcher.kill()
+        launcher.wait(5)
+        end = time.monotonic() + 2.0
+        while _alive(pid) and time.monotonic() < end:
+            time.sleep(0.02)
+        assert not _alive(pid), 'the probe outlived its launcher by 2 s'
+        f = json.loads((tmp_path / 'floor.json').read_text(encoding='utf-8'))
+        assert f['periods'] > 0
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+        if pid is not None and _alive(pid):
+            os.kill(pid, signal.SIGKILL)
