@@ -39,6 +39,8 @@ import time
 
 import numpy as np
 
+from fiber_align.analysis.run_summary import beyond_floor
+from fiber_align.graph.description import build
 from fiber_align.nodes.bringup.children import rss_bytes
 
 
@@ -83,8 +85,10 @@ def soak(a, extra):
     from std_msgs.msg import Float64
 
     log = tempfile.NamedTemporaryFile('w+', suffix='.log', delete=False)
+    summary = log.name + '.summary.json'
     proc = subprocess.Popen([sys.executable, '-m', 'fiber_align.nodes.bringup', '--scenario',
-                             'none', '--sync', 'realtime', '--quiet'] + list(extra),
+                             'none', '--sync', 'realtime', '--quiet', '--summary', summary]
+                            + list(extra),
                             stdout=log,
                             stderr=subprocess.STDOUT)
     hogs = [subprocess.Popen([sys.executable, '-c', 'while True: pass'])
@@ -186,10 +190,30 @@ def soak(a, extra):
            'cli_failures': cli.failures[:20] if cli is not None else None,
            'minutes': a.minutes, 'hogs': a.hogs,
            'load_average': os.getloadavg()}
+    out.update(graph_cycles(summary))
     growth = {k: rss['end'][k] - rss['minute1'][k] for k in rss.get('minute1', {})
               if k in rss.get('end', {})}
     out['rss_growth_after_minute1_mb'] = growth
     return out
+
+
+def graph_cycles(path):
+    """
+    Return the run's missed cycles beside the machine's floor, from bringup's summary.
+
+    ``missed_share`` (the plant's, the whole run), ``floor`` (the bare loop beside the
+    graph: :mod:`fiber_align.nodes.machine_floor`), ``beyond_floor_share``, and the
+    summary's ``goals_missed`` and ``machine_limits``; ``{}`` without a summary.
+    """
+    try:
+        with open(path, encoding='utf-8') as f:
+            s = json.load(f)
+    except (OSError, ValueError):
+        return {}
+    ms = s.get('realtime', {}).get('missed_share')
+    return {'missed_share': ms, 'floor': s.get('floor'),
+            'beyond_floor_share': beyond_floor(ms, s.get('floor')),
+            'goals_missed': s.get('goals_missed'), 'machine_limits': s.get('machine_limits')}
 
 
 def ros2_env():
@@ -260,12 +284,19 @@ def live_parameters(client, timeout_s=10.0):
     """
     Return ``(node, parameter, value text)`` of every settable scalar parameter of the graph.
 
-    Asked through the parameter services of each node the client sees; a parameter whose
-    descriptor is read-only, or that is not a bool, int, float or string, is left out.
+    Asked through the parameter services of each node of the graph (its description's,
+    waited for up to ``timeout_s`` s: a new client discovers them one announcement at a
+    time); a parameter whose descriptor is read-only, or that is not a bool, int, float
+    or string, is left out.
     """
     import rclpy
     from rcl_interfaces.msg import ParameterType
     from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters
+    want = {n.rsplit('/', 1)[-1] for n in build(scenario='none').nodes}
+    end = time.monotonic() + timeout_s
+    while not want <= {n for n, _ in client.get_node_names_and_namespaces()} \
+            and time.monotonic() < end:
+        rclpy.spin_once(client, timeout_sec=0.1)
     out = []
     for name, ns in client.get_node_names_and_namespaces():
         if name.startswith('_') or name == client.get_name():

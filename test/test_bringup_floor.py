@@ -11,7 +11,7 @@ import time
 import pytest
 
 from fiber_align.analysis import run_summary as sm
-from fiber_align.control.cycle import DeadlineGrid
+from fiber_align.control.cycle import cycle_warning, DeadlineGrid
 from fiber_align.nodes.machine_floor import Floor
 
 GOAL = 0.001
@@ -29,6 +29,14 @@ def test_a_wake_up_on_time_loses_nothing_and_a_late_one_the_deadlines_it_passed(
     assert f['periods'] == 31 and f['lost'] == 27
     assert f['lost_share'] == pytest.approx(27 / 31)
     assert f['stalls'] == 1 and f['worst_stall_s'] == pytest.approx(0.028)
+
+
+def test_a_run_over_its_cycle_goal_is_a_warning_that_names_both_figures():
+    assert cycle_warning({'missed_share': 0.0025, 'periods': 60000}, 0.001) == (
+        'missed 0.25 % of the cycles since the run started (goal <= 0.1 %)')
+    assert cycle_warning({'missed_share': 0.001, 'periods': 60000}, 0.001) is None
+    assert cycle_warning({'missed_share': 0.5, 'periods': 0}, 0.001) is None
+    assert cycle_warning({'missed_share': 0.5, 'periods': 100}, 0.0) is None   # off
 
 
 def test_the_graph_is_held_to_its_goal_beyond_the_machines_floor():
@@ -53,6 +61,9 @@ def test_the_graph_is_held_to_its_goal_beyond_the_machines_floor():
         assert sm.goals_missed(s, 'realtime', GOAL) == [
             'missed 0.25 % of the cycles (goal <= 0.1 %)']
         assert sm.machine_limit(s, 'realtime', GOAL) is None
+    # no goal (0): nothing missed counts
+    assert sm.goals_missed(s, 'realtime', 0.0) == []
+    assert sm.machine_limit(s, 'realtime', 0.0) is None
     # within the goal: nothing to say
     s = {'realtime': {'missed_share': 0.0005}, 'floor': floor}
     assert sm.goals_missed(s, 'realtime', GOAL) == []

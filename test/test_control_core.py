@@ -228,6 +228,32 @@ def test_driver_watchdog_restarts_at_activation():
     assert d.tripped and d.watchdog_count == 1      # from the next command on, as ever
 
 
+def test_driver_watchdog_does_not_count_the_time_it_was_stalled_itself():
+    """A tick long after the last one (the machine stopped) takes that time off the silence."""
+    d = DriverCore(v_min=0.0, v_max=100.0, watchdog_timeout_s=0.05, ramp_period_s=1e-3)
+    t = 0.0
+    for k in range(100):                        # input and watchdog every period
+        t = 1e-3 * k
+        d.command(40.0, 0.0, t)
+        d.tick(t)
+    last = t
+    # everything stopped for 0.1 s (two timeouts): on waking, the input is not late yet
+    assert d.tick(last + 0.1) == 40.0 and not d.tripped
+    d.command(41.0, 0.0, last + 0.1005)         # and it comes: no trip, no ramp
+    assert not d.tripped and d.watchdog_count == 0
+    # input gone while the watchdog runs: 30 ms awake, a 0.1 s stall, then 20 ms more
+    t0 = last + 0.1005
+    awake = [t0 + 1e-3 * k for k in range(1, 31)] + [t0 + 0.13 + 1e-3 * k for k in range(25)]
+    tripped_at = None
+    for t in awake:
+        d.tick(t)
+        if d.tripped and tripped_at is None:
+            tripped_at = t
+    assert tripped_at is not None and d.watchdog_count == 1
+    # 50 ms of the watchdog's own time after the input stopped (the stall's 0.1 s excluded)
+    assert tripped_at - t0 - 0.1 == pytest.approx(0.05, abs=1.5e-3)
+
+
 def test_driver_hold_takes_the_input_but_ramps_on_to_safe():
     """An axis held for another's trip: its input is back (not tripped), output ramps to safe."""
     d = DriverCore(v_min=0.0, v_max=100.0, watchdog_timeout_s=0.05,

@@ -291,7 +291,8 @@ def machine_limit(s, sync, missed_goal):
     ms = s.get('realtime', {}).get('missed_share')
     fl = s.get('floor') or {}
     beyond = beyond_floor(ms, fl)
-    if sync != 'realtime' or beyond is None or ms <= missed_goal or beyond > missed_goal:
+    if sync != 'realtime' or missed_goal <= 0 or beyond is None or ms <= missed_goal \
+            or beyond > missed_goal:
         return None
     return ('missed %.3g %% of the cycles (goal <= %.3g %%), %.3g %% beyond the machine\'s '
             'floor: a bare loop beside the graph lost %.3g %% of its periods in the same '
@@ -305,7 +306,8 @@ def goals_missed(s, sync, missed_goal):
     Return the realtime goals the run missed, one text each (``[]``: none).
 
     Realtime: at most ``missed_goal`` of the cycles missed beyond the machine's floor
-    (:func:`beyond_floor`; all of them without a floor), no watchdog trip; both modes:
+    (:func:`beyond_floor`; all of them without a floor; ``missed_goal`` <= 0: no such
+    goal), no watchdog trip; both modes:
     every message a node sent is in the bag (when recording).
     """
     out = []
@@ -313,7 +315,8 @@ def goals_missed(s, sync, missed_goal):
     if sync == 'realtime':
         ms = rt.get('missed_share')
         beyond = beyond_floor(ms, s.get('floor'))
-        if ms is not None and ms > missed_goal and (beyond is None or beyond > missed_goal):
+        if missed_goal > 0 and ms is not None and ms > missed_goal and (
+                beyond is None or beyond > missed_goal):
             out.append('missed %.3g %% of the cycles (goal <= %.3g %%)%s'
                        % (100 * ms, 100 * missed_goal, '' if beyond is None else
                           ', %.3g %% beyond the machine\'s floor' % (100 * beyond)))

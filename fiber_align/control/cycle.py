@@ -210,6 +210,21 @@ class LatencyHistogram:
         return out
 
 
+def cycle_warning(figures, goal_share):
+    """
+    Return the WARN text of a run that missed more than ``goal_share`` of its periods.
+
+    :param figures: :func:`loop_summary`'s dict (``missed_share``, ``periods``).
+    :param goal_share: the share allowed (1); <= 0: never a warning.
+    :returns: the text, or ``None`` (within the goal, or nothing counted yet).
+    """
+    share = figures.get('missed_share')
+    if goal_share <= 0 or not figures.get('periods') or share is None or share <= goal_share:
+        return None
+    return 'missed %.3g %% of the cycles since the run started (goal <= %.3g %%)' % (
+        100 * share, 100 * goal_share)
+
+
 class DeadlineGrid:
     """
     The periods a loop on a fixed grid of deadlines lost, counted as the plant counts them.

@@ -109,6 +109,7 @@ class DriverCore:
         self.v = self.safe
         self.t_last_cmd = None
         self.t_last_out = None
+        self.t_tick = None          # the watchdog's previous tick (s)
         self.tripped = False
         self.saturated = False
         self.saturation_count = 0
@@ -193,14 +194,22 @@ class DriverCore:
         """
         Run the watchdog at time ``t`` (s); return the drive (V) to hold or ramp to.
 
-        Call it periodically between commands. After ``watchdog_timeout_s`` without a
-        command the driver enters the safe state (counted once per silence) and ramps
-        to ``safe_voltage_v``.
+        Call it every ``ramp_period_s`` between commands. After ``watchdog_timeout_s``
+        without a command the driver enters the safe state (counted once per silence)
+        and ramps to ``safe_voltage_v``. The silence counts only while the watchdog
+        runs: a tick more than two periods after the previous one (the caller's process
+        or the machine stalled) takes the stalled time off the inputs' age.
         """
+        prev, self.t_tick = self.t_tick, t
         if self.latched:
             return self.ramp_safe(t)
         if self.timeout <= 0 or self.t_last_cmd is None:
             return self.v
+        if prev is not None and t - prev > 2 * self.ramp_dt:
+            # the watchdog itself did not run (its process, or the whole machine, was
+            # stalled): its inputs could not be heard either, so that time is no silence
+            # of theirs; they get the rest of their timeout from now
+            self.t_last_cmd = min(t, self.t_last_cmd + (t - prev - self.ramp_dt))
         if t - self.t_last_cmd > self.timeout:
             if not self.tripped:
                 self.tripped = True

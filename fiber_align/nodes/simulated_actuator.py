@@ -51,7 +51,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
 
-from fiber_align.control.cycle import CycleStats, LatencyHistogram
+from fiber_align.control.cycle import cycle_warning, CycleStats, LatencyHistogram
 from fiber_align.control.trajectory import MAX_CATCH_UP
 from fiber_align.nodes._plant_clock import PlantClock
 from fiber_align.nodes.ros.bus import Pub, sample_timer, sender_of, slack_of, subscription
@@ -102,6 +102,10 @@ class SimulatedActuatorNode(PlantClock, Node):
                 ('resolution_m', 'sensor resolution (m)', 0.0, 1e-3),
                 ('seed', 'sensor noise seed', 0, 2 ** 31 - 1)):
             declare(self, d, name, text, lo, hi, ro)
+        self.cycle_goal = declare(self, d, 'cycle_goal_missed_share',
+                                  'realtime: a run that misses more than this share of its '
+                                  'periods is a WARN on /diagnostics (1); 0: no warning',
+                                  0.0, 1.0)
         self.timeout_s = declare(self, d, 'lockstep_timeout_s',
                                  'lockstep: warn when no drive within this time (s)',
                                  0.001, 3600.0)
@@ -183,15 +187,18 @@ class SimulatedActuatorNode(PlantClock, Node):
 
     # -- parameters -----------------------------------------------------------------
     def _on_set(self, params):
-        """Check live updates (``lockstep_timeout_s`` and ``optical_power_every``)."""
+        """Check live updates (``lockstep_timeout_s``, ``optical_power_every``, the goal)."""
         res = check_parameters(params, {'lockstep_timeout_s': (0.001, 3600.0),
-                                        'optical_power_every': (0, 1000000)})
+                                        'optical_power_every': (0, 1000000),
+                                        'cycle_goal_missed_share': (0.0, 1.0)})
         if res.successful:
             for p in params:
                 if p.name == 'lockstep_timeout_s':
                     self.timeout_s = float(p.value)
                 elif p.name == 'optical_power_every':
                     self.power_every = int(p.value)
+                elif p.name == 'cycle_goal_missed_share':
+                    self.cycle_goal = float(p.value)
         return res
 
     # -- publishing -----------------------------------------------------------------
@@ -230,7 +237,10 @@ class SimulatedActuatorNode(PlantClock, Node):
                 'position_m': self.plant.position_m, 'drive_v': self.plant.v_applied,
                 'lockstep_holds': self.holds}
         if self.sync_mode == 'realtime':
-            vals.update(self.latency_stats())
+            stats = self.latency_stats()
+            vals.update(stats)
+            self.health.condition('cycles', cycle_warning(stats, self.cycle_goal),
+                                  publish=False)
         vals.update({'sent.displacement': self.n_disp, 'sent.optical_power': self.n_power,
                      'sent.clock': self.n_clock})
         self.health.set_values(**vals)

@@ -23,7 +23,7 @@ from fiber_align.analysis import run_summary as sm
 from fiber_align.graph.description import STATION_AXES as AXES4
 from fiber_align.nodes.bringup import interrupt
 from fiber_align.nodes.bringup.observer import BringupError
-from fiber_align.nodes.bringup.run import Harness, MISSED_SHARE_GOAL
+from fiber_align.nodes.bringup.run import Harness
 from fiber_align.simulation import station_scenarios as sc
 
 #: Streams recorded per sample: name -> topic.
@@ -111,10 +111,10 @@ def run_rig(a, g):
                         for axis, rt in summary['axes'].items()]
             summary['goals_missed'] = [
                 '%s: %s' % (axis, m) for axis, s in per_axis
-                for m in sm.goals_missed(s, 'realtime', MISSED_SHARE_GOAL)]
+                for m in sm.goals_missed(s, 'realtime', h.cycle_goal)]
             summary['machine_limits'] = [
                 '%s: %s' % (axis, m) for axis, s in per_axis
-                for m in [sm.machine_limit(s, 'realtime', MISSED_SHARE_GOAL)] if m]
+                for m in [sm.machine_limit(s, 'realtime', h.cycle_goal)] if m]
         h.run(False)
         summary.update(state=obs.status.get('state'), samples=clock())
         if g.sync_mode == 'lockstep' and not (a.cycles or a.duration):

@@ -158,11 +158,12 @@ class Health:
         """Report an ERROR now and keep it for ``hold_s`` s."""
         self._latch(ERROR, message)
 
-    def condition(self, key, message=None):
+    def condition(self, key, message=None, publish=True):
         """
         Set (``message``) or clear (``None``) the standing WARN ``key``; publish at once.
 
         While any is set the status is at least WARN and its message ends with theirs.
+        ``publish`` False: the next report carries it (a caller inside that report).
         """
         if message is None:
             if self._conditions.pop(key, None) is None:
@@ -171,7 +172,8 @@ class Health:
             return
         else:
             self._conditions[key] = message
-        self.publish()
+        if publish:
+            self.publish()
 
     def set_values(self, **values):
         """Set key/value pairs reported with the status."""
