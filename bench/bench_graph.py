@@ -13,7 +13,10 @@ with ``--multi-process``. Measured beside them in the same run:
 - the lockstep run of the same scenario: the tracking RMS a realtime run is held to
   (goal: within 2x).
 
-Per row: cycles kept (share of sample periods with a fresh drive), missed cycles,
+Per row: cycles kept (share of sample periods with a fresh drive), the periods the
+machine itself lost over the same seconds (bringup's machine-floor probe, a bare loop
+beside the graph, counted by the plant's rule) and what the graph missed beyond them,
+missed cycles,
 sample-to-drive latency p50/p99 (ms, the plant's own measurement), tracking RMS and its
 ratio to lockstep, watchdog trips, whether the bag holds exactly what every publisher
 sent, and CPU (s per s of run) and resident memory (MB) per process. ``--hogs N`` adds
@@ -36,6 +39,7 @@ import time
 
 import numpy as np
 
+from fiber_align.analysis.run_summary import beyond_floor
 from fiber_align.hardware.process import stop_process
 
 BRINGUP = [sys.executable, '-m', 'fiber_align.nodes.bringup']
@@ -146,7 +150,10 @@ def row(tag, s, lockstep_rms, floor_p99):
     ms = rt.get('missed_share')
     rms = s.get('metrics', {}).get('rms_error_m')
     p99 = rt.get('latency_p99_s')
+    fl = s.get('floor') or {}
     return {'run': tag, 'cycles_kept': None if ms is None else 1.0 - ms,
+            'floor_lost_share': fl.get('lost_share'),
+            'beyond_floor_share': beyond_floor(ms, fl),
             'missed_cycles': rt.get('missed_cycles'), 'latency_p50_s': rt.get('latency_p50_s'),
             'latency_p99_s': p99, 'latency_p99_over_floor': (p99 / floor_p99)
             if p99 and floor_p99 else None, 'rms_m': rms,
@@ -160,14 +167,16 @@ def table(rows, floors):
     """Return the Markdown table of the rows and the machine floors."""
     def f(v, scale=1.0, fmt='%.3g'):
         return '-' if v is None else fmt % (v * scale)
-    lines = ['| run | cycles kept | latency p50 / p99 (ms) | p99 / bare loop p99 | RMS (um) '
-             '| RMS / lockstep | trips | bag complete | CPU s/s, RSS MB per process |',
-             '|---|---|---|---|---|---|---|---|---|']
+    lines = ['| run | cycles kept | the machine lost (bare loop beside it) | missed beyond '
+             'it | latency p50 / p99 (ms) | p99 / bare loop p99 | RMS (um) | RMS / lockstep '
+             '| trips | bag complete | CPU s/s, RSS MB per process |',
+             '|---|---|---|---|---|---|---|---|---|---|---|']
     for r in rows:
         procs = ', '.join('%s %.2f / %.0f' % (k, v.get('cpu_per_s') or 0, v.get('rss_mb', 0))
                           for k, v in sorted(r['processes'].items()))
-        lines.append('| %s | %s %% | %s / %s | %s | %s | %s | %s | %s | %s |' % (
-            r['run'], f(r['cycles_kept'], 100, '%.2f'), f(r['latency_p50_s'], 1e3),
+        lines.append('| %s | %s %% | %s %% | %s %% | %s / %s | %s | %s | %s | %s | %s | %s |' % (
+            r['run'], f(r['cycles_kept'], 100, '%.2f'), f(r['floor_lost_share'], 100),
+            f(r['beyond_floor_share'], 100), f(r['latency_p50_s'], 1e3),
             f(r['latency_p99_s'], 1e3), f(r['latency_p99_over_floor'], 1, '%.2f'),
             f(r['rms_m'], 1e6, '%.3f'), f(r['rms_over_lockstep'], 1, '%.2f'),
             r['watchdog_trips'], r['bag_complete'], procs or r.get('error') or '-'))
