@@ -38,3 +38,7 @@ def test_rig_release_align_cycles_in_realtime_end_in_tracking(tmp_path):
         assert rt['periods'] > 100 and 0.0 <= rt['missed_share'] < 1.0, rt
         assert rt['watchdog_count'] == 0, rt
     assert 'rig CPU:' in out and 'release / align cycles' in out
+    # the machine's floor, measured beside the run over its seconds, and printed
+    fl = s['floor']
+    assert 'error' not in fl and fl['periods'] > 1000 and 0.0 <= fl['lost_share'] < 1.0, fl
+    assert 'rig: machine floor (bare loop beside the graph): lost' in out, out
