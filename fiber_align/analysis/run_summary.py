@@ -185,9 +185,11 @@ def format_summary(s):
     if fl:
         lines.append('| machine floor (bare loop beside the graph) | %s |' % (
             fl['error'] if 'error' in fl else 'lost %.3g %% of %s periods, %s stalls, the '
-            'longest %.0f ms, %s' % (100 * fl['lost_share'], fl.get('periods', '?'),
-                                     fl.get('stalls', '?'), 1e3 * fl.get('worst_stall_s', 0),
-                                     fl.get('scheduling', '?'))))
+            'longest %.0f ms, %s; its fixed work took %s' % (
+                100 * fl['lost_share'], fl.get('periods', '?'), fl.get('stalls', '?'),
+                1e3 * fl.get('worst_stall_s', 0), fl.get('scheduling', '?'),
+                '%.1f us' % (1e6 * fl['work_median_s']) if fl.get('work_median_s')
+                else '?')))
     for g in s.get('goals_missed', []):
         lines.append('| GOAL MISSED | %s |' % g)
     for m in s.get('machine_limits', []):

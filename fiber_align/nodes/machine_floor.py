@@ -35,11 +35,28 @@ from fiber_align.control.cycle import DeadlineGrid
 
 #: s: how long :meth:`Floor.stop` waits for the probe's figures
 STOP_WAIT_S = 2.0
+#: every this many ticks the probe times a fixed piece of Python work (:func:`work`)
+WORK_EVERY = 10
+#: the work's size (loop iterations): about 20 us on this machine
+WORK_N = 500
+
+
+def work(n=WORK_N):
+    """Return the sum of ``range(n)``, added one by one: a fixed piece of Python work."""
+    total = 0
+    for i in range(n):
+        total += i
+    return total
 
 
 def probe(rate_hz, priority, stop):
     """
     Run the bare loop until ``stop()``; return its :meth:`DeadlineGrid.figures`.
+
+    Besides the lost periods: ``work_median_s``, the median time (s) of :func:`work`,
+    timed every :data:`WORK_EVERY` ticks: the machine's speed over the run (the same
+    graph takes more CPU per period on a slower or busier host, which loses no period
+    of a bare loop but more of the graph's).
 
     :param rate_hz: the loop's rate (Hz). :param priority: ``SCHED_FIFO`` priority
         (0: the normal policy); refused, the loop runs at the normal policy and says so
@@ -52,17 +69,24 @@ def probe(rate_hz, priority, stop):
             sched = 'SCHED_FIFO %d' % priority
         except (AttributeError, OSError) as exc:
             sched = 'SCHED_OTHER (SCHED_FIFO %d refused: %s)' % (priority, exc)
-    clock = time.monotonic
+    clock, timer = time.monotonic, time.perf_counter
     grid = DeadlineGrid(1.0 / float(rate_hz), clock())
     deadline = grid.deadline
+    work_s = []
     while not stop():
         wait = deadline - clock()
         if wait > 0:
             time.sleep(wait)
         deadline = grid.wake(clock())
+        if grid.ticks % WORK_EVERY == 0 and len(work_s) < 1000000:
+            t = timer()
+            work()
+            work_s.append(timer() - t)
     out = grid.figures(clock())
+    work_s.sort()
     out.update(scheduling=sched, rate_hz=float(rate_hz), t0_s=grid.t0_s,
-               stall_times_s=[round(t, 4) for t, _ in grid.stalls[:1000]])
+               stall_times_s=[round(t, 4) for t, _ in grid.stalls[:1000]],
+               work_median_s=work_s[len(work_s) // 2] if work_s else None)
     return out
 
 

@@ -247,10 +247,11 @@ def _report(summary, a):
             '%s %.2f' % kv for kv in sorted(procs.items()))), flush=True)
     fl = summary.get('floor')
     if fl:
-        print('rig: machine floor (bare loop beside the graph): %s' % (
-            fl['error'] if 'error' in fl else 'lost %.3f %% of %d periods, %d stalls, the '
-            'longest %.0f ms' % (100 * fl['lost_share'], fl['periods'], fl['stalls'],
-                                 1e3 * fl['worst_stall_s'])), flush=True)
+        text = fl['error'] if 'error' in fl else (
+            'lost %.3f %% of %d periods, %d stalls, the longest %.0f ms; its fixed work took '
+            '%.1f us' % (100 * fl['lost_share'], fl['periods'], fl['stalls'],
+                         1e3 * fl['worst_stall_s'], 1e6 * (fl.get('work_median_s') or 0.0)))
+        print('rig: machine floor (bare loop beside the graph): %s' % text, flush=True)
     for m in summary.get('goals_missed') or ():
         print('rig: GOAL MISSED: %s' % m, flush=True)
     for m in summary.get('machine_limits') or ():
