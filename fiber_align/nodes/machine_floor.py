@@ -37,7 +37,7 @@ from fiber_align.control.cycle import DeadlineGrid
 STOP_WAIT_S = 2.0
 #: every this many ticks the probe times a fixed piece of Python work (:func:`work`)
 WORK_EVERY = 10
-#: the work's size (loop iterations): about 20 us on this machine
+#: the work's size (loop iterations): tens of microseconds, a small part of a period
 WORK_N = 500
 
 

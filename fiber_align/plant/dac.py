@@ -41,6 +41,10 @@ def replay_edges(prev, writes, n):
     return out
 
 
+#: ticks the catch-up of a long stall waits, at most, for the drives written during it
+MAX_WAIT_TICKS = 20
+
+
 class DacClock:
     """
     The realtime simulated plant's sample clock: latch, late ticks, catch-up and replay.
@@ -50,8 +54,10 @@ class DacClock:
     drive is a missed cycle). A tick that comes late advances the plant by every elapsed
     period (the plant keeps wall time), counts the skipped periods as missed and replays
     the drives written meanwhile over them (:func:`replay_edges`); after a stall of over
-    ``max_catch_up`` periods it waits one tick for them (they race the timer when the
-    process wakes). Pure: the node passes the clock readings (s, ns).
+    ``max_catch_up`` periods it waits for them (they race the timer when the process
+    wakes, and a loaded machine delivers a backlog over several ticks): one tick, then
+    while new ones still arrive, at most :data:`MAX_WAIT_TICKS` ticks. Pure: the node
+    passes the clock readings (s, ns).
 
     :param plant: the :class:`~fiber_align.plant.actuator.SimulatedActuator`.
     :param period_s: sample period (s).
@@ -71,7 +77,8 @@ class DacClock:
         self.writes = []                # drives written since the last tick (V)
         self.drives_in_period = 0
         self.n_drive = 0
-        self.deferred = False           # a stall's catch-up waits one tick
+        self.waited = 0                 # ticks a stall's catch-up has waited
+        self.n_drive_waited = 0         # drives written when it last waited
         self.m0 = None                  # scheduled time (s) of tick 0; None: restart
         self.wall0_ns = 0               # system time (ns) of the nominal tick 0
         self.stats_from = 0             # first sample counted in the statistics
@@ -104,10 +111,9 @@ class DacClock:
         steps = 0
         if not fresh:
             steps = max(1, int(round((sched - self.m0) / period)) - k)
-            if steps > self.max_catch_up and not self.deferred:
-                self.deferred = True    # a stall: its drives may still be on their way
-                return None
-            self.deferred = False
+            if steps > self.max_catch_up and self._wait_for_drives():
+                return None             # a stall: its drives may still be on their way
+            self.waited = 0
             if k >= self.stats_from:
                 if self.drives_in_period == 0 and self.n_drive > 0:
                     self.missed += 1
@@ -122,3 +128,12 @@ class DacClock:
         self.u_latched = self.v_latest
         self.drives_in_period = 0
         return steps
+
+    def _wait_for_drives(self):
+        """Return True while a long stall's catch-up waits (one tick, then while drives come)."""
+        if self.waited == 0 or (self.n_drive > self.n_drive_waited
+                                and self.waited < MAX_WAIT_TICKS):
+            self.waited += 1
+            self.n_drive_waited = self.n_drive
+            return True
+        return False

@@ -27,9 +27,9 @@ from fiber_align.jsonout import json_default
 from fiber_align.nodes._recording import recorder_counts, recorder_short, recorder_short_full
 from fiber_align.nodes.bringup import interrupt
 from fiber_align.nodes.bringup.children import Child, wait_all
-from fiber_align.nodes.machine_floor import Floor
 from fiber_align.nodes.bringup.cli import expected_endpoints, TRACKING_SCENARIOS
 from fiber_align.nodes.bringup.observer import BadInput, BringupError, Observer, StartStall
+from fiber_align.nodes.machine_floor import Floor
 from fiber_align.nodes.ros.diagnostics import endpoint_node_name
 
 EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
