@@ -44,6 +44,9 @@ GRAPH_VALUES = {
     'realtime_setpoint_accel_m_per_s2': (
         'realtime: acceleration limit of the setpoint trajectory (m/s^2); <= 0: none', -1.0,
         1e4, None, None),
+    'cpu_idle_poll': ('with realtime_priority: hold /dev/cpu_dma_latency at 0 us while the '
+                      'process runs, so idle CPUs poll instead of halting (bool; needs '
+                      'root; refused: a WARN)', None, None, None, None),
     'lock_memory': ('with realtime_priority: lock the process memory in RAM (mlockall; '
                     'bool)', None, None, None, None),
     'realtime_priority': ('SCHED_FIFO priority of the executor thread (1..99); 0: normal '
@@ -54,7 +57,7 @@ GRAPH_VALUES = {
                        None),
 }
 #: The process-wide scheduling values a node of the control loop declares.
-PRIORITY = ('lock_memory', 'publish_thread', 'realtime_priority')
+PRIORITY = ('cpu_idle_poll', 'lock_memory', 'publish_thread', 'realtime_priority')
 
 
 def declare_graph_values(node, defaults, *names):

@@ -127,6 +127,60 @@ def lock_memory():
         return False
 
 
+class CpuLatencyRequest:
+    """
+    A PM QoS request of 0 us on ``/dev/cpu_dma_latency``: idle CPUs poll, never halt.
+
+    The kernel keeps every CPU out of the idle states slower to leave than the smallest
+    request while the file stays open, and drops the request when it is closed (at the
+    latest when the process ends, however it ends). A halted CPU wakes late for a timer,
+    and a halted virtual CPU goes back to its host, which may keep it for milliseconds;
+    a polling one answers at once. The cost is power (the CPUs never sleep), not CPU
+    time of any process. Needs root (the file is root's alone).
+    """
+
+    PATH = '/dev/cpu_dma_latency'
+
+    def __init__(self):
+        """Open nothing yet (:meth:`hold`)."""
+        self._fd = None
+
+    def hold(self):
+        """
+        Make the request; return a short text for the log and ``/diagnostics``.
+
+        ``CPUs held awake`` when the kernel took it, else ``CPUs not held awake
+        (cpu_dma_latency refused: ...)`` with the reason; nothing changes then.
+        """
+        import os
+        import struct
+        if self._fd is not None:
+            return 'CPUs held awake'
+        try:
+            fd = os.open(self.PATH, os.O_WRONLY | os.O_CLOEXEC)
+        except OSError as exc:
+            return 'CPUs not held awake (cpu_dma_latency refused: %s)' % exc.strerror
+        try:
+            os.write(fd, struct.pack('i', 0))
+        except OSError as exc:
+            os.close(fd)
+            return 'CPUs not held awake (cpu_dma_latency refused: %s)' % exc.strerror
+        self._fd = fd
+        return 'CPUs held awake'
+
+    @property
+    def held(self):
+        """Return True while the request is in force."""
+        return self._fd is not None
+
+    def release(self):
+        """End the request (idempotent)."""
+        import os
+        fd, self._fd = self._fd, None
+        if fd is not None:
+            os.close(fd)
+
+
 #: Errors of a node's construction that are bad input: one line, exit code 2.
 NODE_ERRORS = (ConfigError, ParameterException, ValueError, TypeError, KeyError)
 
@@ -367,10 +421,16 @@ def spin(nodes, realtime=False, priority=0, stop=None, threads=1, then=None):
     lock = any(n.has_parameter('lock_memory') and n.get_parameter('lock_memory').value
                for n in nodes)
     sched = set_realtime_priority(priority, lock)
+    awake = CpuLatencyRequest()
+    if sched.startswith('SCHED_FIFO') and any(
+            n.has_parameter('cpu_idle_poll') and n.get_parameter('cpu_idle_poll').value
+            for n in nodes):
+        sched += ', ' + awake.hold()
     for node in nodes:
         if priority:
             lg = node.get_logger()
-            (lg.info if sched.startswith('SCHED_FIFO') else lg.warn)('scheduling: %s' % sched)
+            ok = sched.startswith('SCHED_FIFO') and 'refused' not in sched
+            (lg.info if ok else lg.warn)('scheduling: %s' % sched)
         health = getattr(node, 'health', None)
         if health is not None:
             health.set_values(scheduling=sched)
@@ -393,6 +453,7 @@ def spin(nodes, realtime=False, priority=0, stop=None, threads=1, then=None):
                 pass
         drain(executor, 1.0)
         executor.shutdown(timeout_sec=1.0)
+        awake.release()
 
 
 def drain(executor, timeout_s):
