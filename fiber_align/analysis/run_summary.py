@@ -181,15 +181,9 @@ def format_summary(s):
         cpu = u.get('cpu_per_s')
         lines.append('| process %s | CPU %s s/s, RSS %.0f MB |'
                      % (name, '%.2f' % cpu if cpu is not None else '?', u.get('rss_mb', 0)))
-    fl = s.get('floor')
-    if fl:
-        lines.append('| machine floor (bare loop beside the graph) | %s |' % (
-            fl['error'] if 'error' in fl else 'lost %.3g %% of %s periods, %s stalls, the '
-            'longest %.0f ms, %s; its fixed work took %s' % (
-                100 * fl['lost_share'], fl.get('periods', '?'), fl.get('stalls', '?'),
-                1e3 * fl.get('worst_stall_s', 0), fl.get('scheduling', '?'),
-                '%.1f us' % (1e6 * fl['work_median_s']) if fl.get('work_median_s')
-                else '?')))
+    if s.get('floor'):
+        lines.append('| machine floor (bare loop beside the graph) | %s |' % floor_text(
+            s['floor']))
     for g in s.get('goals_missed', []):
         lines.append('| GOAL MISSED | %s |' % g)
     for m in s.get('machine_limits', []):
@@ -263,6 +257,23 @@ def worst_cycles(worst, node, values):
         v = _num(values.get(key))
         if v is not None:
             w[out] = max(w.get(out, v), v)
+
+
+def floor_text(floor):
+    """
+    Return one line of the machine-floor probe's figures (its error if it had none).
+
+    :param floor: the probe's figures (:mod:`fiber_align.nodes.machine_floor`'s JSON:
+        ``lost_share``, ``periods``, ``stalls``, ``worst_stall_s`` (s), ``scheduling``,
+        ``work_median_s`` (s)) or ``{'error': text}``.
+    """
+    if 'error' in floor:
+        return floor['error']
+    work = floor.get('work_median_s')
+    return 'lost %.3g %% of %s periods, %s stalls, the longest %.0f ms, %s; its fixed work ' \
+        'took %s' % (100 * floor['lost_share'], floor.get('periods', '?'),
+                     floor.get('stalls', '?'), 1e3 * floor.get('worst_stall_s', 0),
+                     floor.get('scheduling', '?'), '%.1f us' % (1e6 * work) if work else '?')
 
 
 def beyond_floor(missed_share, floor):

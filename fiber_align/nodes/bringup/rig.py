@@ -245,13 +245,9 @@ def _report(summary, a):
     if procs:
         print('rig CPU: %.2f core in all (%s)' % (sum(procs.values()), ', '.join(
             '%s %.2f' % kv for kv in sorted(procs.items()))), flush=True)
-    fl = summary.get('floor')
-    if fl:
-        text = fl['error'] if 'error' in fl else (
-            'lost %.3f %% of %d periods, %d stalls, the longest %.0f ms; its fixed work took '
-            '%.1f us' % (100 * fl['lost_share'], fl['periods'], fl['stalls'],
-                         1e3 * fl['worst_stall_s'], 1e6 * (fl.get('work_median_s') or 0.0)))
-        print('rig: machine floor (bare loop beside the graph): %s' % text, flush=True)
+    if summary.get('floor'):
+        print('rig: machine floor (bare loop beside the graph): %s'
+              % sm.floor_text(summary['floor']), flush=True)
     for m in summary.get('goals_missed') or ():
         print('rig: GOAL MISSED: %s' % m, flush=True)
     for m in summary.get('machine_limits') or ():
