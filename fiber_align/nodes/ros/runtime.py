@@ -156,14 +156,13 @@ class CpuLatencyRequest:
         import struct
         if self._fd is not None:
             return 'CPUs held awake'
+        fd = None
         try:
             fd = os.open(self.PATH, os.O_WRONLY | os.O_CLOEXEC)
-        except OSError as exc:
-            return 'CPUs not held awake (cpu_dma_latency refused: %s)' % exc.strerror
-        try:
             os.write(fd, struct.pack('i', 0))
         except OSError as exc:
-            os.close(fd)
+            if fd is not None:
+                os.close(fd)
             return 'CPUs not held awake (cpu_dma_latency refused: %s)' % exc.strerror
         self._fd = fd
         return 'CPUs held awake'
