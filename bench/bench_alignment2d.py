@@ -30,7 +30,7 @@ from fiber_align.alignment import sequencer2d as s2d
 
 def targets(n_x=5, n_y=4, seed=14):
     """Return one uniform random target (m) in each cell of an ``n_x`` by ``n_y`` grid."""
-    seq = s2d.Sequencer2D()
+    seq = s2d.Sequencer2D(period_s=sc.graph_period_s())
     rng = np.random.default_rng(seed)
     ex = np.linspace(seq.lo[0], seq.hi[0], n_x + 1)
     ey = np.linspace(seq.lo[1], seq.hi[1], n_y + 1)

@@ -8,7 +8,9 @@ import pytest
 
 from fiber_align.alignment import search2d as s2
 from fiber_align.alignment import sequencer2d as s2d
+from fiber_align.alignment.tracking import JointDemodulator
 from fiber_align.plant import optics as op
+from fiber_align.simulation.seeds2d import graph_period_s
 
 W = 5.2e-6
 K = 1.0 / W ** 2                  # curvature of ln P (1/m^2), no gap
@@ -25,7 +27,7 @@ def _min_dist(grid, path, chunk=400):
 
 
 def test_spiral_pitch_leaves_no_gap_larger_than_the_capture_radius():
-    seq = s2d.Sequencer2D()
+    seq = s2d.Sequencer2D(period_s=graph_period_s())
     p = seq.p
     rc = seq.capture_radius_m
     assert rc == pytest.approx(W * math.sqrt(p['spiral_capture_db'] * math.log(10) / 10))
@@ -113,14 +115,14 @@ def test_circle_demodulation_points_uphill(lag_deg):
         off = 0.6e-6
         cx, cy = x0 - off * math.cos(ang), y0 - off * math.sin(ang)   # peak at +ang
         det = op.Detector(noise_floor_w=0.0, rin_db=0.0, seed=0)
-        dm = s2.CircleDemodulator(0.04, lag_s=det.lag_s(dt))
+        dm = JointDemodulator(2, 0.04, lag_s=det.lag_s(dt))
         for k in range(200):
             # the tip follows the commanded circle with a phase lag and 80 % amplitude
             ph = 2 * math.pi * f * k * dt - math.radians(lag_deg)
             x = cx + 0.8 * a * math.cos(ph)
             y = cy + 0.8 * a * math.sin(ph)
             pw = det.measure(1e-3 * math.exp(-K * ((x - x0) ** 2 + (y - y0) ** 2)), dt)
-            dm.update(dt, x, y, math.log(pw))
+            dm.update(dt, (x, y), math.log(pw))
         gx, gy = dm.gradient(0.01 * a * a)
         err = math.degrees(math.atan2(math.sin(math.atan2(gy, gx) - ang),
                                       math.cos(math.atan2(gy, gx) - ang)))
@@ -129,14 +131,17 @@ def test_circle_demodulation_points_uphill(lag_deg):
 
 
 def test_parameters_come_from_the_config_file_only():
-    seq = s2d.Sequencer2D()
+    seq = s2d.Sequencer2D(period_s=graph_period_s())
     assert seq.p == s2d.load_sequencer2d_params()
     with pytest.raises(ValueError, match='unknown'):
-        s2d.Sequencer2D(not_a_parameter=1.0)
+        s2d.Sequencer2D(period_s=1e-3, not_a_parameter=1.0)
     p = s2d.load_sequencer2d_params()
     del p['dither_radius_m']
     with pytest.raises(ValueError, match='missing'):
-        s2d.Sequencer2D(p)
+        s2d.Sequencer2D(p, period_s=1e-3)
+    # the period is the caller's (1 / the graph's rate_hz): the core reads no file for it
+    with pytest.raises(ValueError, match='period_s'):
+        s2d.Sequencer2D()
 
 
 def test_the_search_walks_no_faster_than_the_realtime_path_follows():

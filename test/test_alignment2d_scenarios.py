@@ -104,7 +104,7 @@ def test_broken_fiber_and_power_lost_while_tracking(rig):
 
 
 def test_pure_core_faults_and_api():
-    seq = s2d.Sequencer2D()
+    seq = s2d.Sequencer2D(period_s=sc.graph_period_s())
     sp = seq.update(0.0, 0.0, 0.0, 1e-10)
     assert isinstance(sp, tuple) and len(sp) == 2 and sp == (0.0, 0.0)
     assert seq.switch(True)[0] is False                 # nothing aligned yet
@@ -162,7 +162,7 @@ def test_core_replays_sample_for_sample(rig):
     tr = b.trace()
     # replay up to the first switch-off, a command the replay does not send
     n = list(tr['state']).index(s2d.RELEASING)
-    seq = s2d.Sequencer2D()
+    seq = s2d.Sequencer2D(period_s=sc.graph_period_s())
     out = []
     for k in range(n):
         if k == 20:                                     # align_bench commands at 20 ms

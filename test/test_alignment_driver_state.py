@@ -188,7 +188,7 @@ def test_idle_and_release_are_not_refused_or_moved_by_a_down_driver():
 
 
 def test_sequencer2d_holds_on_the_message_and_refuses_align():
-    seq = s2d.Sequencer2D()
+    seq = s2d.Sequencer2D(period_s=1e-3)
     for n in s2d.DRIVERS:
         seq.driver_held(False, n)
         seq.driver_lifecycle('active', n)

@@ -10,7 +10,9 @@ from fiber_align.alignment import station as st
 from fiber_align.alignment import station_search as ss
 from fiber_align.alignment import station_serial as ser
 from fiber_align.alignment.states import FAULT, HELD, IDLE, PEAKING, TRACKING
+from fiber_align.alignment.tracking import JointDemodulator
 from fiber_align.simulation import station_scenarios as sc
+from fiber_align.simulation.seeds2d import graph_period_s
 
 
 @pytest.fixture(scope='module')
@@ -19,7 +21,7 @@ def rig():
 
 
 def test_search_path_passes_every_joint_peak_within_the_capture():
-    seq = st.Station()
+    seq = st.Station(period_s=graph_period_s())
     p = seq.p
     w, half = p['coupling_radius_m'], p['search_half_width_m']
     path = seq.search_path(seq.park)
@@ -70,14 +72,14 @@ def test_joint_fit_recovers_the_separable_paraboloid():
 def test_joint_demodulator_separates_two_circles_at_distinct_frequencies():
     g = np.array([0.3e6, -0.2e6, 0.1e6, 0.4e6])        # d ln P / d pos, 1/m
     a, dt = 0.1e-6, 1e-3
-    dem = ss.JointDemodulator(4, 0.05)
+    dem = JointDemodulator(4, 0.05)
     for k in range(400):
         t = k * dt
         pos = a * np.array([math.cos(2 * math.pi * 100 * t), math.sin(2 * math.pi * 100 * t),
                             math.cos(2 * math.pi * 80 * t), math.sin(2 * math.pi * 80 * t)])
         dem.update(dt, pos, -2.0 + float(g @ pos))
     assert np.allclose(dem.gradient(0.1 * a * a), g, rtol=1e-6)
-    same = ss.JointDemodulator(4, 0.05)
+    same = JointDemodulator(4, 0.05)
     for k in range(400):
         ph = 2 * math.pi * 100 * k * dt
         pos = a * np.array([math.cos(ph), math.sin(ph), math.cos(ph), math.sin(ph)])
@@ -96,7 +98,7 @@ def test_concurrent_reaches_the_joint_peak_in_fewer_samples_than_serial(rig, see
     assert r['time_to_first_light_s'] == b['time_to_first_light_s']      # one search
     assert r['samples_ratio'] == pytest.approx(r['peak_samples'] / b['peak_samples'])
     assert r['samples_ratio'] <= 0.6
-    off = np.abs(np.asarray(r['facets_m']) - st.Station().park)
+    off = np.abs(np.asarray(r['facets_m']) - st.Station(period_s=graph_period_s()).park)
     assert np.all(off >= 2e-6) and np.all(off <= 20e-6)
 
 
@@ -137,9 +139,9 @@ def test_release_and_switch_on_re_peak_both_sides(rig):
 
 def test_parameters_are_checked():
     with pytest.raises(ValueError, match='unknown'):
-        st.Station(bogus=1.0)
+        st.Station(period_s=1e-3, bogus=1.0)
     with pytest.raises(ValueError, match='distinct'):
-        st.Station(dither_out_frequency_hz=100.0)
+        st.Station(period_s=1e-3, dither_out_frequency_hz=100.0)
 
 
 @pytest.mark.parametrize('when', ['tracking', 'peaking'])

@@ -22,6 +22,7 @@ Parameters: node ``hill_climb_2d`` of ``config/sequencer2d.yaml`` (plus everythi
 import numpy as np
 
 from fiber_align.alignment import sequencer2d as s2d
+from fiber_align.alignment.tracking import LossWatch
 from fiber_align.config import load_params
 
 CONFIG_NODE = 'hill_climb_2d'
@@ -76,7 +77,7 @@ class HillClimb2D(s2d.Sequencer2D):
         self._visit([center], self._first_reading)
 
     def _first_reading(self, rows):
-        self._here = (self._goal.copy(), float(rows[0, 2]))
+        self._here = (self._visiting.goal.copy(), float(rows[0, 2]))
         self._probe()
 
     def _probe(self):
@@ -90,7 +91,7 @@ class HillClimb2D(s2d.Sequencer2D):
     def _judge(self, rows):
         gain = 10 ** (self.hp['gain_margin_db'] / 10.0)
         if rows is not None and rows[0, 2] > self._here[1] * gain:
-            self._here = (self._goal.copy(), float(rows[0, 2]))
+            self._here = (self._visiting.goal.copy(), float(rows[0, 2]))
             self._gained_axis = self._gained_pass = True
             return self._probe()                 # keep going this way
         if not self._gained_axis and not self._tried_back:
@@ -142,7 +143,9 @@ class HillClimb2D(s2d.Sequencer2D):
 
     def _start_tracking(self, t):
         self._enter(s2d.TRACKING)
-        self._loss_since = None
+        p = self.p
+        self._loss = LossWatch(self.aligned_power_w, p['track_loss_db'],
+                               p['track_loss_timeout_s'])
         self._axis = 0
         self._track_round()
 
@@ -152,16 +155,13 @@ class HillClimb2D(s2d.Sequencer2D):
 
     def _track_judge(self, rows):
         best = int(np.argmax(rows[:, 2]))
-        self.aligned = self._queue_pts[best].copy()
+        self.aligned = self._visiting.points[best].copy()
         self._axis = 1 - self._axis
         self._track_round()
 
-    def _visit(self, points, done):
-        self._queue_pts = [np.minimum(np.maximum(np.asarray(q, float), self.lo), self.hi)
-                           for q in points]
-        super()._visit(points, done)
-
     def _do_tracking(self, t, pos, pw):
-        if self._lost_power(t, pw):
+        if self._loss.lost(t, pw):
+            if self._loss.fault:
+                self._fault(self._loss.fault)
             return
         self._do_visit(t, pos, pw)

@@ -1,113 +1,122 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-The sequencer's HELD state: the driver holds its output, the sequencer waits for it.
+HELD, one law for every sequencer: a driver holds its output, the sequencer waits for it.
 
 A driver that holds its output (a watchdog trip, ``enable`` false, an inactive or
-unconfigured lifecycle node: ``drive_held`` true) while the sequencer is SEARCHING,
-PEAKING or TRACKING does not end the alignment. The sequencer enters HELD: it keeps its
-last setpoint (nothing jumps when the driver resumes), says why (an event and
-``hold_reason``) and waits. When the driver drives again (the re-arm: ``enable`` true,
-a lifecycle cycle, or the input back after a trip) it waits for the actuator to return
-to the held setpoint, then goes on from there:
+unconfigured lifecycle node: ``drive_held`` true) while a sequencer is SEARCHING, PEAKING
+or TRACKING does not end the alignment. The sequencer enters HELD: every axis keeps its
+last setpoint (the dithers stop too: nothing moves while one axis cannot, nothing jumps
+when the driver resumes), ``hold_reason`` and an event say why, and it waits. When every
+driver drives again (the re-arm) it waits until every axis is back at its held setpoint:
+within ``settle_tolerance_m`` for ``settle_samples`` readings in a row (the sequencer's own
+settling rule), with a power reading; then:
 
-- a trip before any light (SEARCHING): the search starts again;
-- a trip in the first sweep through the peak: the sweep goes on from the held point,
-  with the readings taken before the trip;
-- a trip after a fit (PEAKING) or in TRACKING: a local re-peak (the +-``repeak_span_m``
-  sweep with the known curvature) around the last peak estimate, then TRACKING;
-- no light at the held point after the return (the slot moved, the source went off): the
-  search starts again.
+- nothing to re-peak from (held while SEARCHING, before any light): search again;
+- no light at the held point (a reading at or below the first-light threshold: the slot
+  moved, the source went off): search again;
+- else re-peak from there: the machine's own choice (the 1-D sweep goes on with the
+  readings taken before the trip, or a local re-peak around the last estimate; the 2-D and
+  the station peak around it), then TRACKING.
 
-FAULT only when the driver stays down for longer than ``driver_down_timeout_s`` (s), or
-the actuator does not return to the held setpoint once the driver drives again.
-:class:`Hold` is a base of :class:`fiber_align.alignment.sequencer.Sequencer` (its state
-and parameters; SI: s, m, W).
+FAULT when the drivers stay down longer than ``driver_down_timeout_s`` (s), or when the axes
+are not back at the held setpoints ``driver_down_timeout_s`` after the re-arm. A driver down
+again while the axes return restarts the wait.
+
+:class:`Hold` is owned by the sequencer (``machine.Machine.hold``); it keeps its own state
+and returns what to do, the machine does it. SI units: s, m, W.
 """
 
-from fiber_align.alignment.states import HELD, PEAKING, SEARCHING, TRACKING
+import numpy as np
+
+from fiber_align.alignment.states import FAULT, PEAKING, SEARCHING
+
+
+def um(v):
+    """Return a position (m; one value or several) as text in um."""
+    v = np.atleast_1d(np.asarray(v, dtype=float))
+    if v.size == 1:
+        return '%.2f um' % (v[0] * 1e6)
+    return '(%s) um' % ', '.join('%.2f' % (q * 1e6) for q in v)
 
 
 class Hold:
-    """The HELD steps of the sequencer (a base of its class; uses its state)."""
+    """
+    The HELD state over a set of axes (module docstring).
 
-    hold_reason = ''
+    :param tolerance_m: an axis is back when within this of its held setpoint (m) ...
+    :param samples: ... for this many readings in a row.
+    :param timeout_s: longest wait for the re-arm, and for the return after it (s).
+    :param log: called with the text of each event (the machine's event log).
+    """
 
-    def _hold(self, t, y, why=''):
+    def __init__(self, tolerance_m, samples, timeout_s, log):
+        """Start out of HELD (no reason)."""
+        self.tolerance_m = float(tolerance_m)
+        self.samples = int(samples)
+        self.timeout_s = float(timeout_s)
+        self.log = log
+        self.reason = ''
+        self.held_from = self.center = self.setpoint = None
+        self.phase, self.since, self.count, self.why = '', None, 0, ''
+
+    def enter(self, t, state, setpoint, center, down=(), why=''):
         """
-        Enter HELD from an active state: keep the setpoint, note what was going on.
+        Enter HELD at ``t`` (s) from ``state``; return the reason (text).
 
-        :param why: what the driver's messages say of it (``drivers.reason``), or ''.
+        :param setpoint: the setpoints to hold (m).
+        :param center: what the machine re-peaks from (its type is the machine's), or
+            ``None``: the re-arm searches again.
+        :param down: names of the axes whose driver is down (named when several).
+        :param why: what the drivers' messages say of it, or ''.
         """
-        self._held_from, self._held_phase = self.state, self._phase
-        self._goal_before_hold = getattr(self, '_goal', None)
-        self._enter(HELD)
-        self._phase = 'down'
-        self.hold_reason = ('driver down during %s at %.2f um%s: setpoint held, waiting for '
-                            'the re-arm (enable or a lifecycle cycle), FAULT after %.1f s'
-                            % (self._held_from, self._setpoint * 1e6,
-                               ' (%s)' % why if why else '',
-                               self.p['driver_down_timeout_s']))
-        self._log(self.hold_reason)
+        self.held_from, self.center = state, center
+        self.setpoint = np.array(setpoint, dtype=float).reshape(-1)
+        self.phase, self.since, self.count, self.why = 'down', t, 0, why
+        self.reason = ('driver%s down during %s at %s%s: setpoints held, waiting for the '
+                       're-arm (enable or a lifecycle cycle), FAULT after %.1f s'
+                       % (' of ' + ', '.join(down) if down else '', state, um(self.setpoint),
+                          ' (%s)' % why if why else '', self.timeout_s))
+        return self.reason
 
-    def _do_held(self, t, y, pw):
-        p = self.p
-        if not self._driver_up:
-            if self._phase != 'down':               # down again while returning
-                self._phase, self._state_t = 'down', t
-                self._log('driver down again while returning: setpoint held')
-            if self._elapsed(t) > p['driver_down_timeout_s']:
-                self._fault('driver inactive: the driver held its output for more than '
-                            '%.1f s (since %.3f s, during %s at %.2f um) without a re-arm '
-                            '(enable or a lifecycle cycle); release or align once it drives'
-                            % (p['driver_down_timeout_s'], self._state_t, self._held_from,
-                               self._setpoint * 1e6))
-            return
-        if self._phase == 'down':
-            self._log('driver back after %.0f ms' % (self._elapsed(t) * 1e3))
-            if self._held_from == SEARCHING:
-                self._resume_search('no light before the trip')
-                return
-            self._phase, self._return_t, self._return_from = 'return', t, y
-            self._settle_count = 0
-        self._goal = self._setpoint
-        if self._settled(y):
-            if pw is None:
-                return                              # decide on a reading
-            if self.threshold_w is not None and pw <= self.threshold_w:
-                self._resume_search('no light at the held point %.2f um after the re-arm'
-                                    % (self._setpoint * 1e6))
-            else:
-                self._resume_peak(t)
-        elif t - self._return_t > p['settle_timeout_s'] + abs(
-                self._setpoint - self._return_from) / p['search_speed_m_per_s']:
-            self._fault('actuator does not return to the held setpoint %.2f um after the '
-                        're-arm (at %.2f um)' % (self._setpoint * 1e6, y * 1e6))
+    def step(self, t, pos, pw, driver_up, threshold_w):
+        """
+        Advance one period; return ``(state, text)``: what the machine does next.
 
-    def _resume_search(self, why):
-        self.hold_reason = ''
-        self._log('%s: searching again' % why)
-        self._resumed = True            # align and switch replace this resume
-        self._enter(SEARCHING)
-        self._start_search()
+        ``(None, '')``: stay HELD; ``(FAULT, why)``; ``(SEARCHING, why)``: search again;
+        ``(PEAKING, '')``: re-peak from :attr:`center`.
 
-    def _resume_peak(self, t):
-        """Re-peak from the held point: go on with the first sweep, or a local one."""
-        self.hold_reason = ''
-        self._resumed = True            # align and switch replace this re-peak
-        phase = self._held_phase
-        if self._held_from == PEAKING and phase == 'sweep' and self._first_sweep:
-            # the readings before the trip stay valid: the sweep goes on from here
-            self.state, self._state_t, self._phase = PEAKING, t, 'sweep'
-            self._follow_since = None
-            self.events.append((t, PEAKING, 'driver back: the sweep goes on'))
-            return
-        if self._held_from == TRACKING:
-            center = self._x_hat
-        elif phase in ('goto', 'goto_peak', 'verify'):
-            center = self._goal_before_hold
-        else:
-            center = self._local_center
-        self._enter(PEAKING)
-        self._refits, self._goto_phase = 0, None
-        self._start_local(center)
-        self._log('driver back: local re-peak around %.2f um' % (center * 1e6))
+        :param pos: the measured positions (m).
+        :param pw: the power reading (W), or None.
+        :param driver_up: False while a driver is down.
+        :param threshold_w: the first-light threshold (W), or None.
+        """
+        if not driver_up:
+            if self.phase != 'down':
+                self.phase, self.since = 'down', t
+                self.log('driver down again while returning: setpoints held')
+            if t - self.since > self.timeout_s:
+                return FAULT, ('driver inactive: a driver held its output for more than '
+                               '%.1f s (since %.3f s, during %s at %s) without a re-arm '
+                               '(enable or a lifecycle cycle)%s; release or align once it '
+                               'drives' % (self.timeout_s, self.since, self.held_from,
+                                           um(self.setpoint),
+                                           ': %s' % self.why if self.why else ''))
+            return None, ''
+        if self.phase == 'down':
+            self.log('%s back after %.0f ms' % ('driver' if self.setpoint.size == 1
+                                                else 'drivers', (t - self.since) * 1e3))
+            self.phase, self.since, self.count = 'return', t, 0
+        err = np.abs(np.asarray(pos, dtype=float).reshape(-1) - self.setpoint)
+        self.count = self.count + 1 if np.all(err < self.tolerance_m) else 0
+        if self.count >= self.samples and pw is not None:
+            self.reason = ''
+            if self.center is None:
+                return SEARCHING, 'no light before the trip'
+            if threshold_w is not None and pw <= threshold_w:
+                return SEARCHING, ('no light at the held point %s after the re-arm'
+                                   % um(self.setpoint))
+            return PEAKING, ''
+        if t - self.since > self.timeout_s:
+            return FAULT, ('actuator does not return to the held setpoint %s after the '
+                           're-arm (at %s)' % (um(self.setpoint), um(pos)))
+        return None, ''

@@ -12,7 +12,13 @@ machine, a subclass provides:
 - ``_start_repeak()``: after ``switch(True)`` entered PEAKING; returns the message;
 - ``_aligned_point()``: the last aligned position (m), ``None`` before the first;
 - ``_park_text()``: the park position for the ``release`` message (um, text);
-- ``_driver_down(reason)``: a driver stopped driving in an active state (HELD or FAULT).
+- ``_hold_center()``: what a re-peak after a HELD starts from (``None``: search again);
+- ``_repeak_after_hold(t, center)``: re-peak from there (the machine's own choice);
+- ``sp``: the setpoints (m, an array, one per axis);
+- ``_down_names(driver_active)``: the axes whose driver is down.
+
+HELD is the one :class:`~fiber_align.alignment.hold.Hold` the machine owns (``hold``);
+TRACKING the one :class:`~fiber_align.alignment.tracking.Tracker` (``_tracker``).
 
 What the drivers publish reaches the machine through ``driver_held``,
 ``driver_lifecycle``, ``driver_diagnostics`` and ``driver_gone`` (the rules:
@@ -25,8 +31,31 @@ Its instances hold ``state``, ``fault_reason``, ``events`` (``(t, state, text)``
 ``drivers`` (:class:`~fiber_align.alignment.driver_state.DriverState`).
 """
 
-from fiber_align.alignment.states import (ACTIVE, FAULT, IDLE, PEAKING, RELEASING, SEARCHING,
-                                          TRACKING)
+import math
+
+import numpy as np
+
+from fiber_align.alignment.hold import Hold
+from fiber_align.alignment.states import (ACTIVE, FAULT, HELD, IDLE, PEAKING, RELEASING,
+                                          SEARCHING, TRACKING)
+
+
+def dbm(p_w):
+    """Return ``p_w`` (W) in dBm for messages; ``nan`` for ``None``."""
+    if p_w is None:
+        return float('nan')
+    return 10.0 * math.log10(max(p_w, 1e-15) / 1e-3)
+
+
+def check_params(base, params, overrides, what):
+    """Return ``params`` (``None``: ``base``) with ``overrides``; every key of ``base``."""
+    p = dict(base if params is None else params)
+    p.update(overrides)
+    missing, unknown = sorted(set(base) - set(p)), sorted(set(p) - set(base))
+    if missing or unknown:
+        raise ValueError('%s parameters: missing %s, unknown %s'
+                         % (what, missing or 'none', unknown or 'none'))
+    return p
 
 
 class Machine:
@@ -35,6 +64,24 @@ class Machine:
     #: True while SEARCHING or PEAKING was entered by the machine itself (the resume
     #: after a HELD): a command then replaces it instead of being refused as busy
     _resumed = False
+
+    def _init_machine(self, p):
+        """Set the state every machine starts with (parameters ``p``, SI)."""
+        self.p = p
+        self.state = IDLE
+        self.fault_reason = ''
+        self.events = []
+        self.aligned_power_w = self.threshold_w = self.floor = self.first_light_t = None
+        self.peak_samples = self.search_samples = self.iterations = 0
+        self.dt = 0.0
+        self._t = self._follow_since = None
+        self._idle_buf = []
+        self._phase = ''
+        self._driver_up = True
+        #: the one HELD law (:mod:`fiber_align.alignment.hold`)
+        self.hold = Hold(p['settle_tolerance_m'], p['settle_samples'],
+                         p['driver_down_timeout_s'], self._log)
+        self._enter(IDLE)
 
     def align(self):
         """Start a full alignment (search, peak, track); return ``(ok, message)``."""
@@ -98,6 +145,76 @@ class Machine:
         if changed and self.state in ACTIVE and d.active is False and not d.pending:
             self._driver_down(d.reason)
             return True
+        return False
+
+    def _driver_down(self, reason):
+        """Hold at once: a driver stopped driving (what the drivers published)."""
+        self._hold(reason, self._down_names(self.drivers.each))
+
+    # ---- HELD (the machine's Hold) ---------------------------------------------------
+    @property
+    def hold_reason(self):
+        """Return why the machine is HELD ('' when it is not)."""
+        return self.hold.reason if self.state == HELD else ''
+
+    def _hold(self, why='', down=()):
+        """Enter HELD from an active state: keep the setpoints, say why."""
+        state, center = self.state, self._hold_center()
+        self._enter(HELD)
+        self._phase = 'down'
+        self._log(self.hold.enter(self._t, state, self.sp, center, down, why))
+
+    def _do_held(self, t, pos, pw):
+        self.sp = self.hold.setpoint.copy()
+        nxt, text = self.hold.step(t, pos, pw, self._driver_up, self.threshold_w)
+        self._phase = self.hold.phase
+        if nxt == FAULT:
+            self._fault(text)
+        elif nxt == SEARCHING:
+            self._search_again(text)
+        elif nxt == PEAKING:
+            self._resumed = True            # align and switch replace this re-peak
+            self._repeak_after_hold(t, self.hold.center)
+
+    def _search_again(self, why):
+        self._log('%s: searching again' % why)
+        self._resumed = True                # align and switch replace this resume
+        self._enter(SEARCHING)
+        self._start_search()
+
+    # ---- TRACKING (the one tracker) --------------------------------------------------
+    def _track(self, t, pos, pw):
+        """Step the tracker; return the setpoints (m), or None after a FAULT."""
+        sp = self._tracker.step(t, self.dt, pos, pw)
+        if sp is None:
+            self._fault(self._tracker.loss.fault)
+        return sp
+
+    # ---- SEARCHING: the floor at rest ------------------------------------------------
+    def _measure_floor(self, rest, pw):
+        """
+        Add a reading at rest to the floor; return None until there are enough (or FAULT).
+
+        Then set ``floor`` and ``threshold_w`` and return True when light is present at
+        the start (a floor above ``floor_max_w``), else False.
+        """
+        p = self.p
+        if rest and pw is not None:
+            self._floor_buf.append(pw)
+        n = int(p['floor_samples'])
+        if len(self._floor_buf) < n:
+            return None
+        f = np.asarray(self._floor_buf[-n:])
+        mean, std = float(f.mean()), float(f.std(ddof=1))
+        self.floor = (mean, std)
+        if np.ptp(f) <= 1e-9 * abs(mean):
+            self._fault('sensor silent: optical power reading is stuck at %.3g W' % mean)
+            return None
+        if mean > p['floor_max_w']:
+            self.threshold_w = p['floor_max_w']
+            self._log('light present at the start (%.1f dBm)' % dbm(mean))
+            return True
+        self.threshold_w = max(mean + p['threshold_sigma'] * std, p['min_threshold_w'])
         return False
 
     def _enter(self, state):

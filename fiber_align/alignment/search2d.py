@@ -8,7 +8,6 @@ Geometry and estimators of the 2-D alignment (pure numpy, SI units).
   Archimedean spiral out to its corners, walked at a constant speed.
 - :func:`fit_log_paraboloid`: weighted least squares of ``ln P`` on a circular paraboloid,
   the exact shape of the Gaussian mode overlap.
-- :class:`CircleDemodulator`: the gradient of ``ln P`` from a circular dither.
 """
 
 import math
@@ -140,64 +139,3 @@ def fit_log_paraboloid(x_m, y_m, p_w, weights=None, curvature=None):
     x0, y0 = coef[1] / (2.0 * k), coef[2] / (2.0 * k)
     lp0 = coef[0] + k * (x0 * x0 + y0 * y0)
     return xm + x0 * 1e-6, ym + y0 * 1e-6, k * 1e12, float(lp0)
-
-
-class CircleDemodulator:
-    """
-    Gradient of ``ln P`` (1/m) from a circular dither, demodulated at the circle frequency.
-
-    The readings are multiplied by the measured circle (the displacement about its running
-    mean, i.e. the cos and sin of the circle frequency as the tip really moved) and averaged
-    with an exponential window of ``time_s``; dividing by the circle's own power gives
-    ``d ln P / dx`` and ``d ln P / dy``. Using the measured displacement instead of the
-    commanded phase removes the loop's phase lag and gain at the circle frequency. The
-    detector's averaging delays the power by ``lag_s``; pairing each reading with the
-    displacement that much earlier removes the rotation that delay would give the gradient.
-
-    :param time_s: averaging time (s), a few circle periods.
-    :param lag_s: detector delay (s).
-    """
-
-    def __init__(self, time_s, lag_s=0.0):
-        """Start empty."""
-        self.time_s = float(time_s)
-        self.lag_s = float(lag_s)
-        self.reset()
-
-    def reset(self):
-        """Forget the statistics."""
-        self.n = 0
-        self.m = np.zeros(3)          # means of x, y, ln P
-        self.c = np.zeros(5)          # cov xx, yy, xy, x lnP, y lnP
-        self.prev = None
-
-    def update(self, dt_s, x_m, y_m, ln_p):
-        """Add one reading: positions (m) and ``ln P`` (power in W)."""
-        if self.prev is not None and dt_s > 0 and self.lag_s > 0:
-            f = min(1.0, self.lag_s / dt_s)
-            xl = x_m - f * (x_m - self.prev[0])
-            yl = y_m - f * (y_m - self.prev[1])
-        else:
-            xl, yl = x_m, y_m
-        self.prev = (x_m, y_m)
-        v = np.array([xl, yl, ln_p])
-        if self.n == 0:
-            self.m = v
-            self.n = 1
-            return
-        a = min(1.0, dt_s / self.time_s) if dt_s > 0 else 1.0
-        d = v - self.m
-        self.m = self.m + a * d
-        prod = np.array([d[0] * d[0], d[1] * d[1], d[0] * d[1], d[0] * d[2], d[1] * d[2]])
-        self.c = (1.0 - a) * (self.c + a * prod)
-        self.n += 1
-
-    def gradient(self, min_var_m2):
-        """Return ``(g_x, g_y)`` (1/m), or None while the circle's variance < ``min_var_m2``."""
-        sxx, syy, sxy, sxl, syl = self.c
-        if sxx < min_var_m2 or syy < min_var_m2:
-            return None
-        det = sxx * syy - sxy * sxy
-        if not det > 0.25 * sxx * syy:
-            return None
-        return ((syy * sxl - sxy * syl) / det, (sxx * syl - sxy * sxl) / det)

@@ -33,13 +33,16 @@ HELD
     the last setpoint is held and the sequencer waits; once the driver drives again and
     the actuator is back at the held setpoint it re-peaks from there (a local sweep; the
     search again when there was no light); FAULT after ``driver_down_timeout_s``
-    (:mod:`fiber_align.alignment.hold`).
+    (:mod:`fiber_align.alignment.hold`). A trip in the first sweep through the peak goes
+    on with that sweep (the readings before the trip stay valid); any other a local
+    re-peak around the last estimate.
 TRACKING
-    Dither extremum seeking: the setpoint is ``x_hat + a sin(2 pi f t)``; the gradient of
-    ``ln P`` is the exponentially weighted regression of ``ln P`` on the measured
-    displacement (phase-free, so the loop's lag at the dither frequency does not bias it);
-    ``x_hat`` moves at ``bandwidth * g / (2 c)`` where ``c`` is the fitted curvature, so
-    the tracking loop has the configured bandwidth (rad/s) whatever the fiber.
+    Dither extremum seeking (:mod:`fiber_align.alignment.tracking`): the setpoint is
+    ``x_hat + a sin(2 pi f t)``; the gradient of ``ln P`` is the exponentially weighted
+    regression of ``ln P`` on the measured displacement (each reading paired with the
+    same period's displacement); ``x_hat`` moves at ``bandwidth * g / (2 c)`` where ``c``
+    is the fitted curvature, so the tracking loop has the configured bandwidth (rad/s)
+    whatever the fiber.
 
 All quantities are SI (s, m, W); dB only for ratios. Defaults: ``config/sequencer.yaml``.
 """
@@ -49,11 +52,11 @@ import math
 import numpy as np
 
 from fiber_align.alignment.driver_state import DriverState
-from fiber_align.alignment.hold import Hold
-from fiber_align.alignment.machine import Machine
+from fiber_align.alignment.machine import dbm as _dbm, Machine
 from fiber_align.alignment.peaking import Peaking
 from fiber_align.alignment.states import (ACTIVE, FAULT, HELD, IDLE, PEAKING,  # noqa: F401
                                           RELEASING, SEARCHING, TRACKING)
+from fiber_align.alignment.tracking import Tracker
 from fiber_align.config import ConfigError, load_params
 
 CONFIG_FILE = 'sequencer.yaml'
@@ -77,7 +80,7 @@ KEYS = (
 )
 
 
-class Sequencer(Machine, Peaking, Hold):
+class Sequencer(Machine, Peaking):
     """Find, peak, track and switch the light on one axis (see the module docstring)."""
 
     def __init__(self, params=None, **overrides):
@@ -105,25 +108,13 @@ class Sequencer(Machine, Peaking, Hold):
         p = {k: p[k] for k in KEYS}
         if not p['range_max_m'] > p['range_min_m']:
             raise ValueError('range_max_m must exceed range_min_m')
-        self.p = p
-        self.state = IDLE
-        self.fault_reason = ''
         self.aligned_position_m = None
         self.curvature_per_m2 = None
-        self.aligned_power_w = None
-        self.threshold_w = None
-        self.floor = None
-        self.peak_samples = 0
-        self.events = []
         self._setpoint = p['park_position_m']
-        self._t = None
         self._last_power_t = None
         self._last_y_t = None
-        self._follow_since = None
-        self._idle_buf = []
-        self._phase = ''
         self.drivers = DriverState()
-        self._enter(IDLE)
+        self._init_machine(p)
 
     # ---- commands (Machine: align, release, switch) ----------------------------------
     def _start_search(self):
@@ -135,9 +126,41 @@ class Sequencer(Machine, Peaking, Hold):
     def _aligned_point(self):
         return self.aligned_position_m
 
-    def _driver_down(self, reason):
-        self._driver_up = False
-        self._hold(self._t, None, reason)
+    @property
+    def sp(self):
+        """Return the setpoint as the one entry of an array (m; the machines' shape)."""
+        return np.array([self._setpoint])
+
+    @sp.setter
+    def sp(self, value):
+        self._setpoint = float(np.asarray(value, dtype=float).reshape(-1)[0])
+
+    def _down_names(self, driver_active):
+        return ()                       # one axis: nothing to name
+
+    def _hold_center(self):
+        """Return where a re-peak after the HELD starts (m); None: held while searching."""
+        self._sweep_on = (self.state == PEAKING and self._phase == 'sweep'
+                          and self._first_sweep)
+        if self.state == TRACKING:
+            return float(self._tracker.xhat[0])
+        if self.state != PEAKING:
+            return None
+        if self._phase in ('goto', 'goto_peak', 'verify'):
+            return self._goal
+        return getattr(self, '_local_center', self._setpoint)
+
+    def _repeak_after_hold(self, t, center):
+        """Go on with the first sweep (the readings before the trip), or re-peak locally."""
+        if self._sweep_on:
+            self.state, self._state_t, self._phase = PEAKING, t, 'sweep'
+            self._follow_since = None
+            self.events.append((t, PEAKING, 'driver back: the sweep goes on'))
+            return
+        self._enter(PEAKING)
+        self._refits, self._goto_phase = 0, None
+        self._start_local(center)
+        self._log('driver back: local re-peak around %.2f um' % (center * 1e6))
 
     def _start_repeak(self):
         self._phase = 'goto'
@@ -181,7 +204,7 @@ class Sequencer(Machine, Peaking, Hold):
             driver_active = self.drivers.active
         self._driver_up = driver_active is not False
         if self.state in ACTIVE and not self._driver_up:
-            self._hold(t, y, self.drivers.reason)
+            self._hold(self.drivers.reason)
         if self.state in ACTIVE and self._check_health(t, y, pw):
             return self._setpoint
         if y is None:
@@ -257,23 +280,12 @@ class Sequencer(Machine, Peaking, Hold):
             self._floor_buf = list(self._idle_buf)
             self._phase = 'floor'
         if self._phase == 'floor':
-            if self._at_rest(y) and pw is not None:
-                self._floor_buf.append(pw)
-            if len(self._floor_buf) < int(p['floor_samples']):
+            bright = self._measure_floor(self._at_rest(y), pw)
+            if bright is None:
                 return
-            f = np.asarray(self._floor_buf[-int(p['floor_samples']):])
-            mean, std = float(f.mean()), float(f.std(ddof=1))
-            self.floor = (mean, std)
-            if np.ptp(f) <= 1e-9 * abs(mean):
-                self._fault('sensor silent: optical power reading is stuck at %.3g W'
-                            % mean)
-                return
-            if mean > p['floor_max_w']:
-                self.threshold_w = p['floor_max_w']
-                self._log('light present at the start (%.1f dBm)' % _dbm(mean))
+            if bright:
                 self._start_peaking(t, y, pw)
                 return
-            self.threshold_w = max(mean + p['threshold_sigma'] * std, p['min_threshold_w'])
             self._phase = 'scan'
             self._confirm = 0
         if self._phase == 'scan':
@@ -297,61 +309,21 @@ class Sequencer(Machine, Peaking, Hold):
 
     # TRACKING -------------------------------------------------------------------------
     def _start_tracking(self, t):
+        p = self.p
         self._enter(TRACKING)
-        self._x_hat = self._goal
-        self._track_t0 = t
-        self._stats = None
-        self._loss_since = None
+        self._tracker = Tracker([self._goal], self.curvature_per_m2, p['dither_amplitude_m'],
+                                [(p['dither_frequency_hz'], (0,))], t, p, p['range_min_m'],
+                                p['range_max_m'], self.aligned_power_w)
 
     def _do_tracking(self, t, y, pw):
-        p = self.p
-        if pw is not None and pw > 0:
-            low = self.aligned_power_w * 10 ** (-p['track_loss_db'] / 10.0)
-            if pw < low:
-                if self._loss_since is None:
-                    self._loss_since = t
-                elif t - self._loss_since > p['track_loss_timeout_s']:
-                    self._fault('power lost while tracking: %.1f dBm, more than %.0f dB '
-                                'below the aligned %.1f dBm' % (
-                                    _dbm(pw), p['track_loss_db'],
-                                    _dbm(self.aligned_power_w)))
-                    return
-            else:
-                self._loss_since = None
-                lp = math.log(pw)
-                yy = y
-                a = min(1.0, self.dt / p['gradient_time_s']) if self.dt > 0 else 1.0
-                if self._stats is None:
-                    self._stats = [yy, lp, 0.0, 0.0]
-                else:
-                    s = self._stats
-                    dy, dl = yy - s[0], lp - s[1]
-                    s[0] += a * dy
-                    s[1] += a * dl
-                    s[2] = (1 - a) * (s[2] + a * dy * dl)
-                    s[3] = (1 - a) * (s[3] + a * dy * dy)
-                    amp = p['dither_amplitude_m']
-                    if s[3] > 0.1 * amp * amp and t - self._track_t0 > p['gradient_time_s']:
-                        g = s[2] / s[3]                      # d lnP / dx, 1/m
-                        c = self.curvature_per_m2
-                        step = p['tracking_bandwidth_rad_s'] * self.dt * g / (2.0 * c)
-                        lim = p['tracking_bandwidth_rad_s'] * self.dt * 5 * amp
-                        self._x_hat += min(max(step, -lim), lim)
-        self._x_hat = min(max(self._x_hat, p['range_min_m']), p['range_max_m'])
-        self.aligned_position_m = self._x_hat
-        self._setpoint = self._x_hat + p['dither_amplitude_m'] * math.sin(
-            2.0 * math.pi * p['dither_frequency_hz'] * (t - self._track_t0))
+        sp = self._track(t, y, pw)
+        if sp is not None:
+            self.aligned_position_m = float(self._tracker.xhat[0])
+            self._setpoint = float(sp[0])
 
     def status(self):
         """Return a dict describing the state (for topics, diagnostics and reports)."""
         return dict(state=self.state, phase=self._phase, fault_reason=self.fault_reason,
                     setpoint_m=self._setpoint, aligned_position_m=self.aligned_position_m,
                     threshold_w=self.threshold_w, peak_samples=self.peak_samples,
-                    hold_reason=self.hold_reason if self.state == HELD else '')
-
-
-def _dbm(p_w):
-    """Return ``p_w`` (W) in dBm for messages; ``nan`` for ``None``."""
-    if p_w is None:
-        return float('nan')
-    return 10.0 * math.log10(max(p_w, 1e-15) / 1e-3)
+                    hold_reason=self.hold_reason)

@@ -6,7 +6,8 @@ PEAKING of the coupled station: the joint fit of both sides (the station's metho
 expects ``p`` (parameters), ``lo`` / ``hi`` (the four axes' ranges, m), ``floor``,
 ``curvature_prior`` (1/m^2), ``iterations``, ``_history``, ``_t``, ``_fault``, ``_log``,
 ``_start_tracking`` and ``_false_light`` (nothing lit around first light: resume the
-search).
+search); the visits, weights and the verifying reading are the shared
+:class:`~fiber_align.alignment.visit.PointPeaking`.
 
 One iteration reads ``1 + 4`` settled points: the centre and one point ``h`` away along
 each of the four axes, on the ``+`` side in odd iterations and the ``-`` side in even ones.
@@ -27,65 +28,20 @@ shared by all four, where the serial 2-D method reads two points an axis and a c
 side. SI units.
 """
 
-import math
-
 import numpy as np
 
 from fiber_align.alignment import station_search as ss
-from fiber_align.alignment.peak2d import dbm
+from fiber_align.alignment.hold import um  # noqa: F401 (the station's text of positions)
+from fiber_align.alignment.machine import dbm
+from fiber_align.alignment.visit import PointPeaking
 
 AXES4 = ('x_in', 'y_in', 'x_out', 'y_out')
 
 
-def um(v):
-    """Return a position (m) as text in um: ``(a, b, c, d) um``."""
-    return '(%s) um' % ', '.join('%.2f' % (float(q) * 1e6) for q in v)
-
-
-class JointPeakMixin:
+class JointPeakMixin(PointPeaking):
     """Visit points settled in four axes, fit both sides together, iterate to convergence."""
 
-    def _visit4(self, points, done):
-        """Read each point of ``points`` (m) settled; then call ``done(rows)``."""
-        self._queue = [np.clip(np.asarray(q, float), self.lo, self.hi) for q in points]
-        self._rows = []
-        self._on_done = done
-        self._next4()
-
-    def _next4(self):
-        self._goal = self._queue.pop(0)
-        self._goal_t = None
-        self._settle = 0
-        self._acc = []
-
-    def _do_visit4(self, t, pos, pw):
-        p = self.p
-        self.sp = self._goal.copy()
-        if self._goal_t is None:
-            self._goal_t = t
-            return
-        if not self._acc:
-            near = np.all(np.abs(pos - self._goal) < p['settle_tolerance_m'])
-            self._settle = self._settle + 1 if near else 0
-            late = t - self._goal_t > p['settle_timeout_s']
-            if self._settle < int(p['settle_samples']) and not late:
-                return
-            if late and not np.all(np.abs(pos - self._goal) < 10 * p['settle_tolerance_m']):
-                self._fault('actuator does not settle at %s (at %s)' % (um(self._goal),
-                                                                        um(pos)))
-                return
-        if pw is None:
-            return
-        self._acc.append(np.append(pos, pw))
-        if len(self._acc) < int(p['point_samples']):
-            return
-        self._rows.append(np.mean(np.asarray(self._acc), axis=0))
-        if self._queue:
-            self._next4()
-        else:
-            self._on_done(np.asarray(self._rows))
-
-    def _start_joint(self, center, radius):
+    def _start_pattern(self, center, radius):
         self._phase = 'pattern'
         self._center = np.clip(np.asarray(center, float), self.lo, self.hi)
         self._radius = float(radius)
@@ -93,7 +49,7 @@ class JointPeakMixin:
         self._completed = False
         pts = [self._center] + [self._center + self._sign * self._radius * e
                                 for e in np.eye(4)]
-        self._visit4(pts, self._fit_joint)
+        self._visit(pts, self._fit_joint)
 
     def _complete(self, rows, ok_last):
         """Read the mirror points of the axes whose point read dark; then fit all."""
@@ -102,17 +58,8 @@ class JointPeakMixin:
         self._partial = rows
         dark = [a for a in range(4) if not ok_last[1 + a]]
         pts = [self._center - self._sign * self._radius * np.eye(4)[a] for a in dark]
-        self._visit4(pts, lambda more: self._fit_joint(np.vstack([self._partial, more]),
-                                                       count=False))
-
-    def _weights4(self, pw):
-        """Return the validity mask and ``1 / var(ln P)`` of settled readings (W)."""
-        p = self.p
-        sigma = self.floor[1] if self.floor else p['min_threshold_w']
-        rin = p['power_noise_db'] * ss.s2.LN10_OVER_10
-        ok = pw > p['fit_min_snr'] * max(sigma, 1e-300)
-        var = ((sigma / np.maximum(pw, 1e-300)) ** 2 + rin * rin) / int(p['point_samples'])
-        return ok, 1.0 / var
+        self._visit(pts, lambda more: self._fit_joint(np.vstack([self._partial, more]),
+                                                      count=False))
 
     def _fit_joint(self, rows, count=True):
         p = self.p
@@ -127,7 +74,7 @@ class JointPeakMixin:
         near = [r for c, r in self._history
                 if np.linalg.norm(c - self._center) <= 2.0 * p['pattern_radius_max_m']]
         data = np.vstack(near)
-        ok, w = self._weights4(data[:, 4])
+        ok, w = self._weights(data[:, 4])
         fit, prior = None, False
         if ok.sum() >= 7:
             fit = ss.fit_log_paraboloid_sides(data[ok, :4], data[ok, 4], w[ok])
@@ -137,7 +84,7 @@ class JointPeakMixin:
                             for k in fit[1:3])
                     or np.linalg.norm(fit[0] - self._center) > self._radius):
                 fit = None
-        ok_last = self._weights4(rows[:, 4])[0]
+        ok_last = self._weights(rows[:, 4])[0]
         if fit is None and not self._completed and ok_last[0] and not ok_last[1:5].all():
             return self._complete(rows, ok_last)
         if fit is None and ok.sum() >= 5:
@@ -152,7 +99,7 @@ class JointPeakMixin:
                             % (dbm(p['fit_min_snr'] * self.floor[1]), um(self._center)))
                 return
             best = rows[int(np.argmax(rows[:, 4])), :4]
-            return self._iterate4(best, self._radius)
+            return self._iterate(best, self._radius)
         vertex = np.asarray(fit[0])
         out = (vertex < self.lo - p['range_tolerance_m']) | \
             (vertex > self.hi + p['range_tolerance_m'])
@@ -178,27 +125,8 @@ class JointPeakMixin:
             # (a wrong curvature shows there) and a miss pools another pattern
             self.curvatures_per_m2 = (fit[1], fit[2])
             self._phase = 'verify'
-            self._visit4([vertex], self._verify4)
+            self._visit([vertex], self._verify)
             return
         h = min(max(p['pattern_radius_gain'] * dist, p['pattern_radius_min_m']),
                 p['pattern_radius_max_m'])
-        self._iterate4(self._center + step, h)
-
-    def _iterate4(self, center, radius):
-        if self.iterations >= int(self.p['max_iterations']):
-            self._fault('joint peak search did not converge in %d iterations (last pattern '
-                        'at %s)' % (self.iterations, um(self._center)))
-            return
-        self._start_joint(center, radius)
-
-    def _verify4(self, rows):
-        p = self.p
-        meas = float(rows[0, 4])
-        miss_db = 10.0 * math.log10(math.exp(self._fit[3]) / max(meas, 1e-300))
-        if miss_db > p['verify_tolerance_db'] and self.iterations < int(p['max_iterations']):
-            self._log('reading %.3f dB below the fitted peak; another pattern' % miss_db)
-            self._start_joint(rows[0, :4], p['pattern_radius_min_m'])
-            return
-        self.aligned = self._goal.copy()
-        self.aligned_power_w = meas
-        self._start_tracking(self._t)
+        self._iterate(self._center + step, h)

@@ -8,8 +8,6 @@ Geometry and estimators of the coupled station (four axes; pure numpy, SI units)
   ``(x_in, y_in, x_out, y_out)`` (m), walked at a constant speed.
 - :func:`fit_log_paraboloid_sides`: weighted least squares of ``ln P`` on the separable
   paraboloid of the two facets' Gaussian overlaps.
-- :class:`JointDemodulator`: the gradient of ``ln P`` in the four coordinates from two
-  circular dithers, one regression.
 """
 
 import math
@@ -144,63 +142,3 @@ def fit_log_paraboloid_sides(pos_m, p_w, weights=None, curvature=None):
     v = coef[1:5] / (2.0 * ks)
     lp0 = coef[0] + float(np.sum(ks * v * v))
     return mean + v * 1e-6, k_in * 1e12, k_out * 1e12, float(lp0)
-
-
-class JointDemodulator:
-    """
-    Gradient of ``ln P`` (1/m) in ``n`` coordinates, dithered at distinct frequencies.
-
-    :class:`~fiber_align.alignment.search2d.CircleDemodulator` in ``n`` dimensions: the
-    readings are regressed on the measured displacements about their running means (an
-    exponential window of ``time_s``), all ``n`` at once, so each side's gradient comes
-    from its own circle and the other side's circle, at another frequency, does not leak
-    into it. Each reading is paired with the positions ``lag_s`` earlier (the detector's
-    averaging delay).
-    """
-
-    def __init__(self, n, time_s, lag_s=0.0):
-        """Start empty."""
-        self.n = int(n)
-        self.time_s = float(time_s)
-        self.lag_s = float(lag_s)
-        self.reset()
-
-    def reset(self):
-        """Forget the statistics."""
-        self.count = 0
-        self.m = np.zeros(self.n + 1)
-        self.cov = np.zeros((self.n, self.n))
-        self.cross = np.zeros(self.n)
-        self.prev = None
-
-    def update(self, dt_s, pos_m, ln_p):
-        """Add one reading: positions (m) and ``ln P`` (power in W)."""
-        pos = np.asarray(pos_m, dtype=float)
-        if self.prev is not None and dt_s > 0 and self.lag_s > 0:
-            lagged = pos - min(1.0, self.lag_s / dt_s) * (pos - self.prev)
-        else:
-            lagged = pos
-        self.prev = pos
-        v = np.append(lagged, ln_p)
-        if self.count == 0:
-            self.m = v
-            self.count = 1
-            return
-        a = min(1.0, dt_s / self.time_s) if dt_s > 0 else 1.0
-        d = v - self.m
-        self.m = self.m + a * d
-        self.cov = (1.0 - a) * (self.cov + a * np.outer(d[:-1], d[:-1]))
-        self.cross = (1.0 - a) * (self.cross + a * d[:-1] * d[-1])
-        self.count += 1
-
-    def gradient(self, min_var_m2):
-        """Return ``d ln P / d pos`` (1/m); None while a variance < ``min_var_m2`` (m^2)."""
-        var = np.diag(self.cov)
-        if np.any(var < min_var_m2):
-            return None
-        # the correlation matrix's determinant is 1 for separable dithers, 0 for dependent
-        # ones (the n-D form of the 2-D demodulator's check)
-        s = np.sqrt(var)
-        if not np.linalg.det(self.cov / np.outer(s, s)) > 0.25:
-            return None
-        return np.linalg.solve(self.cov, self.cross)

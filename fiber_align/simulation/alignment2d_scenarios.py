@@ -37,7 +37,7 @@ from fiber_align.simulation import alignment_bench as sc1
 from fiber_align.alignment import sequencer2d as s2d
 from fiber_align.jsonout import json_clean
 from fiber_align.plant import optics2d as o2
-from fiber_align.simulation.seeds2d import random_target, run_seeds
+from fiber_align.simulation.seeds2d import graph_period_s, random_target, run_seeds
 
 SCENARIOS = ('align2d', 'track2d', 'switch2d')
 METHODS = ('sequencer', 'hillclimb')
@@ -139,6 +139,7 @@ class Bench2D(sc1.Stepping):
 
 def make_sequencer(method, **overrides):
     """Return a fresh ``sequencer`` (:class:`Sequencer2D`) or ``hillclimb`` baseline."""
+    overrides.setdefault('period_s', graph_period_s())
     if method == 'sequencer':
         return s2d.Sequencer2D(**overrides)
     if method == 'hillclimb':
@@ -260,7 +261,7 @@ def run_method(name, method, seed=0, rig=None, record=False, target=None, **kw):
     if name == 'track2d':
         rng = np.random.default_rng([seed, 60])
         ang, vang = rng.uniform(0.0, 2.0 * math.pi, 2)
-        seq = s2d.Sequencer2D()
+        seq = make_sequencer('sequencer')
         # start so that the whole drift stays inside the square, centred on its middle
         mid = 0.5 * (seq.lo + seq.hi)
         u = np.array([math.cos(ang), math.sin(ang)])
@@ -300,7 +301,7 @@ def run(name, seed=0, loop='composite', record=False, rig=None, **kw):
     period_s = kw.pop('period_s', None)
     if period_s is not None:
         kw['seq_overrides'] = dict(period_s=float(period_s))
-    rig = rig or Rig2D(loop, period_s or s2d.default_period_s(), 2 * seed)
+    rig = rig or Rig2D(loop, period_s or graph_period_s(), 2 * seed)
     out = run_method(name, 'sequencer', seed, rig, record, **kw)
     base = run_method(name, 'hillclimb', seed, rig, record, **kw)
     out.update(scenario=name, seed=seed, loop=loop, control_rate_hz=1.0 / rig.period_s,

@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-The seeds and the target of a two-axis run, for the offline rig and the ROS rig alike.
+The seeds, the target and the period of a two-axis run, for the offline rig and the ROS rig.
 
 Small on purpose: the graph descriptions (``graph/rig.py``) and ``bringup`` read them
 without importing the offline benches (and SciPy with them).
@@ -9,6 +9,15 @@ without importing the offline benches (and SciPy with them).
 import numpy as np
 
 from fiber_align.alignment import sequencer2d as s2d
+from fiber_align.config import load_params
+
+#: Where the simulated graph's control rate is set (``rate_hz``, Hz).
+RATE_FILE, RATE_NODE = 'plant.yaml', 'simulated_actuator'
+
+
+def graph_period_s():
+    """Return the simulated graph's control period (s): 1 / ``rate_hz`` of its plant."""
+    return 1.0 / float(load_params(RATE_FILE, RATE_NODE)['rate_hz'])
 
 
 def run_seeds(seed):
@@ -22,6 +31,6 @@ def run_seeds(seed):
 
 def random_target(seed, seq=None):
     """Return a target ``(x, y)`` (m) drawn uniformly in the reachable square."""
-    seq = seq or s2d.Sequencer2D()
+    seq = seq or s2d.Sequencer2D(period_s=graph_period_s())
     rng = np.random.default_rng([seed, 14])
     return tuple(float(v) for v in rng.uniform(seq.lo, seq.hi))

@@ -35,12 +35,12 @@ import numpy as np
 
 from fiber_align.alignment import station as st
 from fiber_align.alignment import station_serial as ser
-from fiber_align.alignment.sequencer2d import default_period_s
 from fiber_align.alignment.states import TRACKING
 from fiber_align.jsonout import json_clean
 from fiber_align.plant import station_optics as so
 from fiber_align.simulation import alignment_bench as sc1
 from fiber_align.simulation.alignment2d_scenarios import Rig2D
+from fiber_align.simulation.seeds2d import graph_period_s
 
 SCENARIOS = ('station', 'cure')
 METHODS = {'concurrent': st.Station, 'serial': ser.SerialStation}
@@ -144,7 +144,7 @@ def run_seeds(seed):
 
 def random_facets(seed, seq=None, lo_m=2e-6, hi_m=20e-6):
     """Return the four facet coordinates (m): nominal + 2-20 um, random signs, per axis."""
-    seq = seq or st.Station()
+    seq = seq or st.Station(period_s=graph_period_s())
     rng = np.random.default_rng([seed, 24])
     off = rng.uniform(lo_m, hi_m, 4) * rng.choice((-1.0, 1.0), 4)
     return tuple(float(v) for v in seq.park + off)
@@ -170,7 +170,7 @@ def build(seed=0, method='concurrent', facets=None, rig=None, seq_overrides=None
     :param optics_overrides: keys of ``config/station.yaml`` (node
         ``simulated_station_optics``) or of the source and detector of ``optics.yaml``.
     """
-    seq = METHODS[method](**(seq_overrides or {}))
+    seq = METHODS[method](**dict(dict(period_s=graph_period_s()), **(seq_overrides or {})))
     facets = random_facets(seed, seq) if facets is None else facets
     ov = dict(optics_overrides)
     for k, v in zip(('facet_in_x_m', 'facet_in_y_m', 'facet_out_x_m', 'facet_out_y_m'),
@@ -256,7 +256,7 @@ def run(name, seed=0, loop='composite', rig=None, **kw):
     cure_duration_s = kw.pop('cure_duration_s', None)
     if period_s is not None:
         kw['seq_overrides'] = dict(period_s=float(period_s))
-    rig = rig or StationRig(loop, period_s or default_period_s(), 4 * seed)
+    rig = rig or StationRig(loop, period_s or graph_period_s(), 4 * seed)
     b = build(seed, 'concurrent', rig=rig, **kw)
     out = align_bench(b)
     out.update(scenario=name, seed=seed, loop=loop, control_rate_hz=1.0 / rig.period_s)

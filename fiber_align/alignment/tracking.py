@@ -1,0 +1,178 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+TRACKING, one law for every sequencer: dither extremum seeking over ``n`` axes.
+
+The setpoints are the estimate ``x_hat`` plus a dither: a sine of ``amplitude_m`` on a lone
+axis, a circle of that radius on a pair of axes (cos on the first, sin on the second), each
+at its own frequency. One regression of ``ln P`` on the measured displacements
+(:class:`JointDemodulator`) gives the gradient in every axis at once (phase-free: the
+loop's lag at the dither frequency does not bias it; a circle at another frequency does not
+leak into it); each axis' estimate moves at ``bandwidth * g / (2 k)`` with the fitted
+curvature ``k`` of that axis, an integral action whose loop bandwidth is
+``tracking_bandwidth_rad_s`` whatever the fiber. A step is limited to
+``5 * bandwidth * dt * amplitude`` (its norm).
+
+The lost-power rule (:class:`LossWatch`): a reading more than ``track_loss_db`` below the
+aligned power holds the estimate (the dither goes on); one that stays there longer than
+``track_loss_timeout_s`` is a FAULT. SI units: s, m, W; dB only for ratios.
+"""
+
+import math
+
+import numpy as np
+
+from fiber_align.alignment.machine import dbm
+
+
+class JointDemodulator:
+    """
+    Gradient of ``ln P`` (1/m) in ``n`` coordinates, dithered at distinct frequencies.
+
+    The readings are regressed on the measured displacements about their running means (an
+    exponential window of ``time_s``), all ``n`` at once, so each dither's gradient comes
+    from its own motion and another dither, at another frequency, does not leak into it.
+    Each reading is paired with the positions ``lag_s`` earlier (the detector's averaging
+    delay; 0: the same period's).
+    """
+
+    def __init__(self, n, time_s, lag_s=0.0):
+        """Start empty."""
+        self.n = int(n)
+        self.time_s = float(time_s)
+        self.lag_s = float(lag_s)
+        self.reset()
+
+    def reset(self):
+        """Forget the statistics."""
+        self.count = 0
+        self.m = np.zeros(self.n + 1)
+        self.cov = np.zeros((self.n, self.n))
+        self.cross = np.zeros(self.n)
+        self.prev = None
+
+    def update(self, dt_s, pos_m, ln_p):
+        """Add one reading: positions (m) and ``ln P`` (power in W)."""
+        pos = np.asarray(pos_m, dtype=float).reshape(-1)
+        if self.prev is not None and dt_s > 0 and self.lag_s > 0:
+            lagged = pos - min(1.0, self.lag_s / dt_s) * (pos - self.prev)
+        else:
+            lagged = pos
+        self.prev = pos
+        v = np.append(lagged, ln_p)
+        if self.count == 0:
+            self.m = v
+            self.count = 1
+            return
+        a = min(1.0, dt_s / self.time_s) if dt_s > 0 else 1.0
+        d = v - self.m
+        self.m = self.m + a * d
+        self.cov = (1.0 - a) * (self.cov + a * np.outer(d[:-1], d[:-1]))
+        self.cross = (1.0 - a) * (self.cross + a * d[:-1] * d[-1])
+        self.count += 1
+
+    def gradient(self, min_var_m2):
+        """Return ``d ln P / d pos`` (1/m); None while a variance < ``min_var_m2`` (m^2)."""
+        var = np.diag(self.cov)
+        if np.any(var < min_var_m2):
+            return None
+        # the correlation matrix's determinant is 1 for separable dithers, 0 for dependent
+        # ones
+        s = np.sqrt(var)
+        if not np.linalg.det(self.cov / np.outer(s, s)) > 0.25:
+            return None
+        return np.linalg.solve(self.cov, self.cross)
+
+
+class LossWatch:
+    """The lost-power rule of TRACKING (module docstring; W, dB, s)."""
+
+    def __init__(self, aligned_w, loss_db, timeout_s):
+        """Watch for readings ``loss_db`` below ``aligned_w`` for ``timeout_s``."""
+        self.aligned_w = float(aligned_w)
+        self.loss_db = float(loss_db)
+        self.low_w = self.aligned_w * 10 ** (-self.loss_db / 10.0)
+        self.timeout_s = float(timeout_s)
+        self.since = None
+        #: why TRACKING ends in FAULT ('' while it does not)
+        self.fault = ''
+
+    def lost(self, t, pw):
+        """Return True while the reading ``pw`` (W, at ``t`` s) is far below the aligned."""
+        if pw is None:
+            return False
+        if pw >= self.low_w:
+            self.since = None
+            return False
+        if self.since is None:
+            self.since = t
+        elif t - self.since > self.timeout_s:
+            self.fault = ('power lost while tracking: %.1f dBm, more than %.0f dB below the '
+                          'aligned %.1f dBm (broken fiber or chip, source off or target '
+                          'moved away)' % (dbm(pw), self.loss_db, dbm(self.aligned_w)))
+        return True
+
+
+class Tracker:
+    """
+    The dither tracker of one TRACKING run (module docstring).
+
+    :param center: the aligned point the estimate starts at (m, one per axis).
+    :param curvatures: ``k`` of ``ln P`` per axis (1/m^2; one value: every axis).
+    :param amplitude_m: the dither's amplitude (line) or radius (circle), m.
+    :param dithers: ``(frequency_hz, axes)`` pairs: one axis a sine, two a circle.
+    :param t0: time TRACKING starts (s).
+    :param p: the sequencer's parameters (``tracking_bandwidth_rad_s``, ``gradient_time_s``,
+        ``track_loss_db``, ``track_loss_timeout_s``).
+    :param lo: lower limits of the estimate (m); ``hi``: upper.
+    :param aligned_w: the power at the aligned point (W).
+    :param lag_s: the detector's delay the demodulator undoes (s).
+    """
+
+    def __init__(self, center, curvatures, amplitude_m, dithers, t0, p, lo, hi, aligned_w,
+                 lag_s=0.0):
+        """Start at ``center`` with an empty demodulator."""
+        self.xhat = np.array(center, dtype=float).reshape(-1)
+        n = self.xhat.size
+        self.k = np.broadcast_to(np.asarray(curvatures, dtype=float), (n,))
+        self.amplitude_m = float(amplitude_m)
+        self.dithers = tuple((float(f), tuple(ax)) for f, ax in dithers)
+        self.t0 = float(t0)
+        self.bandwidth = float(p['tracking_bandwidth_rad_s'])
+        self.time_s = float(p['gradient_time_s'])
+        self.lo, self.hi = lo, hi
+        self.demod = JointDemodulator(n, self.time_s, lag_s)
+        self.loss = LossWatch(aligned_w, p['track_loss_db'], p['track_loss_timeout_s'])
+
+    def offset(self, t):
+        """Return the dither at ``t`` (s): one value per axis (m)."""
+        out = np.zeros(self.xhat.size)
+        for f, ax in self.dithers:
+            ph = 2.0 * math.pi * f * (t - self.t0)
+            if len(ax) == 1:
+                out[ax[0]] = self.amplitude_m * math.sin(ph)
+            else:
+                out[ax[0]] = self.amplitude_m * math.cos(ph)
+                out[ax[1]] = self.amplitude_m * math.sin(ph)
+        return out
+
+    def step(self, t, dt, pos, pw):
+        """
+        Take the readings of one period; return the setpoints (m), or None on a FAULT.
+
+        :param t: time (s); ``dt``: since the last period (s).
+        :param pos: measured positions (m); ``pw``: power reading (W) or None.
+        """
+        lost = self.loss.lost(t, pw)
+        if self.loss.fault:
+            return None
+        a = self.amplitude_m
+        if not lost and pw is not None and pw > 0:
+            self.demod.update(dt, pos, math.log(pw))
+            g = self.demod.gradient(0.1 * a * a)
+            if g is not None and t - self.t0 > self.time_s:
+                step = self.bandwidth * dt / (2.0 * self.k) * g
+                lim = self.bandwidth * dt * 5 * a
+                n = float(np.linalg.norm(step))
+                self.xhat = self.xhat + step * (min(1.0, lim / n) if n > 0 else 1.0)
+        self.xhat = np.minimum(np.maximum(self.xhat, self.lo), self.hi)
+        return self.xhat + self.offset(t)
