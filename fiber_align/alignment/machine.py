@@ -65,9 +65,13 @@ class Machine:
     #: after a HELD): a command then replaces it instead of being refused as busy
     _resumed = False
 
+    #: the axes' names in the order of ``sp`` and the positions (for the fault texts)
+    AXIS_NAMES = ()
+
     def _init_machine(self, p):
         """Set the state every machine starts with (parameters ``p``, SI)."""
         self.p = p
+        self._last = {'p': None, 'y': None}     # time of the last reading of each (s)
         self.state = IDLE
         self.fault_reason = ''
         self.events = []
@@ -189,6 +193,33 @@ class Machine:
         if sp is None:
             self._fault(self._tracker.loss.fault)
         return sp
+
+    def _silent_or_stuck(self, t, pos):
+        """Return True (and fault) when a reading is missing or an axis does not follow."""
+        p = self.p
+        t0 = self._state_t if self._state_t is not None else t
+        for key, what in (('p', 'optical power'), ('y', 'displacement')):
+            last = max(self._last[key] if self._last[key] is not None else t0, t0)
+            if t - last > p['sensor_timeout_s']:
+                self._fault('sensor silent: no %s reading for %.0f ms'
+                            % (what, (t - last) * 1e3))
+                return True
+        if pos is None:
+            return False
+        err = np.abs(pos - self.sp)
+        if np.any(err > p['follow_error_m']):
+            if self._follow_since is None:
+                self._follow_since = t
+            elif t - self._follow_since > p['follow_timeout_s']:
+                a = int(np.argmax(err))
+                self._fault('driver inactive or actuator stuck: %s at %.1f um does not '
+                            'follow its setpoint %.1f um for %.0f ms'
+                            % (self.AXIS_NAMES[a], pos[a] * 1e6, self.sp[a] * 1e6,
+                               (t - self._follow_since) * 1e3))
+                return True
+        else:
+            self._follow_since = None
+        return False
 
     # ---- SEARCHING: the floor at rest ------------------------------------------------
     def _measure_floor(self, rest, pw):

@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-What the 2-D and the station sequencers share each period: the step, health, IDLE, RELEASING.
+What the 2-D and the station sequencers share: the period's step, IDLE, RELEASING, TRACKING.
 
 :class:`MultiAxis` is a base of :class:`fiber_align.alignment.sequencer2d.Sequencer2D`
 and :class:`fiber_align.alignment.station.Station` (their state, parameters, setpoints
@@ -12,7 +12,8 @@ import math
 
 import numpy as np
 
-from fiber_align.alignment.states import ACTIVE, IDLE, PEAKING, SEARCHING
+from fiber_align.alignment.states import ACTIVE, IDLE, PEAKING, SEARCHING, TRACKING
+from fiber_align.alignment.tracking import Tracker
 
 #: Share of the realtime path's rate the search walks at, at most: the rest is room for
 #: the acceleration limit at the turns of the path.
@@ -29,10 +30,10 @@ def axes_down(names, driver_active):
 
 
 class MultiAxis:
-    """The period's step, sensor and follow checks, IDLE and RELEASING over several axes."""
+    """The period's step, IDLE, RELEASING and TRACKING over several axes."""
 
-    #: the axes' names in the order of ``sp`` and the positions (for the fault text)
-    AXIS_NAMES = ()
+    #: the dithers of TRACKING: (parameter naming the frequency (Hz), axes of the circle)
+    DITHERS = ()
 
     def _init_axes(self, p, park, lo, hi, period_s, path_rate_m_per_s):
         """Set the square (m), the period (s) and the search speed (m/s), then the machine."""
@@ -47,7 +48,6 @@ class MultiAxis:
             self.search_speed = min(self.search_speed, PATH_RATE_SHARE * path_rate_m_per_s)
         self.aligned = None
         self.sp = self.park.copy()
-        self._last = {'p': None, 'y': None}
         self._prev_pos = None
         self._init_machine(p)
 
@@ -101,32 +101,19 @@ class MultiAxis:
         self.sp = np.minimum(np.maximum(self.sp, self.lo), self.hi)
         return self.setpoint
 
-    def _silent_or_stuck(self, t, pos):
-        """Return True (and fault) when a reading is missing or an axis does not follow."""
+    def _start_tracking(self, t):
+        """TRACKING from the aligned point: circles of ``dither_radius_m`` (``DITHERS``)."""
         p = self.p
-        t0 = self._state_t if self._state_t is not None else t
-        for key, what in (('p', 'optical power'), ('y', 'displacement')):
-            last = max(self._last[key] if self._last[key] is not None else t0, t0)
-            if t - last > p['sensor_timeout_s']:
-                self._fault('sensor silent: no %s reading for %.0f ms'
-                            % (what, (t - last) * 1e3))
-                return True
-        if pos is None:
-            return False
-        err = np.abs(pos - self.sp)
-        if np.any(err > p['follow_error_m']):
-            if self._follow_since is None:
-                self._follow_since = t
-            elif t - self._follow_since > p['follow_timeout_s']:
-                a = int(np.argmax(err))
-                self._fault('driver inactive or actuator stuck: %s at %.1f um does not '
-                            'follow its setpoint %.1f um for %.0f ms'
-                            % (self.AXIS_NAMES[a], pos[a] * 1e6, self.sp[a] * 1e6,
-                               (t - self._follow_since) * 1e3))
-                return True
-        else:
-            self._follow_since = None
-        return False
+        self._enter(TRACKING)
+        self._tracker = Tracker(self.aligned, self._curvatures(), p['dither_radius_m'],
+                                [(p[key], axes) for key, axes in self.DITHERS], t, p,
+                                self.lo, self.hi, self.aligned_power_w, p['power_lag_s'])
+
+    def _do_tracking(self, t, pos, pw):
+        sp = self._track(t, pos, pw)
+        if sp is not None:
+            self.aligned = self._tracker.xhat.copy()
+            self.sp = sp
 
     def _start_search(self):
         self._phase = 'floor'

@@ -87,9 +87,5 @@ class PeakFitMixin(PointPeaking):
         self._fit = fit
         if dist < p['converge_tolerance_m'] and not prior:
             self.curvature_per_m2 = fit[2]
-            self._phase = 'verify'
-            self._visit([vertex], self._verify)
-            return
-        h = min(max(p['pattern_radius_gain'] * dist, p['pattern_radius_min_m']),
-                p['pattern_radius_max_m'])
-        self._iterate(self._center + step, h)
+            return self._verify_at(vertex)
+        self._iterate(self._center + step, dist=dist)

@@ -6,8 +6,9 @@ Geometry and estimators of the 2-D alignment (pure numpy, SI units).
   spiral may be for a given mode radius.
 - :class:`SpiralPath`: a straight transit to the centre of the reachable square, then an
   Archimedean spiral out to its corners, walked at a constant speed.
-- :func:`fit_log_paraboloid`: weighted least squares of ``ln P`` on a circular paraboloid,
-  the exact shape of the Gaussian mode overlap.
+- :func:`fit_log_paraboloid_groups`: weighted least squares of ``ln P`` on circular
+  paraboloids of groups of axes, the exact shape of Gaussian mode overlaps
+  (:func:`fit_log_paraboloid`: one group, x and y).
 """
 
 import math
@@ -97,45 +98,61 @@ class SpiralPath:
         return np.asarray(out)
 
 
+def fit_log_paraboloid_groups(pos_m, p_w, groups, weights=None, curvature=None):
+    """
+    Fit ``ln P = ln P0 - sum_g k_g |r_g - c_g|^2``: a circular paraboloid per group of axes.
+
+    Weighted linear least squares in ``(1, coordinates..., |r_g|^2...)`` (coordinates in um
+    about their mean, for conditioning): the exact shape of Gaussian mode overlaps (one
+    group: the 2-D sequencer's; the input and the output side: the station's).
+
+    :param pos_m: ``(n, d)`` sample positions (m).
+    :param p_w: sample powers (W), > 0.
+    :param groups: the axes (indices) of each circular paraboloid, e.g. ``((0, 1),)``.
+    :param weights: ``1 / variance`` of each ``ln P`` (None: equal).
+    :param curvature: a known ``k`` (1/m^2) for every group, or None to fit one per group.
+    :returns: ``(vertex (d,) m, [k_g (1/m^2)], ln P0)``, or None when the samples do not
+        define a peak (too few, degenerate, a curvature <= 0).
+    """
+    x = np.asarray(pos_m, dtype=float)
+    lp = np.log(np.asarray(p_w, dtype=float))
+    w = np.ones(len(x)) if weights is None else np.asarray(weights, dtype=float)
+    d = x.shape[1]
+    if len(x) < 1 + d + (0 if curvature else len(groups)):
+        return None
+    mean = x.mean(axis=0)
+    xs = (x - mean) * 1e6                                     # um, for conditioning
+    r = [sum(xs[:, a] * xs[:, a] for a in g) for g in groups]
+    ones = np.ones(len(x))
+    if curvature:
+        k = float(curvature) * 1e-12                          # 1/um^2
+        a = np.column_stack([ones, xs])
+        rhs = lp + k * sum(r)
+    else:
+        a = np.column_stack([ones, xs] + [-q for q in r])
+        rhs = lp
+    sw = np.sqrt(w)
+    coef, _, rank, _ = np.linalg.lstsq(a * sw[:, None], rhs * sw, rcond=None)
+    if rank < a.shape[1]:
+        return None
+    ks = [k] * len(groups) if curvature else [float(c) for c in coef[1 + d:]]
+    if not all(q > 0 for q in ks):
+        return None
+    kk = np.zeros(d)
+    for g, q in zip(groups, ks):
+        kk[list(g)] = q
+    v = coef[1:1 + d] / (2.0 * kk)
+    lp0 = coef[0] + float(np.sum(kk * v * v))
+    return mean + v * 1e-6, [q * 1e12 for q in ks], float(lp0)
+
+
 def fit_log_paraboloid(x_m, y_m, p_w, weights=None, curvature=None):
     """
     Fit ``ln P = ln P0 - k ((x - x0)^2 + (y - y0)^2)``; return ``(x0, y0, k, ln P0)``.
 
-    Weighted linear least squares in ``(1, x, y, x^2 + y^2)`` (coordinates in um about
-    their mean, for conditioning). With ``curvature`` given (1/m^2) only ``ln P0``, ``x0``
-    and ``y0`` are fitted (3 samples suffice, else 4). Returns ``None`` when the samples do
-    not define a peak (too few, degenerate, or ``k <= 0``).
-
-    :param x_m: sample positions along x (m).
-    :param y_m: sample positions along y (m).
-    :param p_w: sample powers (W), > 0.
-    :param weights: ``1 / variance`` of each ``ln P`` (None: equal).
-    :param curvature: known ``k`` (1/m^2) or None.
+    :func:`fit_log_paraboloid_groups` with one group (x, y; m, W, 1/m^2): 3 samples with
+    ``curvature`` given, else 4; None when they do not define a peak.
     """
-    x = np.asarray(x_m, dtype=float)
-    y = np.asarray(y_m, dtype=float)
-    lp = np.log(np.asarray(p_w, dtype=float))
-    w = np.ones_like(x) if weights is None else np.asarray(weights, dtype=float)
-    if x.size < (3 if curvature else 4):
-        return None
-    xm, ym = x.mean(), y.mean()
-    xs, ys = (x - xm) * 1e6, (y - ym) * 1e6
-    r2 = xs * xs + ys * ys
-    sw = np.sqrt(w)
-    if curvature:
-        k = float(curvature) * 1e-12                       # 1/um^2
-        a = np.vstack([np.ones_like(xs), xs, ys]).T
-        rhs = lp + k * r2
-    else:
-        a = np.vstack([np.ones_like(xs), xs, ys, -r2]).T
-        rhs = lp
-    coef, _, rank, _ = np.linalg.lstsq(a * sw[:, None], rhs * sw, rcond=None)
-    if rank < a.shape[1]:
-        return None
-    if not curvature:
-        k = float(coef[3])
-        if not k > 0:
-            return None
-    x0, y0 = coef[1] / (2.0 * k), coef[2] / (2.0 * k)
-    lp0 = coef[0] + k * (x0 * x0 + y0 * y0)
-    return xm + x0 * 1e-6, ym + y0 * 1e-6, k * 1e12, float(lp0)
+    fit = fit_log_paraboloid_groups(np.column_stack([x_m, y_m]), p_w, ((0, 1),), weights,
+                                    curvature)
+    return None if fit is None else (fit[0][0], fit[0][1], fit[1][0], fit[2])

@@ -83,6 +83,8 @@ KEYS = (
 class Sequencer(Machine, Peaking):
     """Find, peak, track and switch the light on one axis (see the module docstring)."""
 
+    AXIS_NAMES = ('the actuator',)
+
     def __init__(self, params=None, **overrides):
         """
         Build a sequencer from a parameter mapping (``None``: config/sequencer.yaml).
@@ -111,8 +113,6 @@ class Sequencer(Machine, Peaking):
         self.aligned_position_m = None
         self.curvature_per_m2 = None
         self._setpoint = p['park_position_m']
-        self._last_power_t = None
-        self._last_y_t = None
         self.drivers = DriverState()
         self._init_machine(p)
 
@@ -197,15 +197,16 @@ class Sequencer(Machine, Peaking):
         if pw is not None and not math.isfinite(pw):
             pw = None
         if y is not None:
-            self._last_y_t = t
+            self._last['y'] = t
         if pw is not None:
-            self._last_power_t = t
+            self._last['p'] = t
         if driver_active is None:
             driver_active = self.drivers.active
         self._driver_up = driver_active is not False
         if self.state in ACTIVE and not self._driver_up:
             self._hold(self.drivers.reason)
-        if self.state in ACTIVE and self._check_health(t, y, pw):
+        if self.state in ACTIVE and self._silent_or_stuck(t, None if y is None else
+                                                          np.array([y])):
             return self._setpoint
         if y is None:
             y = self._y_last if hasattr(self, '_y_last') else self._setpoint
@@ -219,34 +220,6 @@ class Sequencer(Machine, Peaking):
         return self._setpoint
 
     # ---- internals ------------------------------------------------------------------
-    def _check_health(self, t, y, pw):
-        """Return True (and fault) when a sensor is silent or the actuator does not follow."""
-        p = self.p
-        t0 = self._state_t if self._state_t is not None else t
-        last_p = self._last_power_t if self._last_power_t is not None else t0
-        if t - max(last_p, t0) > p['sensor_timeout_s']:
-            self._fault('sensor silent: no optical power reading for %.0f ms'
-                        % ((t - max(last_p, t0)) * 1e3))
-            return True
-        last_y = self._last_y_t if self._last_y_t is not None else t0
-        if t - max(last_y, t0) > p['sensor_timeout_s']:
-            self._fault('sensor silent: no displacement reading for %.0f ms'
-                        % ((t - max(last_y, t0)) * 1e3))
-            return True
-        if y is not None:
-            if abs(y - self._setpoint) > p['follow_error_m']:
-                if self._follow_since is None:
-                    self._follow_since = t
-                elif t - self._follow_since > p['follow_timeout_s']:
-                    self._fault('driver inactive or actuator stuck: displacement %.1f um '
-                                'does not follow setpoint %.1f um for %.0f ms'
-                                % (y * 1e6, self._setpoint * 1e6,
-                                   (t - self._follow_since) * 1e3))
-                    return True
-            else:
-                self._follow_since = None
-        return False
-
     def _at_rest(self, y):
         """Return True when ``y`` (m) moved less than ``settle_tolerance_m`` since last call."""
         prev, self._y_prev = getattr(self, '_y_prev', None), y

@@ -49,7 +49,6 @@ from fiber_align.alignment.peak2d import AXES, PeakFitMixin
 from fiber_align.alignment.states import (ACTIVE, FAULT, HELD, IDLE,  # noqa: F401
                                           PEAKING, RELEASING, SEARCHING, STATES,
                                           TRACKING)
-from fiber_align.alignment.tracking import Tracker
 from fiber_align.config import load_params
 
 CONFIG_FILE = 'sequencer2d.yaml'
@@ -68,6 +67,7 @@ def load_sequencer2d_params(path=CONFIG_FILE, node=CONFIG_NODE, **overrides):
 class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
     """Find, peak, track and switch the light in x and y (see the module docstring)."""
 
+    DITHERS = (('dither_frequency_hz', (0, 1)),)
     AXIS_NAMES = AXES
 
     def __init__(self, params=None, period_s=None, path_rate_m_per_s=None, **overrides):
@@ -101,6 +101,9 @@ class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
         self.curvature_prior = 1.0 / p['mode_radius_m'] ** 2
 
     # ---- commands (Machine: align, release, switch) ----------------------------------
+    def _curvatures(self):
+        return self.curvature_per_m2
+
     def _park_text(self):
         return '(%.1f, %.1f) um' % tuple(self.park * 1e6)
 
@@ -201,17 +204,3 @@ class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
 
     def _do_peaking(self, t, pos, pw):
         self._do_visit(t, pos, pw)
-
-    # TRACKING: circular dither --------------------------------------------------------
-    def _start_tracking(self, t):
-        p = self.p
-        self._enter(TRACKING)
-        self._tracker = Tracker(self.aligned, self.curvature_per_m2, p['dither_radius_m'],
-                                [(p['dither_frequency_hz'], (0, 1))], t, p, self.lo, self.hi,
-                                self.aligned_power_w, p['power_lag_s'])
-
-    def _do_tracking(self, t, pos, pw):
-        sp = self._track(t, pos, pw)
-        if sp is not None:
-            self.aligned = self._tracker.xhat.copy()
-            self.sp = sp

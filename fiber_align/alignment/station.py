@@ -39,7 +39,6 @@ from fiber_align.alignment.machine import check_params, dbm, Machine
 from fiber_align.alignment.multiaxis import MultiAxis
 from fiber_align.alignment.states import PEAKING, SEARCHING, TRACKING
 from fiber_align.alignment.station_peak import AXES4, JointPeakMixin, um
-from fiber_align.alignment.tracking import Tracker
 from fiber_align.config import load_params
 
 CONFIG_FILE = 'station.yaml'
@@ -63,6 +62,7 @@ DRIVERS = tuple('%s/%s/actuator_driver' % (side, a) for side in ('in', 'out')
 class Station(MultiAxis, Machine, JointPeakMixin):
     """Find, peak and track both fibers of the station (see the module docstring)."""
 
+    DITHERS = (('dither_in_frequency_hz', (0, 1)), ('dither_out_frequency_hz', (2, 3)))
     AXIS_NAMES = AXES4
 
     method = 'concurrent'
@@ -96,6 +96,11 @@ class Station(MultiAxis, Machine, JointPeakMixin):
         self.curvature_prior = 1.0 / p['coupling_radius_m'] ** 2
 
     # ---- commands (Machine) --------------------------------------------------------
+    def _curvatures(self):
+        """Return ``k`` per axis (1/m^2): each side's fitted one, or the prior."""
+        k = self.curvatures_per_m2 or (self.curvature_prior, self.curvature_prior)
+        return [k[0], k[0], k[1], k[1]]
+
     def _park_text(self):
         return um(self.park)
 
@@ -216,19 +221,3 @@ class Station(MultiAxis, Machine, JointPeakMixin):
 
     def _do_peaking(self, t, pos, pw):
         self._do_visit(t, pos, pw)
-
-    # ---- TRACKING ------------------------------------------------------------------
-    def _start_tracking(self, t):
-        p = self.p
-        self._enter(TRACKING)
-        k = self.curvatures_per_m2 or (self.curvature_prior, self.curvature_prior)
-        self._tracker = Tracker(self.aligned, [k[0], k[0], k[1], k[1]], p['dither_radius_m'],
-                                [(p['dither_in_frequency_hz'], (0, 1)),
-                                 (p['dither_out_frequency_hz'], (2, 3))], t, p, self.lo,
-                                self.hi, self.aligned_power_w, p['power_lag_s'])
-
-    def _do_tracking(self, t, pos, pw):
-        sp = self._track(t, pos, pw)
-        if sp is not None:
-            self.aligned = self._tracker.xhat.copy()
-            self.sp = sp

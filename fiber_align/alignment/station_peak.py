@@ -124,9 +124,5 @@ class JointPeakMixin(PointPeaking):
             # step times the prior's error; the reading at the vertex checks the fit's peak
             # (a wrong curvature shows there) and a miss pools another pattern
             self.curvatures_per_m2 = (fit[1], fit[2])
-            self._phase = 'verify'
-            self._visit([vertex], self._verify)
-            return
-        h = min(max(p['pattern_radius_gain'] * dist, p['pattern_radius_min_m']),
-                p['pattern_radius_max_m'])
-        self._iterate(self._center + step, h)
+            return self._verify_at(vertex)
+        self._iterate(self._center + step, dist=dist)

@@ -105,40 +105,11 @@ class Polyline:
 
 def fit_log_paraboloid_sides(pos_m, p_w, weights=None, curvature=None):
     """
-    Fit ``ln P = ln P0 - k_in |r_in - a|^2 - k_out |r_out - b|^2``.
+    Fit ``ln P = ln P0 - k_in |r_in - a|^2 - k_out |r_out - b|^2`` (m, W, 1/m^2).
 
-    :param pos_m: ``(n, 4)`` positions ``(x_in, y_in, x_out, y_out)`` (m).
-    :param p_w: powers (W), > 0.
-    :param weights: ``1 / variance`` of each ``ln P`` (None: equal).
-    :param curvature: a known ``k`` (1/m^2) for both sides, or None to fit one per side.
-    :returns: ``(vertex (4,) m, k_in, k_out (1/m^2), ln P0)``, or None when the readings
-        do not define a peak (too few, degenerate, a curvature <= 0).
+    :func:`~fiber_align.alignment.search2d.fit_log_paraboloid_groups` with the two sides
+    of ``(x_in, y_in, x_out, y_out)``; returns ``(vertex (4,) m, k_in, k_out, ln P0)``, or
+    None when the readings do not define a peak.
     """
-    x = np.asarray(pos_m, dtype=float)
-    lp = np.log(np.asarray(p_w, dtype=float))
-    w = np.ones(len(x)) if weights is None else np.asarray(weights, dtype=float)
-    if len(x) < (5 if curvature else 7):
-        return None
-    mean = x.mean(axis=0)
-    xs = (x - mean) * 1e6                                     # um, for conditioning
-    r_in = xs[:, 0] ** 2 + xs[:, 1] ** 2
-    r_out = xs[:, 2] ** 2 + xs[:, 3] ** 2
-    ones = np.ones(len(x))
-    if curvature:
-        k = float(curvature) * 1e-12
-        a = np.column_stack([ones, xs])
-        rhs = lp + k * (r_in + r_out)
-    else:
-        a = np.column_stack([ones, xs, -r_in, -r_out])
-        rhs = lp
-    sw = np.sqrt(w)
-    coef, _, rank, _ = np.linalg.lstsq(a * sw[:, None], rhs * sw, rcond=None)
-    if rank < a.shape[1]:
-        return None
-    k_in, k_out = (k, k) if curvature else (float(coef[5]), float(coef[6]))
-    if not (k_in > 0 and k_out > 0):
-        return None
-    ks = np.array([k_in, k_in, k_out, k_out])
-    v = coef[1:5] / (2.0 * ks)
-    lp0 = coef[0] + float(np.sum(ks * v * v))
-    return mean + v * 1e-6, k_in * 1e12, k_out * 1e12, float(lp0)
+    fit = s2.fit_log_paraboloid_groups(pos_m, p_w, ((0, 1), (2, 3)), weights, curvature)
+    return None if fit is None else (fit[0], fit[1][0], fit[1][1], fit[2])

@@ -101,12 +101,22 @@ class PointPeaking:
         var = ((sigma / np.maximum(pw, 1e-300)) ** 2 + rin * rin) / int(p['point_samples'])
         return ok, 1.0 / var
 
-    def _iterate(self, center, radius):
-        if self.iterations >= int(self.p['max_iterations']):
+    def _iterate(self, center, radius=None, dist=0.0):
+        """Next pattern at ``center`` (m): of ``radius``, or one after a step ``dist`` (m)."""
+        p = self.p
+        if self.iterations >= int(p['max_iterations']):
             self._fault('peak search did not converge in %d iterations (last %s at %s)'
                         % (self.iterations, self.PATTERN, um(self._center)))
             return
+        if radius is None:
+            radius = min(max(p['pattern_radius_gain'] * dist, p['pattern_radius_min_m']),
+                         p['pattern_radius_max_m'])
         self._start_pattern(center, radius)
+
+    def _verify_at(self, vertex):
+        """Read the vertex (m) settled: :meth:`_verify` checks the fit's peak there."""
+        self._phase = 'verify'
+        self._visit([vertex], self._verify)
 
     def _verify(self, rows):
         """The reading at the vertex: TRACKING, or another pattern when it misses the fit."""
