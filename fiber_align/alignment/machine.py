@@ -58,6 +58,15 @@ def check_params(base, params, overrides, what):
     return p
 
 
+def axes_down(names, driver_active):
+    """Return the names of the axes whose driver is not driving (``driver_active`` False)."""
+    if driver_active is None:
+        return []
+    if driver_active is True or driver_active is False:
+        return [] if driver_active else list(names)
+    return [a for a, up in zip(names, driver_active) if up is False]
+
+
 class Machine:
     """Commands, state entry, faults and events of an alignment sequencer (SI: s, m)."""
 
@@ -72,6 +81,7 @@ class Machine:
         """Set the state every machine starts with (parameters ``p``, SI)."""
         self.p = p
         self._last = {'p': None, 'y': None}     # time of the last reading of each (s)
+        self._prev_pos = None
         self.state = IDLE
         self.fault_reason = ''
         self.events = []
@@ -155,6 +165,57 @@ class Machine:
         """Hold at once: a driver stopped driving (what the drivers published)."""
         self._hold(reason, self._down_names(self.drivers.each))
 
+    @property
+    def setpoint(self):
+        """Return the last setpoints (m), one per axis."""
+        return tuple(float(v) for v in self.sp)
+
+    def _down_names(self, driver_active):
+        return axes_down(self.AXIS_NAMES, driver_active)
+
+    def _update(self, t_s, positions_m, power_w, driver_active):
+        """
+        Advance one control period (every machine's); return the setpoints (m).
+
+        :param positions_m: the measured positions (m), or None (or a None in them).
+        :param driver_active: None (as the drivers published), a bool for every driver,
+            or one bool per axis: False when that driver is not driving (HELD).
+        """
+        t = float(t_s)
+        self.dt = 0.0 if self._t is None else max(0.0, t - self._t)
+        self._t = t
+        pos = None
+        if positions_m is not None and all(v is not None and math.isfinite(v)
+                                           for v in positions_m):
+            pos = np.asarray(positions_m, dtype=float)
+            self._last['y'] = t
+        pw = None if power_w is None or not math.isfinite(power_w) else float(power_w)
+        if pw is not None:
+            self._last['p'] = t
+        if driver_active is None:
+            driver_active = self._driver_input()     # what the drivers published
+        down = self._down_names(driver_active)
+        self._driver_up = not down
+        if self.state in ACTIVE and down:
+            self._hold(self.drivers.reason, down)
+        if self.state in ACTIVE and self._silent_or_stuck(t, pos):
+            return self.setpoint
+        if pos is None:
+            pos = self._prev_pos if self._prev_pos is not None else self.sp.copy()
+        self._rest = self._prev_pos is not None and np.all(
+            np.abs(pos - self._prev_pos) < self.p['settle_tolerance_m'])
+        self._prev_pos = pos
+        getattr(self, '_do_' + self.state.lower())(t, self._handler_pos(pos), pw)
+        if self.state == PEAKING:
+            self.peak_samples += 1
+        elif self.state == SEARCHING:
+            self.search_samples += 1
+        self.sp = np.minimum(np.maximum(self.sp, self.lo), self.hi)
+        return self.setpoint
+
+    def _handler_pos(self, pos):
+        return pos                          # the states' steps take the positions (m)
+
     # ---- HELD (the machine's Hold) ---------------------------------------------------
     @property
     def hold_reason(self):
@@ -166,7 +227,8 @@ class Machine:
         state, center = self.state, self._hold_center()
         self._enter(HELD)
         self._phase = 'down'
-        self._log(self.hold.enter(self._t, state, self.sp, center, down, why))
+        named = down if len(self.AXIS_NAMES) > 1 else ()        # one axis: no name
+        self._log(self.hold.enter(self._t, state, self.sp, center, named, why))
 
     def _do_held(self, t, pos, pw):
         self.sp = self.hold.setpoint.copy()

@@ -5,14 +5,14 @@ What the 2-D and the station sequencers share: the period's step, IDLE, RELEASIN
 :class:`MultiAxis` is a base of :class:`fiber_align.alignment.sequencer2d.Sequencer2D`
 and :class:`fiber_align.alignment.station.Station` (their state, parameters, setpoints
 ``sp`` and positions as numpy arrays, one entry per axis named in ``AXIS_NAMES``; SI: s,
-m, W). Each ``update`` of theirs is :meth:`MultiAxis._update` with their positions.
+m, W).
 """
-
-import math
 
 import numpy as np
 
-from fiber_align.alignment.states import ACTIVE, IDLE, PEAKING, SEARCHING, TRACKING
+from fiber_align.alignment.hold import um
+from fiber_align.alignment.machine import dbm
+from fiber_align.alignment.states import IDLE, PEAKING, TRACKING
 from fiber_align.alignment.tracking import Tracker
 
 #: Share of the realtime path's rate the search walks at, at most: the rest is room for
@@ -20,18 +20,14 @@ from fiber_align.alignment.tracking import Tracker
 PATH_RATE_SHARE = 0.9
 
 
-def axes_down(names, driver_active):
-    """Return the names of the axes whose driver is not driving (``driver_active`` False)."""
-    if driver_active is None:
-        return []
-    if driver_active is True or driver_active is False:
-        return [] if driver_active else list(names)
-    return [a for a, up in zip(names, driver_active) if up is False]
-
-
 class MultiAxis:
     """The period's step, IDLE, RELEASING and TRACKING over several axes."""
 
+    #: True: past first light the walk goes on to the pass's brightest reading (at most
+    #: ``crest_max_samples``); False: PEAKING starts at the brightest reading so far
+    CREST = False
+    #: the phase of the walk to first light (``status()['phase']``)
+    SEARCH_PHASE = 'search'
     #: the dithers of TRACKING: (parameter naming the frequency (Hz), axes of the circle)
     DITHERS = ()
 
@@ -48,58 +44,12 @@ class MultiAxis:
             self.search_speed = min(self.search_speed, PATH_RATE_SHARE * path_rate_m_per_s)
         self.aligned = None
         self.sp = self.park.copy()
-        self._prev_pos = None
         self._init_machine(p)
 
-    @property
-    def setpoint(self):
-        """Return the last setpoints (m), one per axis."""
-        return tuple(float(v) for v in self.sp)
-
-    def _down_names(self, driver_active):
-        return axes_down(self.AXIS_NAMES, driver_active)
-
-    def _update(self, t_s, positions_m, power_w, driver_active):
-        """
-        Advance one control period; return the setpoints (m).
-
-        :param positions_m: the measured positions (m), or None (or a None in them).
-        :param driver_active: None (as the drivers published), a bool for every driver,
-            or one bool per axis: False when that driver is not driving (HELD).
-        """
-        t = float(t_s)
-        self.dt = 0.0 if self._t is None else max(0.0, t - self._t)
-        self._t = t
-        pos = None
-        if positions_m is not None and all(v is not None and math.isfinite(v)
-                                           for v in positions_m):
-            pos = np.asarray(positions_m, dtype=float)
-            self._last['y'] = t
-        pw = None if power_w is None or not math.isfinite(power_w) else float(power_w)
-        if pw is not None:
-            self._last['p'] = t
-        if driver_active is None and not self.drivers.pending:
-            # what the drivers published; pending: a re-activated driver whose drive_held
-            # false is on its way is no reason to hold (one that stays held does not follow)
-            driver_active = self.drivers.each
-        down = self._down_names(driver_active)
-        self._driver_up = not down
-        if self.state in ACTIVE and down:
-            self._hold(self.drivers.reason, down)
-        if self.state in ACTIVE and self._silent_or_stuck(t, pos):
-            return self.setpoint
-        if pos is None:
-            pos = self._prev_pos if self._prev_pos is not None else self.sp.copy()
-        self._rest = self._prev_pos is not None and np.all(
-            np.abs(pos - self._prev_pos) < self.p['settle_tolerance_m'])
-        self._prev_pos = pos
-        getattr(self, '_do_' + self.state.lower())(t, pos, pw)
-        if self.state == PEAKING:
-            self.peak_samples += 1
-        elif self.state == SEARCHING:
-            self.search_samples += 1
-        self.sp = np.minimum(np.maximum(self.sp, self.lo), self.hi)
-        return self.setpoint
+    def _driver_input(self):
+        # pending: a re-activated driver whose drive_held false is on its way is no
+        # reason to hold (one that stays held does not follow: the follow check)
+        return None if self.drivers.pending else self.drivers.each
 
     def _start_tracking(self, t):
         """TRACKING from the aligned point: circles of ``dither_radius_m`` (``DITHERS``)."""
@@ -114,6 +64,64 @@ class MultiAxis:
         if sp is not None:
             self.aligned = self._tracker.xhat.copy()
             self.sp = sp
+
+    # ---- SEARCHING: the floor, then the machine's path to first light ---------------
+    def _do_searching(self, t, pos, pw):
+        p = self.p
+        if self._elapsed(t) > p['search_timeout_s']:
+            self._fault('no light found: search timed out after %.0f ms at %s (threshold '
+                        '%.1f dBm)' % (self._elapsed(t) * 1e3, um(pos), dbm(self.threshold_w)))
+            return
+        if self._phase == 'floor':
+            bright = self._measure_floor(self._rest, pw)
+            if bright is None:
+                return
+            if bright:
+                self.floor = (0.0, p['floor_max_w'] / max(p['threshold_sigma'], 1.0))
+                self.first_light_t = t
+                self._start_peaking(pos)
+                return
+            self._path = self.search_path(pos)
+            self._phase = self.SEARCH_PHASE
+            self._confirm = 0
+            self._best = (0.0, pos)
+        if pw is not None and pw > self._best[0]:
+            self._best = (pw, pos)
+        if self._phase == 'crest':
+            # past first light the pass goes on to its brightest reading (it crosses the
+            # lit region): a far better start for the fit than the threshold's edge
+            self._crest += 1
+            if pw is None or pw < self._best[0] or self._crest >= int(p['crest_max_samples']):
+                self._log('first light %.1f dBm at %s' % (dbm(self._best[0]),
+                                                          um(self._best[1])))
+                self._start_peaking(self._best[1])
+                return
+        elif pw is not None and pw > self.threshold_w:
+            self._confirm += 1
+            if self._confirm >= int(p['confirm_samples']):
+                self.first_light_t = t
+                if not self.CREST:
+                    return self._start_peaking(self._best[1])
+                self._phase, self._crest = 'crest', 0
+        else:
+            self._confirm = 0
+        if self._path.done:
+            if np.all(np.abs(pos - self.sp) < 4 * p['settle_tolerance_m']):
+                self._fault(self._no_light_text())
+            return
+        self.sp = np.asarray(self._path.advance(self.search_speed * self.dt), dtype=float)
+
+    # ---- PEAKING -------------------------------------------------------------------
+    def _start_peaking(self, center):
+        self._enter(PEAKING)
+        self._history = []
+        self._start_pattern(center, self.p['pattern_radius_first_m'])
+
+    def _do_peaking(self, t, pos, pw):
+        self._do_visit(t, pos, pw)
+
+    def _park_text(self):
+        return um(self.park)
 
     def _start_search(self):
         self._phase = 'floor'

@@ -47,8 +47,6 @@ TRACKING
 All quantities are SI (s, m, W); dB only for ratios. Defaults: ``config/sequencer.yaml``.
 """
 
-import math
-
 import numpy as np
 
 from fiber_align.alignment.driver_state import DriverState
@@ -113,6 +111,8 @@ class Sequencer(Machine, Peaking):
         self.aligned_position_m = None
         self.curvature_per_m2 = None
         self._setpoint = p['park_position_m']
+        self.park = np.array([p['park_position_m']])
+        self.lo, self.hi = np.array([p['range_min_m']]), np.array([p['range_max_m']])
         self.drivers = DriverState()
         self._init_machine(p)
 
@@ -134,9 +134,6 @@ class Sequencer(Machine, Peaking):
     @sp.setter
     def sp(self, value):
         self._setpoint = float(np.asarray(value, dtype=float).reshape(-1)[0])
-
-    def _down_names(self, driver_active):
-        return ()                       # one axis: nothing to name
 
     def _hold_center(self):
         """Return where a re-peak after the HELD starts (m); None: held while searching."""
@@ -186,38 +183,14 @@ class Sequencer(Machine, Peaking):
             setpoint is held until it drives again); ``True`` when it drives; ``None``:
             as :attr:`drivers` says (what the driver published, ``driver_held`` ...).
         """
-        t = float(t_s)
-        dt = 0.0 if self._t is None else max(0.0, t - self._t)
-        self._t = t
-        self.dt = dt
-        y = None if displacement_m is None else float(displacement_m)
-        pw = None if power_w is None else float(power_w)
-        if y is not None and not math.isfinite(y):
-            y = None
-        if pw is not None and not math.isfinite(pw):
-            pw = None
-        if y is not None:
-            self._last['y'] = t
-        if pw is not None:
-            self._last['p'] = t
-        if driver_active is None:
-            driver_active = self.drivers.active
-        self._driver_up = driver_active is not False
-        if self.state in ACTIVE and not self._driver_up:
-            self._hold(self.drivers.reason)
-        if self.state in ACTIVE and self._silent_or_stuck(t, None if y is None else
-                                                          np.array([y])):
-            return self._setpoint
-        if y is None:
-            y = self._y_last if hasattr(self, '_y_last') else self._setpoint
-        self._y_last = y
-        handler = getattr(self, '_do_' + self.state.lower())
-        handler(t, y, pw)
-        if self.state == PEAKING:
-            self.peak_samples += 1
-        self._setpoint = min(max(self._setpoint, self.p['range_min_m']),
-                             self.p['range_max_m'])
+        self._update(t_s, [displacement_m], power_w, driver_active)
         return self._setpoint
+
+    def _driver_input(self):
+        return self.drivers.active          # a pending drive_held true holds too
+
+    def _handler_pos(self, pos):
+        return float(pos[0])                # the 1-D steps take the displacement (m)
 
     # ---- internals ------------------------------------------------------------------
     def _at_rest(self, y):
@@ -236,6 +209,8 @@ class Sequencer(Machine, Peaking):
     def _do_releasing(self, t, y, pw):
         p = self.p
         self._setpoint = p['park_position_m']
+        self.park = np.array([p['park_position_m']])
+        self.lo, self.hi = np.array([p['range_min_m']]), np.array([p['range_max_m']])
         if abs(y - self._setpoint) < p['release_tolerance_m'] or \
                 self._elapsed(t) > p['release_timeout_s']:
             self._enter(IDLE)

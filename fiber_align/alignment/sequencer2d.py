@@ -67,6 +67,8 @@ def load_sequencer2d_params(path=CONFIG_FILE, node=CONFIG_NODE, **overrides):
 class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
     """Find, peak, track and switch the light in x and y (see the module docstring)."""
 
+    CREST = False
+    SEARCH_PHASE = 'spiral'
     DITHERS = (('dither_frequency_hz', (0, 1)),)
     AXIS_NAMES = AXES
 
@@ -104,8 +106,11 @@ class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
     def _curvatures(self):
         return self.curvature_per_m2
 
-    def _park_text(self):
-        return '(%.1f, %.1f) um' % tuple(self.park * 1e6)
+    def _no_light_text(self):
+        return ('no light found anywhere in the reachable square x %.1f..%.1f um, y %.1f..%.1f '
+                'um (threshold %.1f dBm): broken fiber, no source, or the target is out of '
+                'reach' % (self.lo[0] * 1e6, self.hi[0] * 1e6, self.lo[1] * 1e6,
+                           self.hi[1] * 1e6, _dbm(self.threshold_w)))
 
     def _hold_center(self):
         """Return what a re-peak after a HELD starts from: the last aligned point, or None."""
@@ -119,7 +124,7 @@ class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
         self._start_pattern(self.aligned, self.p['repeak_pattern_radius_m'])
         return 'switching on to (%.2f, %.2f) um' % tuple(np.asarray(self.aligned) * 1e6)
 
-    def spiral(self, start):
+    def search_path(self, start):
         """
         Return the first-light walk from ``start`` (m): the square's centre, then outwards.
 
@@ -130,6 +135,8 @@ class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
         center = 0.5 * (self.lo + self.hi)
         r_max = 0.5 * float(np.hypot(*(self.hi - self.lo))) + 0.5 * self.pitch_m
         return s2.SpiralPath(start, center, self.pitch_m, r_max)
+
+    spiral = search_path
 
     # ---- the control-period step ----------------------------------------------------
     def update(self, t_s, x_m, y_m, power_w, driver_active=None):
@@ -155,52 +162,3 @@ class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
                     threshold_w=self.threshold_w, peak_samples=self.peak_samples,
                     search_samples=self.search_samples, iterations=self.iterations,
                     **({'hold_reason': self.hold_reason} if self.state == HELD else {}))
-
-    # ---- internals ------------------------------------------------------------------
-    # SEARCHING ------------------------------------------------------------------------
-    def _do_searching(self, t, pos, pw):
-        p = self.p
-        if self._elapsed(t) > p['search_timeout_s']:
-            self._fault('no light found: search timed out after %.0f ms at (%.1f, %.1f) um '
-                        '(threshold %.1f dBm)' % (self._elapsed(t) * 1e3, pos[0] * 1e6,
-                                                  pos[1] * 1e6, _dbm(self.threshold_w)))
-            return
-        if self._phase == 'floor':
-            bright = self._measure_floor(self._rest, pw)
-            if bright is None:
-                return
-            if bright:
-                self.floor = (0.0, p['floor_max_w'] / max(p['threshold_sigma'], 1.0))
-                self._start_peaking(pos)
-                return
-            self._spiral = self.spiral(pos)
-            self._phase = 'spiral'
-            self._confirm = 0
-            self._best = (0.0, pos)
-        if pw is not None and pw > self._best[0]:
-            self._best = (pw, pos)
-        if pw is not None and pw > self.threshold_w:
-            self._confirm += 1
-            if self._confirm >= int(p['confirm_samples']):
-                self.first_light_t = t
-                self._start_peaking(self._best[1])
-                return
-        else:
-            self._confirm = 0
-        if self._spiral.done:
-            if np.all(np.abs(pos - self.sp) < 4 * p['settle_tolerance_m']):
-                self._fault('no light found anywhere in the reachable square x %.1f..%.1f um, '
-                            'y %.1f..%.1f um (threshold %.1f dBm): broken fiber, no source, '
-                            'or the target is out of reach'
-                            % (self.lo[0] * 1e6, self.hi[0] * 1e6, self.lo[1] * 1e6,
-                               self.hi[1] * 1e6, _dbm(self.threshold_w)))
-            return
-        self.sp = np.array(self._spiral.advance(self.search_speed * self.dt))
-
-    # PEAKING: settled points, paraboloid fit --------------------------------------------
-    def _start_peaking(self, center):
-        self._enter(PEAKING)
-        self._start_pattern(center, self.p['pattern_radius_first_m'])
-
-    def _do_peaking(self, t, pos, pw):
-        self._do_visit(t, pos, pw)

@@ -62,6 +62,8 @@ DRIVERS = tuple('%s/%s/actuator_driver' % (side, a) for side in ('in', 'out')
 class Station(MultiAxis, Machine, JointPeakMixin):
     """Find, peak and track both fibers of the station (see the module docstring)."""
 
+    CREST = True
+    SEARCH_PHASE = 'search'
     DITHERS = (('dither_in_frequency_hz', (0, 1)), ('dither_out_frequency_hz', (2, 3)))
     AXIS_NAMES = AXES4
 
@@ -101,9 +103,6 @@ class Station(MultiAxis, Machine, JointPeakMixin):
         k = self.curvatures_per_m2 or (self.curvature_prior, self.curvature_prior)
         return [k[0], k[0], k[1], k[1]]
 
-    def _park_text(self):
-        return um(self.park)
-
     def _hold_center(self):
         """Return the estimate a re-peak after a HELD starts from (m), or None (no light)."""
         if self.state == TRACKING:
@@ -123,6 +122,13 @@ class Station(MultiAxis, Machine, JointPeakMixin):
         self._history = []
         self._start_pattern(self.aligned, self.p['repeak_pattern_radius_m'])
         return 'switching on to %s' % um(self.aligned)
+
+    def _no_light_text(self):
+        c, h = self.park * 1e6, self.p['search_half_width_m'] * 1e6
+        return ('no light found with the input fiber anywhere within %.1f um of (%.1f, %.1f) '
+                'um and the output fiber within %.1f um of (%.1f, %.1f) um on each axis '
+                '(threshold %.1f dBm): broken fiber or chip, no source, or a facet out of '
+                'the search square' % (h, c[0], c[1], h, c[2], c[3], dbm(self.threshold_w)))
 
     def search_path(self, start):
         """Return the first-light walk (:class:`~station_search.Polyline`) from ``start``."""
@@ -155,55 +161,6 @@ class Station(MultiAxis, Machine, JointPeakMixin):
                     peak_samples=self.peak_samples,
                     search_samples=self.search_samples, iterations=self.iterations)
 
-    # ---- SEARCHING -----------------------------------------------------------------
-    def _do_searching(self, t, pos, pw):
-        p = self.p
-        if self._elapsed(t) > p['search_timeout_s']:
-            self._fault('no light found: search timed out after %.0f ms at %s (threshold '
-                        '%.1f dBm)' % (self._elapsed(t) * 1e3, um(pos), dbm(self.threshold_w)))
-            return
-        if self._phase == 'floor':
-            bright = self._measure_floor(self._rest, pw)
-            if bright is None:
-                return
-            if bright:
-                self.floor = (0.0, p['floor_max_w'] / max(p['threshold_sigma'], 1.0))
-                self.first_light_t = t
-                self._start_peaking(pos)
-                return
-            self._path = self.search_path(pos)
-            self._phase = 'search'
-            self._confirm = 0
-            self._best = (0.0, pos)
-        if pw is not None and pw > self._best[0]:
-            self._best = (pw, pos)
-        if self._phase == 'crest':
-            # past first light the pass goes on to its brightest reading (it crosses the
-            # lit region): a far better start for the fit than the threshold's edge
-            self._crest += 1
-            if pw is None or pw < self._best[0] or self._crest >= int(p['crest_max_samples']):
-                self._log('first light %.1f dBm at %s' % (dbm(self._best[0]),
-                                                          um(self._best[1])))
-                self._start_peaking(self._best[1])
-                return
-        elif pw is not None and pw > self.threshold_w:
-            self._confirm += 1
-            if self._confirm >= int(p['confirm_samples']):
-                self.first_light_t = t
-                self._phase, self._crest = 'crest', 0
-        else:
-            self._confirm = 0
-        if self._path.done:
-            if np.all(np.abs(pos - self.sp) < 4 * p['settle_tolerance_m']):
-                c, h = self.park * 1e6, p['search_half_width_m'] * 1e6
-                self._fault('no light found with the input fiber anywhere within %.1f um of '
-                            '(%.1f, %.1f) um and the output fiber within %.1f um of (%.1f, '
-                            '%.1f) um on each axis (threshold %.1f dBm): broken fiber or '
-                            'chip, no source, or a facet out of the search square'
-                            % (h, c[0], c[1], h, c[2], c[3], dbm(self.threshold_w)))
-            return
-        self.sp = self._path.advance(self.search_speed * self.dt)
-
     def _false_light(self):
         """Nothing lit around the first-light point: a noise spike; walk on (same path)."""
         self._log('no light around the first-light point: noise, searching on')
@@ -212,12 +169,3 @@ class Station(MultiAxis, Machine, JointPeakMixin):
         self._phase = 'search'
         self._confirm = 0
         self._best = (0.0, self.sp.copy())
-
-    # ---- PEAKING -------------------------------------------------------------------
-    def _start_peaking(self, center):
-        self._enter(PEAKING)
-        self._history = []
-        self._start_pattern(center, self.p['pattern_radius_first_m'])
-
-    def _do_peaking(self, t, pos, pw):
-        self._do_visit(t, pos, pw)
