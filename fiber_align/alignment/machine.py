@@ -35,7 +35,7 @@ import math
 
 import numpy as np
 
-from fiber_align.alignment.hold import Hold
+from fiber_align.alignment.hold import Hold, um
 from fiber_align.alignment.states import (ACTIVE, FAULT, HELD, IDLE, PEAKING, RELEASING,
                                           SEARCHING, TRACKING)
 
@@ -338,3 +338,21 @@ class Machine:
 
     def _do_fault(self, t, pos, pw):
         pass  # hold the setpoints; release() parks
+
+    def _park_text(self):
+        return um(self.park)
+
+    def _do_idle(self, t, pos, pw):
+        """At the park position: readings at rest count towards the floor of the next align."""
+        self.sp = self.park.copy()
+        if not self._rest:
+            self._idle_buf = []
+        elif pw is not None:
+            self._idle_buf.append(pw)
+            del self._idle_buf[:-int(self.p['floor_samples'])]
+
+    def _do_releasing(self, t, pos, pw):
+        self.sp = self.park.copy()
+        if np.all(np.abs(pos - self.park) < self.p['release_tolerance_m']) or \
+                self._elapsed(t) > self.p['release_timeout_s']:
+            self._enter(IDLE)

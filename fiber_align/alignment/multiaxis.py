@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-What the 2-D and the station sequencers share: the period's step, IDLE, RELEASING, TRACKING.
+What the 2-D and the station sequencers share: the search walk, PEAKING's start, TRACKING.
 
 :class:`MultiAxis` is a base of :class:`fiber_align.alignment.sequencer2d.Sequencer2D`
 and :class:`fiber_align.alignment.station.Station` (their state, parameters, setpoints
@@ -12,7 +12,7 @@ import numpy as np
 
 from fiber_align.alignment.hold import um
 from fiber_align.alignment.machine import dbm
-from fiber_align.alignment.states import IDLE, PEAKING, TRACKING
+from fiber_align.alignment.states import PEAKING, TRACKING
 from fiber_align.alignment.tracking import Tracker
 
 #: Share of the realtime path's rate the search walks at, at most: the rest is room for
@@ -21,7 +21,7 @@ PATH_RATE_SHARE = 0.9
 
 
 class MultiAxis:
-    """The period's step, IDLE, RELEASING and TRACKING over several axes."""
+    """The search walk, PEAKING's start and TRACKING over several axes."""
 
     #: True: past first light the walk goes on to the pass's brightest reading (at most
     #: ``crest_max_samples``); False: PEAKING starts at the brightest reading so far
@@ -120,26 +120,9 @@ class MultiAxis:
     def _do_peaking(self, t, pos, pw):
         self._do_visit(t, pos, pw)
 
-    def _park_text(self):
-        return um(self.park)
-
     def _start_search(self):
         self._phase = 'floor'
         self._floor_buf = list(self._idle_buf)
 
     def _aligned_point(self):
         return self.aligned
-
-    def _do_idle(self, t, pos, pw):
-        self.sp = self.park.copy()
-        if not self._rest:
-            self._idle_buf = []
-        elif pw is not None:
-            self._idle_buf.append(pw)
-            del self._idle_buf[:-int(self.p['floor_samples'])]
-
-    def _do_releasing(self, t, pos, pw):
-        self.sp = self.park.copy()
-        if np.all(np.abs(pos - self.park) < self.p['release_tolerance_m']) or \
-                self._elapsed(t) > self.p['release_timeout_s']:
-            self._enter(IDLE)

@@ -120,9 +120,6 @@ class Sequencer(Machine, Peaking):
     def _start_search(self):
         self._phase = 'start'
 
-    def _park_text(self):
-        return '%.1f um' % (self.p['park_position_m'] * 1e6)
-
     def _aligned_point(self):
         return self.aligned_position_m
 
@@ -193,28 +190,6 @@ class Sequencer(Machine, Peaking):
         return float(pos[0])                # the 1-D steps take the displacement (m)
 
     # ---- internals ------------------------------------------------------------------
-    def _at_rest(self, y):
-        """Return True when ``y`` (m) moved less than ``settle_tolerance_m`` since last call."""
-        prev, self._y_prev = getattr(self, '_y_prev', None), y
-        return prev is not None and abs(y - prev) < self.p['settle_tolerance_m']
-
-    def _do_idle(self, t, y, pw):
-        self._setpoint = self.p['park_position_m']
-        if not self._at_rest(y):
-            self._idle_buf = []
-        elif pw is not None:
-            self._idle_buf.append(pw)
-            del self._idle_buf[:-int(self.p['floor_samples'])]
-
-    def _do_releasing(self, t, y, pw):
-        p = self.p
-        self._setpoint = p['park_position_m']
-        self.park = np.array([p['park_position_m']])
-        self.lo, self.hi = np.array([p['range_min_m']]), np.array([p['range_max_m']])
-        if abs(y - self._setpoint) < p['release_tolerance_m'] or \
-                self._elapsed(t) > p['release_timeout_s']:
-            self._enter(IDLE)
-
     # SEARCHING ------------------------------------------------------------------------
     def _do_searching(self, t, y, pw):
         p = self.p
@@ -228,7 +203,7 @@ class Sequencer(Machine, Peaking):
             self._floor_buf = list(self._idle_buf)
             self._phase = 'floor'
         if self._phase == 'floor':
-            bright = self._measure_floor(self._at_rest(y), pw)
+            bright = self._measure_floor(self._rest, pw)
             if bright is None:
                 return
             if bright:
