@@ -34,7 +34,7 @@ def test_spiral_pitch_leaves_no_gap_larger_than_the_capture_radius():
     assert seq.period_s == pytest.approx(1e-3)     # 1 / rate_hz of config/plant.yaml
     chord = (p['confirm_samples'] + 1) * p['search_speed_m_per_s'] * seq.period_s
     assert seq.pitch_m == pytest.approx(2 * math.sqrt(rc ** 2 - (chord / 2) ** 2))
-    path = seq.spiral(seq.park).points(0.25e-6)
+    path = seq.search_path(seq.park).points(0.25e-6)
     path = np.clip(path, seq.lo, seq.hi)           # the setpoints are clipped to the square
     g = np.linspace(0.0, 65e-6, 60)
     grid = np.array([(a, b) for a in g for b in g])
@@ -50,7 +50,7 @@ def test_spiral_pitch_leaves_no_gap_larger_than_the_capture_radius():
     assert min(near) >= chord
     # and the walk is short: at most the transit plus pi R^2 / pitch of the whole spiral
     steps = np.hypot(*np.diff(path, axis=0).T).sum()
-    sp = seq.spiral(seq.park)
+    sp = seq.search_path(seq.park)
     assert steps <= sp.transit + math.pi * sp.r_max ** 2 / seq.pitch_m
 
 

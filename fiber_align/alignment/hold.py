@@ -5,25 +5,22 @@ HELD, one law for every sequencer: a driver holds its output, the sequencer wait
 A driver that holds its output (a watchdog trip, ``enable`` false, an inactive or
 unconfigured lifecycle node: ``drive_held`` true) while a sequencer is SEARCHING, PEAKING
 or TRACKING does not end the alignment. The sequencer enters HELD: every axis keeps its
-last setpoint (the dithers stop too: nothing moves while one axis cannot, nothing jumps
-when the driver resumes), ``hold_reason`` and an event say why, and it waits. When every
-driver drives again (the re-arm) it waits until every axis is back at its held setpoint:
-within ``settle_tolerance_m`` for ``settle_samples`` readings in a row (the sequencer's own
-settling rule), with a power reading; then:
+last setpoint (the dithers stop too), ``hold_reason`` and an event say why, and it waits.
+Once every driver drives again (the re-arm) and every axis is back at its held setpoint
+(within ``settle_tolerance_m`` for ``settle_samples`` readings in a row, the machine's own
+settling rule) with a power reading:
 
-- nothing to re-peak from (held while SEARCHING, before any light): search again;
-- no light at the held point (a reading at or below the first-light threshold: the slot
-  moved, the source went off): search again;
-- else re-peak from there: the machine's own choice (the 1-D sweep goes on with the
-  readings taken before the trip, or a local re-peak around the last estimate; the 2-D and
-  the station peak around it), then TRACKING.
+- nothing to re-peak from (held while SEARCHING) or no light at the held point (a reading
+  at or below the first-light threshold: the slot moved, the source went off): search
+  again;
+- else re-peak from there, the machine's own choice (1-D: the first sweep goes on with
+  the readings before the trip, or a local re-peak; 2-D and station: a pattern around the
+  last estimate), then TRACKING.
 
-FAULT when the drivers stay down longer than ``driver_down_timeout_s`` (s), or when the axes
-are not back at the held setpoints ``driver_down_timeout_s`` after the re-arm. A driver down
-again while the axes return restarts the wait.
-
-:class:`Hold` is owned by the sequencer (``machine.Machine.hold``); it keeps its own state
-and returns what to do, the machine does it. SI units: s, m, W.
+FAULT when the drivers stay down longer than ``driver_down_timeout_s`` (s), or the axes are
+not back that long after the re-arm; a driver down again while they return restarts the
+wait. :class:`Hold` is owned by the machine (``machine.Machine.hold``): it keeps its own
+state and says what to do next; the machine does it. SI units: s, m, W.
 """
 
 import numpy as np

@@ -1,34 +1,25 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-The commands and bookkeeping the 1-D and the 2-D alignment state machines share.
+What every alignment state machine shares, for any number of axes.
 
-:class:`Machine` is the base of :class:`~fiber_align.alignment.sequencer.Sequencer` (one
-axis) and :class:`~fiber_align.alignment.sequencer2d.Sequencer2D` (two axes, and its
-hill-climb baseline): the commands ``align()``, ``release()``, ``switch(on)`` (each
-returns ``(ok, message)``), state entry, faults and the event log. What differs per
-machine, a subclass provides:
+:class:`Machine` is the base of the 1-D :class:`~fiber_align.alignment.sequencer.Sequencer`,
+the 2-D :class:`~fiber_align.alignment.sequencer2d.Sequencer2D` and the station's
+:class:`~fiber_align.alignment.station.Station`: the commands ``align()``, ``release()``,
+``switch(on)`` (each returns ``(ok, message)``), the period's step (:meth:`Machine._update`:
+readings, HELD, health, the state's step), IDLE, RELEASING, the floor, state entry, faults
+and the event log. HELD is the one :class:`~fiber_align.alignment.hold.Hold` it owns
+(``hold``), TRACKING the one :class:`~fiber_align.alignment.tracking.Tracker`. What differs
+per machine, a subclass provides: ``sp`` (the setpoints, an array, m), ``park``, ``lo``,
+``hi`` (m), ``AXIS_NAMES``, ``_start_search()``, ``_start_repeak()`` (after ``switch(True)``;
+returns the message), ``_aligned_point()``, ``_hold_center()`` (what a re-peak after a HELD
+starts from; ``None``: search again), ``_repeak_after_hold(t, center)`` and
+``_driver_input()`` (what the drivers published, for ``update``).
 
-- ``_start_search()``: after ``align`` entered SEARCHING;
-- ``_start_repeak()``: after ``switch(True)`` entered PEAKING; returns the message;
-- ``_aligned_point()``: the last aligned position (m), ``None`` before the first;
-- ``_park_text()``: the park position for the ``release`` message (um, text);
-- ``_hold_center()``: what a re-peak after a HELD starts from (``None``: search again);
-- ``_repeak_after_hold(t, center)``: re-peak from there (the machine's own choice);
-- ``sp``: the setpoints (m, an array, one per axis);
-- ``_down_names(driver_active)``: the axes whose driver is down.
-
-HELD is the one :class:`~fiber_align.alignment.hold.Hold` the machine owns (``hold``);
-TRACKING the one :class:`~fiber_align.alignment.tracking.Tracker` (``_tracker``).
-
-What the drivers publish reaches the machine through ``driver_held``,
-``driver_lifecycle``, ``driver_diagnostics`` and ``driver_gone`` (the rules:
+What the drivers publish reaches the machine through ``driver_held``, ``driver_lifecycle``,
+``driver_diagnostics`` and ``driver_gone`` (the rules:
 :class:`~fiber_align.alignment.driver_state.DriverState`, in ``drivers``): a driver that
-stops driving in an active state leaves it at once, not at the next sample; ``align``
-and ``switch(True)`` are refused while a driver is down.
-
-Its instances hold ``state``, ``fault_reason``, ``events`` (``(t, state, text)``),
-``_t`` (time of the last update, s), ``_state_t`` (time the state was entered, s) and
-``drivers`` (:class:`~fiber_align.alignment.driver_state.DriverState`).
+stops driving in an active state holds it at once, not at the next sample; ``align`` and
+``switch(True)`` are refused while a driver is down. SI units: s, m, W.
 """
 
 import math

@@ -47,9 +47,19 @@ class MultiAxis:
         self._init_machine(p)
 
     def _driver_input(self):
-        # pending: a re-activated driver whose drive_held false is on its way is no
-        # reason to hold (one that stays held does not follow: the follow check)
+        # pending (a re-activated driver's drive_held false on its way): no reason to hold
         return None if self.drivers.pending else self.drivers.each
+
+    def _repeak_after_hold(self, t, center):
+        self.aligned = center
+        self._enter(PEAKING)
+        self._log('drivers back: ' + self._start_repeak())
+
+    def _start_repeak(self):
+        """Re-peak around the last aligned point (``switch(True)``, back from HELD)."""
+        self._history = []
+        self._start_pattern(self.aligned, self.p['repeak_pattern_radius_m'])
+        return 'switching on to %s' % um(self.aligned)
 
     def _start_tracking(self, t):
         """TRACKING from the aligned point: circles of ``dither_radius_m`` (``DITHERS``)."""

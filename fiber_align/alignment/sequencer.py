@@ -93,14 +93,10 @@ class Sequencer(Machine, Peaking):
         """
         if params is None:
             params = load_params(CONFIG_FILE, CONFIG_NODE)
-        unknown = sorted(set(params) - set(KEYS))
+        unknown = sorted((set(params) | set(overrides)) - set(KEYS))
         if unknown:
             raise ValueError('unknown sequencer parameter(s): %s' % ', '.join(unknown))
-        bad = sorted(set(overrides) - set(KEYS))
-        if bad:
-            raise ValueError('unknown sequencer parameter(s): %s' % ', '.join(bad))
-        p = {k: v for k, v in params.items() if k in KEYS}
-        p.update(overrides)
+        p = dict(params, **overrides)
         missing = [k for k in KEYS if k not in p]
         if missing:
             raise ConfigError('%s: node %s lacks %s' % (CONFIG_FILE, CONFIG_NODE,

@@ -59,9 +59,7 @@ DRIVERS = tuple('%s/actuator_driver' % a for a in AXES)
 
 def load_sequencer2d_params(path=CONFIG_FILE, node=CONFIG_NODE, **overrides):
     """Return the parameters of ``node`` in a params file, ``overrides`` applied."""
-    p = dict(load_params(path, node))
-    p.update(overrides)
-    return p
+    return dict(load_params(path, node), **overrides)
 
 
 class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
@@ -116,14 +114,6 @@ class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
         """Return what a re-peak after a HELD starts from: the last aligned point, or None."""
         return None if self.state == SEARCHING or self.aligned is None else self.aligned
 
-    def _repeak_after_hold(self, t, center):
-        self._enter(PEAKING)
-        self._log('drivers back: ' + self._start_repeak())
-
-    def _start_repeak(self):
-        self._start_pattern(self.aligned, self.p['repeak_pattern_radius_m'])
-        return 'switching on to (%.2f, %.2f) um' % tuple(np.asarray(self.aligned) * 1e6)
-
     def search_path(self, start):
         """
         Return the first-light walk from ``start`` (m): the square's centre, then outwards.
@@ -135,8 +125,6 @@ class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
         center = 0.5 * (self.lo + self.hi)
         r_max = 0.5 * float(np.hypot(*(self.hi - self.lo))) + 0.5 * self.pitch_m
         return s2.SpiralPath(start, center, self.pitch_m, r_max)
-
-    spiral = search_path
 
     # ---- the control-period step ----------------------------------------------------
     def update(self, t_s, x_m, y_m, power_w, driver_active=None):

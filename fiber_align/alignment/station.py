@@ -38,7 +38,7 @@ from fiber_align.alignment.driver_state import DriverState
 from fiber_align.alignment.machine import check_params, dbm, Machine
 from fiber_align.alignment.multiaxis import MultiAxis
 from fiber_align.alignment.states import PEAKING, SEARCHING, TRACKING
-from fiber_align.alignment.station_peak import AXES4, JointPeakMixin, um
+from fiber_align.alignment.station_peak import AXES4, JointPeakMixin
 from fiber_align.config import load_params
 
 CONFIG_FILE = 'station.yaml'
@@ -105,23 +105,10 @@ class Station(MultiAxis, Machine, JointPeakMixin):
 
     def _hold_center(self):
         """Return the estimate a re-peak after a HELD starts from (m), or None (no light)."""
-        if self.state == TRACKING:
-            return np.asarray(self.aligned, dtype=float).copy()
-        if self.state == PEAKING:
-            if getattr(self, '_center', None) is not None and len(self._center) == 4:
-                return np.asarray(self._center, dtype=float).copy()
-            return np.asarray(self.aligned, dtype=float).copy()
-        return None
-
-    def _repeak_after_hold(self, t, center):
-        self.aligned = center
-        self._enter(PEAKING)
-        self._log('drivers back: ' + self._start_repeak())
-
-    def _start_repeak(self):
-        self._history = []
-        self._start_pattern(self.aligned, self.p['repeak_pattern_radius_m'])
-        return 'switching on to %s' % um(self.aligned)
+        center = getattr(self, '_center', None)      # the joint pattern's (serial: None)
+        if self.state == PEAKING and center is not None and len(center) == 4:
+            return np.array(center, dtype=float)
+        return np.array(self.aligned, dtype=float) if self.state in (PEAKING, TRACKING) else None
 
     def _no_light_text(self):
         c, h = self.park * 1e6, self.p['search_half_width_m'] * 1e6

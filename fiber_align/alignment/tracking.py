@@ -28,11 +28,9 @@ class JointDemodulator:
     """
     Gradient of ``ln P`` (1/m) in ``n`` coordinates, dithered at distinct frequencies.
 
-    The readings are regressed on the measured displacements about their running means (an
-    exponential window of ``time_s``), all ``n`` at once, so each dither's gradient comes
-    from its own motion and another dither, at another frequency, does not leak into it.
-    Each reading is paired with the positions ``lag_s`` earlier (the detector's averaging
-    delay; 0: the same period's).
+    ``ln P`` regressed on the measured displacements about their running means (window
+    ``time_s``), all ``n`` at once; each reading paired with the positions ``lag_s`` (s)
+    earlier (the detector's averaging delay; 0: the same period's).
     """
 
     def __init__(self, n, time_s, lag_s=0.0):
@@ -75,8 +73,7 @@ class JointDemodulator:
         var = np.diag(self.cov)
         if np.any(var < min_var_m2):
             return None
-        # the correlation matrix's determinant is 1 for separable dithers, 0 for dependent
-        # ones
+        # the correlation matrix's determinant: 1 for separable dithers, 0 for dependent
         s = np.sqrt(var)
         if not np.linalg.det(self.cov / np.outer(s, s)) > 0.25:
             return None
@@ -118,14 +115,11 @@ class Tracker:
 
     :param center: the aligned point the estimate starts at (m, one per axis).
     :param curvatures: ``k`` of ``ln P`` per axis (1/m^2; one value: every axis).
-    :param amplitude_m: the dither's amplitude (line) or radius (circle), m.
-    :param dithers: ``(frequency_hz, axes)`` pairs: one axis a sine, two a circle.
-    :param t0: time TRACKING starts (s).
-    :param p: the sequencer's parameters (``tracking_bandwidth_rad_s``, ``gradient_time_s``,
-        ``track_loss_db``, ``track_loss_timeout_s``).
-    :param lo: lower limits of the estimate (m); ``hi``: upper.
-    :param aligned_w: the power at the aligned point (W).
-    :param lag_s: the detector's delay the demodulator undoes (s).
+    :param dithers: ``(frequency_hz, axes)`` pairs of the dithers of ``amplitude_m`` (m):
+        one axis a sine, two a circle; ``t0``: TRACKING's start (s).
+    :param p: the sequencer's parameters (``tracking_*``, ``gradient_time_s``, ``track_*``).
+    :param lo: limits of the estimate (m), with ``hi``; ``aligned_w``: the aligned power
+        (W); ``lag_s``: the detector's delay (s) the demodulator undoes.
     """
 
     def __init__(self, center, curvatures, amplitude_m, dithers, t0, p, lo, hi, aligned_w,

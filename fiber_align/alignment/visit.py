@@ -8,13 +8,11 @@ readings in a row (or ``settle_timeout_s`` passed, within ten times the toleranc
 averages ``point_samples`` readings of the measured position (m) and the power (W); after
 the last point it hands the rows ``(position..., power)`` to its ``done`` callback.
 
-:class:`PointPeaking` is the part of the 2-D peak fit
-(:class:`~fiber_align.alignment.peak2d.PeakFitMixin`) and of the station's joint fit
-(:class:`~fiber_align.alignment.station_peak.JointPeakMixin`) that does not depend on the
-pattern: the visits, the weights of ``ln P``, the reading at the vertex that verifies a
-fit, the iteration bound. It expects ``p``, ``lo`` / ``hi`` (m), ``sp``, ``floor``,
-``iterations``, ``_t``, ``_fault``, ``_log``, ``_start_tracking`` and the pattern's
-``_start_pattern(center, radius)``. SI units.
+:class:`PointPeaking`: what the 2-D fit (:class:`~fiber_align.alignment.peak2d.
+PeakFitMixin`) and the station's (:class:`~fiber_align.alignment.station_peak.
+JointPeakMixin`) share: visits, weights of ``ln P``, the verifying reading at the vertex,
+the next pattern. It expects ``p``, ``lo`` / ``hi`` (m), ``sp``, ``floor``, ``iterations``,
+``_t``, ``_fault``, ``_log``, ``_start_tracking`` and ``_start_pattern``. SI units.
 """
 
 import math
