@@ -29,22 +29,19 @@ def _bench(seed=4, slot=SLOT, **seq):
 
 
 def _step(b, up=True):
-    """One control period; a driver that is down drives the actuator to 0 m (s, m, W)."""
-    t, x, y = b.t, b.loop.position_m, b.loop.y_meas
-    p = b.link.measure(t, x, b.period_s)
-    r = b.seq.update(t, y, p, driver_active=up)
-    b.last = (t, x, p)
-    b.loop.step(r if up else 0.0)
-    b.k += 1
-    return r
+    """
+    Run one control period of the bench (its production step); return the setpoint (m).
+
+    ``up`` False: the bench's driver holds its output, the actuator goes to its safe 0 m.
+    """
+    b.driver_active = up
+    b.step()
+    return b.seq.setpoint_m
 
 
 def _run(b, seconds, up=True, stop=None):
-    end = b.t + seconds
-    while b.t < end - 1e-12:
-        _step(b, up)
-        if stop is not None and stop(b):
-            break
+    b.driver_active = up
+    b.run_until(b.t + seconds, stop)
 
 
 def _loss_db(b, seconds=0.02):

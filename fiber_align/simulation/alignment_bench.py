@@ -211,9 +211,15 @@ class Stepping:
 class Bench(Stepping):
     """A sequencer, an optical link and a loop stepped together, one control period a call."""
 
+    #: what a driver that holds its output drives the actuator to (m): its safe output
+    safe_m = 0.0
+
     def __init__(self, loop, link, seq, period_s=1e-3, record=True):
         """Combine the parts; time starts at 0 s."""
         self.loop, self.link, self.seq = loop, link, seq
+        #: the sequencer's ``driver_active`` (None: as its drivers published); False: the
+        #: driver holds its output, the actuator goes to :attr:`safe_m`
+        self.driver_active = None
         self.period_s = float(period_s)
         self.k = 0
         self.rec = Record() if record else None
@@ -229,14 +235,14 @@ class Bench(Stepping):
         x = self.loop.position_m
         y = self.loop.y_meas
         p = self.link.measure(t, x, self.period_s)
-        r = self.seq.update(t, y, p)
+        r = self.seq.update(t, y, p, driver_active=self.driver_active)
         if self.rec is not None:
             c = self.link.coupling
             self.rec.add(t=t, x=x, y=y, r=r, p=p, p_true=c.power_w(t, x),
                          p_max=c.max_power_w(), slot=c.slot_position(t),
                          state=self.seq.state)
         self.last = (t, x, p)
-        self.loop.step(r)
+        self.loop.step(self.safe_m if self.driver_active is False else r)
         self.k += 1
         return self.last
 
