@@ -117,7 +117,7 @@ class PointPeaking:
         self._visit([vertex], self._verify)
 
     def _verify(self, rows):
-        """The reading at the vertex: TRACKING, or another pattern when it misses the fit."""
+        """Judge the reading at the vertex: TRACKING, or another pattern when it misses the fit."""
         p = self.p
         n = len(self.lo)
         meas = float(rows[0, n])
