@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Properties of the 2-D estimators: spiral coverage, paraboloid fit, circle demodulation."""
+"""Properties of the 2-D estimators and sequencer: spiral coverage, paraboloid fit, HELD."""
 
 import math
 
@@ -8,8 +8,6 @@ import pytest
 
 from fiber_align.alignment import search2d as s2
 from fiber_align.alignment import sequencer2d as s2d
-from fiber_align.alignment.tracking import JointDemodulator
-from fiber_align.plant import optics as op
 from fiber_align.simulation.seeds2d import graph_period_s
 
 W = 5.2e-6
@@ -104,30 +102,6 @@ def test_paraboloid_fit_recovers_a_noisy_gaussian_peak_within_the_noise():
     # a valley or a line of points is no peak
     assert s2.fit_log_paraboloid(pts[:, 0], pts[:, 1], 1.0 / p) is None
     assert s2.fit_log_paraboloid(pts[:, 0], np.full(5, 1e-6), p) is None
-
-
-@pytest.mark.parametrize('lag_deg', [0.0, 40.0])
-def test_circle_demodulation_points_uphill(lag_deg):
-    """The gradient points at the peak, magnitude 2 k |offset|, whatever the loop's lag."""
-    x0, y0 = 20e-6, 30e-6
-    a, f, dt = 0.3e-6, 50.0, 1e-3
-    for ang in np.radians([0.0, 75.0, 130.0, 250.0]):
-        off = 0.6e-6
-        cx, cy = x0 - off * math.cos(ang), y0 - off * math.sin(ang)   # peak at +ang
-        det = op.Detector(noise_floor_w=0.0, rin_db=0.0, seed=0)
-        dm = JointDemodulator(2, 0.04, lag_s=det.lag_s(dt))
-        for k in range(200):
-            # the tip follows the commanded circle with a phase lag and 80 % amplitude
-            ph = 2 * math.pi * f * k * dt - math.radians(lag_deg)
-            x = cx + 0.8 * a * math.cos(ph)
-            y = cy + 0.8 * a * math.sin(ph)
-            pw = det.measure(1e-3 * math.exp(-K * ((x - x0) ** 2 + (y - y0) ** 2)), dt)
-            dm.update(dt, (x, y), math.log(pw))
-        gx, gy = dm.gradient(0.01 * a * a)
-        err = math.degrees(math.atan2(math.sin(math.atan2(gy, gx) - ang),
-                                      math.cos(math.atan2(gy, gx) - ang)))
-        assert abs(err) < 2.0
-        assert math.hypot(gx, gy) == pytest.approx(2 * K * off, rel=0.05)
 
 
 def test_parameters_come_from_the_config_file_only():

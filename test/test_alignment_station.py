@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: Apache-2.0
-"""The station's pure core: search coverage, the joint fit, the joint demodulator, commands."""
+"""The station's pure core: search coverage, the joint fit, commands, HELD."""
 
 import math
 
@@ -10,7 +10,6 @@ from fiber_align.alignment import station as st
 from fiber_align.alignment import station_search as ss
 from fiber_align.alignment import station_serial as ser
 from fiber_align.alignment.states import FAULT, HELD, IDLE, PEAKING, TRACKING
-from fiber_align.alignment.tracking import JointDemodulator
 from fiber_align.simulation import station_scenarios as sc
 from fiber_align.simulation.seeds2d import graph_period_s
 
@@ -67,24 +66,6 @@ def test_joint_fit_recovers_the_separable_paraboloid():
     v, ki, ko, _ = ss.fit_log_paraboloid_sides(pos[:5], np.exp(lp[:5]), curvature=k_in)
     assert np.allclose(v, vertex, atol=1e-12) and ki == ko == pytest.approx(k_in)
     assert ss.fit_log_paraboloid_sides(pos[:6], np.exp(lp[:6])) is None
-
-
-def test_joint_demodulator_separates_two_circles_at_distinct_frequencies():
-    g = np.array([0.3e6, -0.2e6, 0.1e6, 0.4e6])        # d ln P / d pos, 1/m
-    a, dt = 0.1e-6, 1e-3
-    dem = JointDemodulator(4, 0.05)
-    for k in range(400):
-        t = k * dt
-        pos = a * np.array([math.cos(2 * math.pi * 100 * t), math.sin(2 * math.pi * 100 * t),
-                            math.cos(2 * math.pi * 80 * t), math.sin(2 * math.pi * 80 * t)])
-        dem.update(dt, pos, -2.0 + float(g @ pos))
-    assert np.allclose(dem.gradient(0.1 * a * a), g, rtol=1e-6)
-    same = JointDemodulator(4, 0.05)
-    for k in range(400):
-        ph = 2 * math.pi * 100 * k * dt
-        pos = a * np.array([math.cos(ph), math.sin(ph), math.cos(ph), math.sin(ph)])
-        same.update(dt, pos, float(g @ pos))
-    assert same.gradient(0.1 * a * a) is None          # one frequency: not separable
 
 
 @pytest.mark.parametrize('seed', [2, 5])
