@@ -45,7 +45,7 @@ def run_once(tree, case, seconds, tmp, cycles=20):
     summary = os.path.join(tmp, 'summary-%s-%s.json' % (case, os.getpid()))
     if os.path.exists(summary):
         os.remove(summary)
-    cmd = [sys.executable, '-m', 'fiber_align.nodes.bringup'] + [
+    cmd = [sys.executable, '-m', 'fiber_align.bringup'] + [
         x.format(seconds=seconds, cycles=cycles) for x in args] + [
         '--sync', 'realtime', '--quiet', '--summary', summary]
     if recorded:

@@ -42,7 +42,7 @@ import numpy as np
 from fiber_align.analysis.run_summary import beyond_floor
 from fiber_align.hardware.process import stop_process
 
-BRINGUP = [sys.executable, '-m', 'fiber_align.nodes.bringup']
+BRINGUP = [sys.executable, '-m', 'fiber_align.bringup']
 
 
 _SLEEP_LOOP = (

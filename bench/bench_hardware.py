@@ -38,8 +38,8 @@ from fiber_align.config import load_params
 from fiber_align.graph.hardware import build_hardware
 from fiber_align.graph.hardware_rig import build_hardware_rig
 from fiber_align.hardware.mdt693b import MDT693BChannels
-from fiber_align.nodes.bringup.hardware import (graph_trial, HardwareRigRun, HardwareRun,
-                                                rig_graph_trial)
+from fiber_align.bringup.hardware import (graph_trial, HardwareRigRun, HardwareRun,
+                                          rig_graph_trial)
 from fiber_align.plant.optics2d import OpticalLink2D
 from fiber_align.simulation.alignment2d_scenarios import random_target
 

@@ -8,7 +8,7 @@ import pytest
 from fiber_align.graph.hardware_rig import build_hardware_rig
 from fiber_align.graph.params import GraphError
 from fiber_align.hardware.bench import emulated
-from fiber_align.nodes.bringup.hardware import HardwareRigRun, rig_graph_trial
+from fiber_align.bringup.hardware import HardwareRigRun, rig_graph_trial
 
 AMP = 'mdt693b_driver'
 

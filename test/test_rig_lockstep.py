@@ -26,7 +26,7 @@ pytestmark = [pytest.mark.ros]
 def run_rig(tmp_path, seed, *args, timeout=90):
     """Run ``bringup --rig`` in lockstep; return ``(trace columns, summary)``."""
     trace, summary = tmp_path / 'rig.csv', tmp_path / 'rig.json'
-    cmd = [sys.executable, '-m', 'fiber_align.nodes.bringup', '--rig', '--sync', 'lockstep',
+    cmd = [sys.executable, '-m', 'fiber_align.bringup', '--rig', '--sync', 'lockstep',
            '--seed', str(seed), '--trace', str(trace), '--summary', str(summary),
            '--quiet'] + list(args)
     code, out = run_bounded(cmd, timeout)

@@ -34,10 +34,10 @@ from fiber_align.hardware.bench import emulated
 from fiber_align.hardware.errors import DeviceError
 from fiber_align.hardware.process import start_emulator, stop_process
 from fiber_align.nodes.ros.qos import REALTIME_QOS
-from fiber_align.nodes.bringup import interrupt
-from fiber_align.nodes.bringup.cli import live, parse_params
-from fiber_align.nodes.bringup.observer import BringupError
-from fiber_align.nodes.bringup.run import Harness
+from fiber_align.bringup import interrupt
+from fiber_align.bringup.cli import live, parse_params
+from fiber_align.bringup.observer import BringupError
+from fiber_align.bringup.run import Harness
 from fiber_align.simulation.seeds2d import random_target
 
 #: Bounds (s, wall) of the steps; the align bound is the issue's 3 s goal plus margin.
@@ -58,7 +58,7 @@ def emulator_priority():
 
 class HardwareRun(Harness):
     """
-    The hardware graph on the :class:`~fiber_align.nodes.bringup.run.Harness`, and its steps.
+    The hardware graph on the :class:`~fiber_align.bringup.run.Harness`, and its steps.
 
     :param graph: a :class:`~fiber_align.graph.description.Graph` from ``build_hardware``
         (or ``build_hardware_rig``: :attr:`driver` is then ``mdt693b_driver``).

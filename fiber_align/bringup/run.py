@@ -25,11 +25,11 @@ from fiber_align.graph.description import dds_environment
 from fiber_align.graph.params import effective, merge_params, PLANT, RECORDER, SCENARIO_RUNNER
 from fiber_align.jsonout import json_default
 from fiber_align.nodes._recording import recorder_counts, recorder_short, recorder_short_full
-from fiber_align.nodes.bringup import interrupt
-from fiber_align.nodes.bringup.children import Child, wait_all
-from fiber_align.nodes.bringup.cli import expected_endpoints, TRACKING_SCENARIOS
-from fiber_align.nodes.bringup.observer import BadInput, BringupError, Observer, StartStall
-from fiber_align.nodes.machine_floor import Floor
+from fiber_align.bringup import interrupt
+from fiber_align.bringup.children import Child, wait_all
+from fiber_align.bringup.cli import expected_endpoints, TRACKING_SCENARIOS
+from fiber_align.bringup.observer import BadInput, BringupError, Observer, StartStall
+from fiber_align.bringup.floor import Floor
 from fiber_align.nodes.ros.diagnostics import endpoint_node_name
 
 EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -50,7 +50,7 @@ class Harness:
     The processes of one graph and its observer: start, watch, stop in order.
 
     :param graph: a :class:`~fiber_align.graph.description.Graph` (or the rig's).
-    :param observe: :class:`~fiber_align.nodes.bringup.observer.Observer` keyword
+    :param observe: :class:`~fiber_align.bringup.observer.Observer` keyword
         arguments (``streams``, ``clock``, ...).
     :param endpoints: ``{topic: (publishers, subscribers)}`` to wait for (``{}``: none).
     """

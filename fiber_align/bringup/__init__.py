@@ -7,11 +7,11 @@ fiber_align.launch.py`` starts, for machines without the ROS 2 command line. By 
 the control nodes (and the scenario's source) run in one ``control_graph`` process
 (``--multi-process``: one process per node), the recorder (``--record DIR``) in its own.
 The graph is the one description of :mod:`fiber_align.graph`, the launch file's: the
-options are its launch arguments (:func:`~fiber_align.nodes.bringup.cli.describe`),
+options are its launch arguments (:func:`~fiber_align.bringup.cli.describe`),
 ``--params-file`` and ``-p NODE:NAME:=VALUE`` its user params, checked against the
 shipped files (an unknown node or parameter, or a value of the wrong type, is refused).
 
-Sequence (:class:`~fiber_align.nodes.bringup.run.Harness`): refuse to start beside
+Sequence (:class:`~fiber_align.bringup.run.Harness`): refuse to start beside
 another graph in the same namespace; start the recorder and the description's processes;
 wait until every node is on the graph and ``lifecycle_manager`` has ``actuator_driver``
 active; wait until every topic has its publishers and subscribers; start the plant
@@ -23,7 +23,7 @@ Scenarios: ``step``, ``sine``, ``triangle``, ``staircase`` and
 ``hysteresis-experiment`` run the ``scenario_runner`` node (one setpoint, or open-loop
 drive, per sample); ``align`` runs ``alignment_sequencer`` (align, then ``--cycles``
 switch cycles); ``none`` runs until SIGINT (publish ``setpoint`` yourself).
-``--rig`` runs the two-axis rig instead (:mod:`~fiber_align.nodes.bringup.rig`):
+``--rig`` runs the two-axis rig instead (:mod:`~fiber_align.bringup.rig`):
 ``align2d``, and in lockstep the comparison with the offline run.
 
 Signals: SIGINT and SIGTERM stop the run cleanly however ``bringup`` was started (its
@@ -37,7 +37,7 @@ node died, a timeout, a stall, another graph on the domain, an alignment FAULT,
 interrupted.
 
 ``--hardware`` runs the sensorless bench graph instead (``--emulate``: on the emulators;
-:mod:`fiber_align.nodes.bringup.hardware`); ``--rig --hardware`` the two-axis rig on one
+:mod:`fiber_align.bringup.hardware`); ``--rig --hardware`` the two-axis rig on one
 MDT693B. ``--station`` runs the coupled station as the rig (its sequence, its summary).
 """
 
@@ -48,10 +48,10 @@ import sys
 from fiber_align import lifeline
 from fiber_align.config import ConfigError
 from fiber_align.graph.description import dds_environment
-from fiber_align.nodes.bringup import hardware, interrupt
-from fiber_align.nodes.bringup.cli import describe, describe_rig, describe_station, parse_args
-from fiber_align.nodes.bringup.rig import run_rig
-from fiber_align.nodes.bringup.run import Bringup
+from fiber_align.bringup import hardware, interrupt
+from fiber_align.bringup.cli import describe, describe_rig, describe_station, parse_args
+from fiber_align.bringup.rig import run_rig
+from fiber_align.bringup.run import Bringup
 
 
 def main(args=None):

@@ -3,7 +3,7 @@
 ``bringup --rig``: start the two-axis rig (``graph_rig.py``), run ``align2d``, stop.
 
 Sequence: write the rig's params file (plants held: ``autostart`` false), start its
-processes (:mod:`~fiber_align.nodes.bringup.children`), wait until ``lifecycle_manager``
+processes (:mod:`~fiber_align.bringup.children`), wait until ``lifecycle_manager``
 has both drivers active, start both plants (``x/simulated_actuator/run``,
 ``y/simulated_actuator/run``), let ``ALIGN_IDLE_S`` of samples pass, call ``align``, wait
 for TRACKING (at most ``ALIGN_MAX_S`` of sample time), ``LOSS_WINDOW_S`` more, hold both
@@ -21,9 +21,9 @@ import time
 
 from fiber_align.analysis import run_summary as sm
 from fiber_align.graph.description import STATION_AXES as AXES4
-from fiber_align.nodes.bringup import interrupt
-from fiber_align.nodes.bringup.observer import BringupError
-from fiber_align.nodes.bringup.run import Harness
+from fiber_align.bringup import interrupt
+from fiber_align.bringup.observer import BringupError
+from fiber_align.bringup.run import Harness
 from fiber_align.simulation import station_scenarios as sc
 
 #: Streams recorded per sample: name -> topic.
