@@ -7,7 +7,8 @@ fiber_align.launch.py`` starts, for machines without the ROS 2 command line. By 
 the control nodes (and the scenario's source) run in one ``control_graph`` process
 (``--multi-process``: one process per node), the recorder (``--record DIR``) in its own.
 The graph is the one description of :mod:`fiber_align.graph`, the launch file's: the
-options are its launch arguments (:func:`~fiber_align.bringup.cli.describe`),
+options are its launch arguments (:func:`~fiber_align.bringup.cli.graph`, through
+:func:`fiber_align.graph.arguments.describe`),
 ``--params-file`` and ``-p NODE:NAME:=VALUE`` its user params, checked against the
 shipped files (an unknown node or parameter, or a value of the wrong type, is refused).
 
@@ -49,7 +50,7 @@ from fiber_align import lifeline
 from fiber_align.config import ConfigError
 from fiber_align.graph.description import dds_environment
 from fiber_align.bringup import hardware, interrupt
-from fiber_align.bringup.cli import describe, describe_rig, describe_station, parse_args
+from fiber_align.bringup.cli import graph, parse_args
 from fiber_align.bringup.rig import run_rig
 from fiber_align.bringup.run import Bringup
 
@@ -65,12 +66,10 @@ def main(args=None):
     try:
         if a.hardware:
             code = hardware.run(a)
-        elif a.rig:
-            code = run_rig(a, describe_rig(a))
-        elif a.station:
-            code = run_rig(a, describe_station(a))
+        elif a.rig or a.station:
+            code = run_rig(a, graph(a)[0])
         else:
-            code = Bringup(a, *describe(a)).run()
+            code = Bringup(a, *graph(a)).run()
     except (ConfigError, ValueError) as exc:
         print('bringup: error: %s' % exc, file=sys.stderr, flush=True)
         code = 2

@@ -2,9 +2,10 @@
 """
 ``bringup``'s command line: options, their checks, and the graph they describe.
 
-The options map onto the arguments of :mod:`fiber_align.graph` (``build``,
-``build_rig``, ``build_hardware``: the launch file's), and the rest onto parameter
-overrides of the description; bringup merges nothing itself.
+The options map onto the launch arguments (:func:`arguments`), which
+:func:`fiber_align.graph.arguments.describe` turns into the graph as under ``ros2
+launch``, and the rest onto parameter overrides of the description; bringup merges
+nothing itself.
 """
 
 import argparse
@@ -15,19 +16,16 @@ import sys
 import yaml
 
 from fiber_align.config import ConfigError
-from fiber_align.graph import description as gd, rig as gr, station as gs
-from fiber_align.graph.description import NODES
-from fiber_align.graph.live import check_endpoint, live_settings, with_live
+from fiber_align.graph.arguments import describe
+from fiber_align.graph.description import check_namespace
 from fiber_align.graph.params import GraphError, PLANT, RECORDER, SCENARIO_RUNNER
+from fiber_align.graph.registry import CONTROLLERS, SCENARIOS, SYNC_MODES
 from fiber_align.simulation.setpoints import setpoint_range, Source
 
 TRACKING_SCENARIOS = ('step', 'sine', 'triangle', 'staircase')
-#: bringup options of the 1-D graph only: (attribute, option); refused with ``--rig``.
-ONE_AXIS_OPTIONS = (('scenario', '--scenario'), ('model', '--model'), ('rate', '--rate'),
-                    ('no_noise', '--no-noise'), ('record', '--record'),
-                    ('storage', '--storage'))
-#: What the scenario runner publishes in the open-loop experiment (it drives the driver).
-OPEN_LOOP = ('feedforward_voltage', 'feedback_voltage')
+#: bringup's options that are no launch argument, of the simulated 1-D graph only:
+#: (attribute, option); the launch arguments' are :func:`describe`'s.
+ONE_AXIS_OPTIONS = (('rate', '--rate'), ('no_noise', '--no-noise'))
 
 
 def _positive(kind, what):
@@ -44,7 +42,7 @@ def _positive(kind, what):
 
 def _namespace(text):
     try:                # the description's rule, as under ros2 launch
-        return gd.check_namespace(text)
+        return check_namespace(text)
     except GraphError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
@@ -65,7 +63,7 @@ def parse_args(argv):
         argv = argv[:argv.index('--ros-args')]
     ap = _Parser(prog='bringup', description='Start the fiber_align graph, run a scenario, '
                  'record, stop, summarise.')
-    ap.add_argument('--scenario', choices=gd.SCENARIOS, default=None,
+    ap.add_argument('--scenario', choices=SCENARIOS, default=None,
                     help='scenario to run (default: scenario_runner.scenario of '
                          'config/scenario.yaml, as ros2 launch)')
     ap.add_argument('--rig', action='store_true',
@@ -79,9 +77,9 @@ def parse_args(argv):
     ap.add_argument('--duration', type=_positive(float, '--duration'), default=None,
                     help="scenario length (s of sample time; default: the scenario's); "
                     '--rig, --station: hold TRACKING this long after the cycles')
-    ap.add_argument('--sync', choices=('realtime', 'lockstep'), default=None,
+    ap.add_argument('--sync', choices=SYNC_MODES, default=None,
                     help='sample clock (default: sync_mode of fiber_align.yaml)')
-    ap.add_argument('--controller', choices=gd.CONTROLLERS, default=None,
+    ap.add_argument('--controller', choices=CONTROLLERS, default=None,
                     help='control law (default: controller of fiber_align.yaml)')
     ap.add_argument('--model', metavar='FILE', default=None,
                     help='PI model params file for the compensator (e.g. from fiber-align '
@@ -153,35 +151,49 @@ def parse_args(argv):
     return a
 
 
-def describe(a):
-    """
-    Return ``(graph, source)`` of the 1-D graph the options ``a`` describe.
+def arguments(a, **given):
+    """Return the options ``a`` as launch arguments: ``{name: value}`` of ``ARGUMENTS``."""
+    out = dict(namespace=a.namespace, composed=a.composed, sync_mode=a.sync,
+               controller=a.controller, params_file=a.params_file, model_file=a.model,
+               record=a.record, scenario=a.scenario, rig=a.rig, station=a.station,
+               seed=a.seed, hardware=a.hardware, port=a.port, visa_resource=a.visa_resource,
+               live=a.live, live_port=a.live_port, live_host=a.live_host)
+    out.update(given)
+    return out
 
-    The description's :func:`~fiber_align.graph.description.build` with the launch
-    arguments of the options; with a scenario the harness holds the plant until the
-    graph is connected (``autostart`` false) and ends the run itself (the runner's
-    ``exit_when_done`` false, ``duration_s`` set). ``source``: the scenario runner's
-    setpoints (:class:`~fiber_align.simulation.setpoints.Source`) or ``None``.
+
+def graph(a, **given):
+    """
+    Return ``(graph, source)`` the options ``a`` describe (and ``given`` launch arguments).
+
+    The graph is :func:`fiber_align.graph.arguments.describe` of :func:`arguments`, with
+    ``bringup``'s own options (``--rate``, ``--no-noise``, ``--storage``, ``-p``) as
+    overrides. The harness holds the simulated plants until the graph is connected
+    (``autostart`` false); with a scenario it ends the run itself (the runner's
+    ``exit_when_done`` false, ``duration_s`` set). ``source``: the scenario's setpoints
+    (:class:`~fiber_align.simulation.setpoints.Source`) or ``None``.
 
     :raises GraphError: a bad option, params file or ``-p`` (exit code 2).
     """
-    ov = parse_params(a.param, {})
-    plant = {} if a.seed is None else {'seed': int(a.seed)}
-    if a.no_noise:
-        plant['noise_rms_m'] = 0.0
+    one_axis = not (a.rig or a.station or a.hardware)
+    bad = [opt for attr, opt in ONE_AXIS_OPTIONS if getattr(a, attr) and not one_axis]
+    if bad:
+        raise GraphError('%s: only on the simulated 1-D graph' % ', '.join(bad))
+    ov = {}
     if a.rate:
-        ov.setdefault('/**', {})['rate_hz'] = float(a.rate)
+        ov['/**'] = {'rate_hz': float(a.rate)}
+    if a.no_noise:
+        ov[PLANT] = {'noise_rms_m': 0.0}
     if a.storage:
-        ov.setdefault(RECORDER, {})['storage'] = a.storage
-    kw = dict(namespace=a.namespace, composed=a.composed, sync_mode=a.sync or '',
-              controller=a.controller or '', params_file=a.params_file,
-              model_file=a.model or '', record=a.record or '')
-    g = gd.build(scenario=a.scenario or '', overrides=dict(ov, **{PLANT: plant}) if plant
-                 else ov, **kw)
-    if g.scenario == 'none':
-        return live(a, g), None
-    plant['autostart'] = False
-    ov[PLANT] = dict(ov.get(PLANT, {}), **plant)
+        ov[RECORDER] = {'storage': a.storage}
+    ov = parse_params(a.param, ov)
+    args = arguments(a, **given)
+    if a.rig or a.station:
+        ov[PLANT] = dict(ov.get(PLANT, {}), autostart=False)
+    g = describe(args, ov)
+    if not one_axis or g.scenario == 'none':
+        return g, None
+    ov[PLANT] = dict(ov.get(PLANT, {}), autostart=False)
     src = None
     if SCENARIO_RUNNER in g.nodes:
         sp = g.node_params(SCENARIO_RUNNER)
@@ -190,96 +202,7 @@ def describe(a):
         dur = a.duration or float(sp['duration_s']) or float(src.sc.duration_s)
         ov[SCENARIO_RUNNER] = dict(ov.get(SCENARIO_RUNNER, {}), exit_when_done=False,
                                    wait_for_recorder=False, duration_s=float(dur))
-    return live(a, gd.build(scenario=g.scenario, overrides=ov, **kw)), src
-
-
-def live(a, graph):
-    """
-    Return ``graph`` with the live view when ``--live`` (:func:`fiber_align.graph.live.with_live`).
-
-    :raises GraphError: a bad ``--live-port``/``--live-host``, or that port in use.
-    """
-    g = with_live(graph, a.live, '' if a.live_port is None else a.live_port,
-                  a.live_host or '')
-    served = live_settings(g)
-    if served:
-        check_endpoint(*served)
-    return g
-
-
-def expected_endpoints(graph, observed=(), recorded=()):
-    """
-    Return ``{topic: (publishers, subscribers)}`` (at least) the running graph must have.
-
-    From the node registry (:data:`fiber_align.graph.description.NODES`): the topics its
-    nodes publish and read, only those some node, the observer or the recorder reads. A
-    reader hosted in one process with the topic's publisher reads it in-process
-    (``LocalBus``), not as a DDS subscription.
-
-    :param graph: a 1-D :class:`~fiber_align.graph.description.Graph`.
-    :param observed: the topics the observer subscribes to.
-    :param recorded: the topics the recorder subscribes to (``topics``; empty: none).
-    """
-    def publishes(node):
-        if node == SCENARIO_RUNNER:
-            return OPEN_LOOP if graph.scenario == 'hysteresis-experiment' else ('setpoint',)
-        return NODES[node].publishes if node in NODES else ()
-    pubs, subs = {}, {t: 1 for t in observed}
-    for p in graph.processes:
-        own = {t for n in p.nodes for t in publishes(n)}
-        for n in p.nodes:
-            for t in publishes(n):
-                pubs[t] = pubs.get(t, 0) + 1
-            for t in NODES[n].subscribes if n in NODES else ():
-                if not (len(p.nodes) > 1 and t in own):
-                    subs[t] = subs.get(t, 0) + 1
-    out = {t: (pubs.get(t, 0), n) for t, n in subs.items()}
-    if graph.sync_mode == 'lockstep':
-        out['/clock'] = (1, 0)
-    recorded = {t.lstrip('/') for t in recorded}
-    return {k: (p, s + (1 if p and k.lstrip('/') in recorded else 0))
-            for k, (p, s) in out.items()}
-
-
-def describe_rig(a):
-    """
-    Return the rig's :class:`~fiber_align.graph.rig.RigGraph` for the options ``a``.
-
-    The plants are held (``autostart`` false) until both drivers are active.
-
-    :raises GraphError: a bad option (exit code 2).
-    """
-    bad = [opt for attr, opt in ONE_AXIS_OPTIONS if getattr(a, attr, None) not in (None, False)]
-    if bad:
-        raise GraphError('%s: not available with --rig' % ', '.join(bad))
-    ov = parse_params(a.param, {PLANT: {'autostart': False}})
-    return live(a, gr.build_rig(namespace=a.namespace or gr.RIG_NAMESPACE,
-                                composed=a.composed, sync_mode=a.sync or '',
-                                controller=a.controller or '', seed=int(a.seed or 0),
-                                params_file=a.params_file, overrides=ov))
-
-
-def describe_station(a):
-    """
-    Return the station's :class:`~fiber_align.graph.rig.RigGraph` for the options ``a``.
-
-    As :func:`describe_rig`; ``--record`` (and ``--storage``) record the station's topics.
-
-    :raises GraphError: a bad option (exit code 2).
-    """
-    bad = [opt for attr, opt in ONE_AXIS_OPTIONS if attr not in ('record', 'storage')
-           and getattr(a, attr, None) not in (None, False)]
-    if bad:
-        raise GraphError('%s: not available with --station' % ', '.join(bad))
-    ov = {PLANT: {'autostart': False}}
-    if a.storage:
-        ov[RECORDER] = {'storage': a.storage}
-    ov = parse_params(a.param, ov)
-    return live(a, gs.build_station(namespace=a.namespace or gs.STATION_NAMESPACE,
-                                    composed=a.composed, sync_mode=a.sync or '',
-                                    controller=a.controller or '', seed=int(a.seed or 0),
-                                    record=a.record or '', params_file=a.params_file,
-                                    overrides=ov))
+    return describe(dict(args, scenario=g.scenario), ov), src
 
 
 def parse_params(items, ov):

@@ -29,13 +29,12 @@ import time
 from fiber_align.graph.hardware import build_hardware, POWER_METER
 from fiber_align.graph.hardware_rig import AMPLIFIER, build_hardware_rig
 from fiber_align.graph.params import DRIVER, LIFECYCLE_MANAGER, RECORDER
-from fiber_align.graph.rig import RIG_NAMESPACE
 from fiber_align.hardware.bench import emulated
 from fiber_align.hardware.errors import DeviceError
 from fiber_align.hardware.process import start_emulator, stop_process
 from fiber_align.nodes.ros.qos import REALTIME_QOS
 from fiber_align.bringup import interrupt
-from fiber_align.bringup.cli import live, parse_params
+from fiber_align.bringup.cli import graph
 from fiber_align.bringup.observer import BringupError
 from fiber_align.bringup.run import Harness
 from fiber_align.simulation.seeds2d import random_target
@@ -273,19 +272,8 @@ def run(args):
             emu, info = start_emulator(extra, quiet=args.quiet, priority=emulator_priority())
             port, resource = info['serial_link'], info['visa_resource']
             summary['emulator'] = info
-        if rig:
-            g = live(args, build_hardware_rig(
-                port=port, visa_resource=resource, namespace=args.namespace or RIG_NAMESPACE,
-                composed=args.composed, params_file=args.params_file,
-                overrides=parse_params(args.param, {})))
-            hw = HardwareRigRun(g, quiet=args.quiet)
-        else:
-            g = live(args, build_hardware(
-                port=port, visa_resource=resource, namespace=args.namespace,
-                composed=args.composed, params_file=args.params_file,
-                model_file=args.model or '', record=args.record or '',
-                overrides=parse_params(args.param, {})))
-            hw = HardwareRun(g, quiet=args.quiet)
+        g = graph(args, port=port, visa_resource=resource)[0]
+        hw = (HardwareRigRun if rig else HardwareRun)(g, quiet=args.quiet)
         t0 = time.monotonic()
         hw.start()
         summary['startup_s'] = time.monotonic() - t0

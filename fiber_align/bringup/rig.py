@@ -20,7 +20,7 @@ import json
 import time
 
 from fiber_align.analysis import run_summary as sm
-from fiber_align.graph.description import STATION_AXES as AXES4
+from fiber_align.graph.registry import STATION_AXES as AXES4
 from fiber_align.bringup import interrupt
 from fiber_align.bringup.observer import BringupError
 from fiber_align.bringup.run import Harness

@@ -23,11 +23,12 @@ from fiber_align.analysis import run_summary as sm
 from fiber_align.analysis.report import hysteresis_metrics
 from fiber_align.graph.description import dds_environment
 from fiber_align.graph.params import effective, merge_params, PLANT, RECORDER, SCENARIO_RUNNER
+from fiber_align.graph.registry import expected_endpoints
 from fiber_align.jsonout import json_default
 from fiber_align.nodes._recording import recorder_counts, recorder_short, recorder_short_full
 from fiber_align.bringup import interrupt
 from fiber_align.bringup.children import Child, wait_all
-from fiber_align.bringup.cli import expected_endpoints, TRACKING_SCENARIOS
+from fiber_align.bringup.cli import TRACKING_SCENARIOS
 from fiber_align.bringup.observer import BadInput, BringupError, Observer, StartStall
 from fiber_align.bringup.floor import Floor
 from fiber_align.nodes.ros.diagnostics import endpoint_node_name

@@ -35,15 +35,16 @@ import os
 
 from fiber_align.graph import description as g
 from fiber_align.graph.params import GraphError, LIFECYCLE_MANAGER, PLANT, RECORDER
+from fiber_align.graph.registry import NODES, STATION_AXES
 from fiber_align.graph.rig import in_effect, multi_axis_start, rig_processes, RigGraph
 from fiber_align.simulation import station_scenarios as sc
 
 STATION_NAMESPACE = 'station'
-AXES = g.STATION_AXES
+AXES = STATION_AXES
 OPTICS = 'simulated_station_optics'
 SEQUENCER = 'station_sequencer'
 #: The station's own nodes: name -> executable.
-OWN_NODES = {n: g.NODES[n].executable for n in (OPTICS, SEQUENCER)}
+OWN_NODES = {n: NODES[n].executable for n in (OPTICS, SEQUENCER)}
 MANAGED = tuple('%s/actuator_driver' % a for a in AXES)
 #: Topics the recorder records (relative to the station's namespace): per axis what a
 #: user analyses (measured position, setpoint, drive), the power and the state.
