@@ -115,7 +115,7 @@ def test_a_driver_disabled_mid_align_holds_the_station_which_resumes_after_the_r
     from std_srvs.srv import SetBool, Trigger
 
     from fiber_align.graph.params import PLANT
-    from fiber_align.bringup.run import Harness
+    from fiber_align.bringup.harness import Harness
     g = gs.build_station(seed=2, sync_mode='realtime', overrides={PLANT: {'autostart': False}})
     facets = np.array([g.node_params(gs.OPTICS)[k] for k in gs.FACET_KEYS])
     h = Harness(g, dict(streams={}))

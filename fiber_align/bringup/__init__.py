@@ -12,7 +12,7 @@ options are its launch arguments (:func:`~fiber_align.bringup.cli.graph`, throug
 ``--params-file`` and ``-p NODE:NAME:=VALUE`` its user params, checked against the
 shipped files (an unknown node or parameter, or a value of the wrong type, is refused).
 
-Sequence (:class:`~fiber_align.bringup.run.Harness`): refuse to start beside
+Sequence (:class:`~fiber_align.bringup.harness.Harness`): refuse to start beside
 another graph in the same namespace; start the recorder and the description's processes;
 wait until every node is on the graph and ``lifecycle_manager`` has ``actuator_driver``
 active; wait until every topic has its publishers and subscribers; start the plant
@@ -47,12 +47,12 @@ import signal
 import sys
 
 from fiber_align import lifeline
-from fiber_align.config import ConfigError
-from fiber_align.graph.description import dds_environment
 from fiber_align.bringup import hardware, interrupt
 from fiber_align.bringup.cli import graph, parse_args
 from fiber_align.bringup.rig import run_rig
 from fiber_align.bringup.run import Bringup
+from fiber_align.config import ConfigError
+from fiber_align.graph.description import dds_environment
 
 
 def main(args=None):

@@ -26,6 +26,10 @@ import json
 import sys
 import time
 
+from fiber_align.bringup import interrupt
+from fiber_align.bringup.cli import graph
+from fiber_align.bringup.harness import Harness
+from fiber_align.bringup.observer import BringupError
 from fiber_align.graph.hardware import build_hardware, POWER_METER
 from fiber_align.graph.hardware_rig import AMPLIFIER, build_hardware_rig
 from fiber_align.graph.params import DRIVER, LIFECYCLE_MANAGER, RECORDER
@@ -33,10 +37,6 @@ from fiber_align.hardware.bench import emulated
 from fiber_align.hardware.errors import DeviceError
 from fiber_align.hardware.process import start_emulator, stop_process
 from fiber_align.nodes.ros.qos import REALTIME_QOS
-from fiber_align.bringup import interrupt
-from fiber_align.bringup.cli import graph
-from fiber_align.bringup.observer import BringupError
-from fiber_align.bringup.run import Harness
 from fiber_align.simulation.seeds2d import random_target
 
 #: Bounds (s, wall) of the steps; the align bound is the issue's 3 s goal plus margin.
@@ -57,7 +57,7 @@ def emulator_priority():
 
 class HardwareRun(Harness):
     """
-    The hardware graph on the :class:`~fiber_align.bringup.run.Harness`, and its steps.
+    The hardware graph on the :class:`~fiber_align.bringup.harness.Harness`, and its steps.
 
     :param graph: a :class:`~fiber_align.graph.description.Graph` from ``build_hardware``
         (or ``build_hardware_rig``: :attr:`driver` is then ``mdt693b_driver``).

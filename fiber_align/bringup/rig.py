@@ -20,10 +20,10 @@ import json
 import time
 
 from fiber_align.analysis import run_summary as sm
-from fiber_align.graph.registry import STATION_AXES as AXES4
 from fiber_align.bringup import interrupt
+from fiber_align.bringup.harness import Harness
 from fiber_align.bringup.observer import BringupError
-from fiber_align.bringup.run import Harness
+from fiber_align.graph.registry import STATION_AXES as AXES4
 from fiber_align.simulation import station_scenarios as sc
 
 #: Streams recorded per sample: name -> topic.

@@ -1,0 +1,272 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+``bringup``'s one orchestrator: spawn a described graph, observe it, stop it.
+
+Every mode (the 1-D graph, ``--rig``, ``--hardware``) runs a graph of
+:mod:`fiber_align.graph` through :class:`Harness`: the processes, node names, params
+and lifecycle are the description's (``Process.command`` and ``Graph.write_params``, as
+the launch file); ``lifecycle_manager`` activates the lifecycle nodes and the harness only
+waits for them. Its bounds are the ``bringup`` section of ``config/fiber_align.yaml``.
+"""
+
+import json
+import os
+from pathlib import Path
+import sys
+import tempfile
+import time
+
+from fiber_align.analysis import run_summary as sm
+from fiber_align.bringup import interrupt
+from fiber_align.bringup.children import Child, wait_all
+from fiber_align.bringup.floor import Floor
+from fiber_align.bringup.observer import BadInput, BringupError, Observer
+from fiber_align.graph.description import dds_environment
+from fiber_align.graph.params import effective, merge_params, PLANT, RECORDER
+from fiber_align.nodes._recording import recorder_counts, recorder_short, recorder_short_full
+from fiber_align.nodes.ros.diagnostics import endpoint_node_name
+
+EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+
+def settings(graph):
+    """Return the ``bringup`` section of the graph's params files (bounds, s)."""
+    return effective(merge_params(graph.params_files), 'bringup')
+
+
+class Harness:
+    """
+    The processes of one graph and its observer: start, watch, stop in order.
+
+    :param graph: a :class:`~fiber_align.graph.description.Graph` (or the rig's).
+    :param observe: :class:`~fiber_align.bringup.observer.Observer` keyword
+        arguments (``streams``, ``clock``, ...).
+    :param endpoints: ``{topic: (publishers, subscribers)}`` to wait for (``{}``: none).
+    """
+
+    def __init__(self, graph, observe, quiet=True, endpoints=None):
+        """Write the params file; nothing starts until :meth:`start`."""
+        self.graph, self.observe, self.quiet = graph, observe, quiet
+        self.gp = settings(graph)
+        self.endpoints = endpoints or {}
+        self.tmp = tempfile.TemporaryDirectory(prefix='fiber_align_bringup_')
+        self.params = graph.write_params(os.path.join(self.tmp.name, 'params.yaml'))
+        self.children, self.obs, self.summary = [], None, {}
+        self.floor = None           # the machine-floor probe of a realtime run
+        self._next_check, self.stopping = 0.0, False
+        self.plants = tuple(n for n in graph.nodes if n.rsplit('/', 1)[-1] == PLANT)
+        #: the recorded and sent counts when the recorder had matched every writer
+        self.rec_base = None
+
+    def start(self, check_alone=True, ready=None):
+        """Observe, spawn every process, wait for the nodes, the active drivers, the topics."""
+        t0 = time.monotonic()
+        g = self.graph
+        timeout = float(self.gp['startup_timeout_s'])
+        self.obs = Observer(g.namespace, **self.observe)
+        self.obs.stall_s = float(self.gp['stall_timeout_s'])
+        self.obs.start_stall_s = float(self.gp['start_stall_timeout_s'])
+        want = set()
+        for p in g.processes:
+            want.update(p.hosted(g.namespace))
+        if check_alone:
+            time.sleep(float(self.gp['discovery_wait_s']))
+            others = sorted(n for n, ns in want & self.obs.node_names())
+            if others:
+                raise BringupError(
+                    'another fiber_align graph runs on ROS_DOMAIN_ID=%s in namespace /%s '
+                    '(its nodes: %s); stop it, or use --namespace or another ROS_DOMAIN_ID'
+                    % (os.environ.get('ROS_DOMAIN_ID', '0'), g.namespace, ', '.join(others)))
+        env = dds_environment()
+        # the recorder first: it is subscribed before the first sample is published
+        for p in sorted(g.processes, key=lambda p: p.name != RECORDER):
+            ch = Child(p.name, p.command(self.params, g.namespace, g.remappings,
+                                         sys.executable), env, self.quiet)
+            self.children.append(ch)
+            print('bringup: started %s (pid %d)' % (p.name, ch.proc.pid), flush=True)
+        self.obs.wait(lambda: want <= self.obs.node_names(), timeout, self.alive,
+                      'every node on the graph')
+        self.obs.wait(lambda: self.obs.active_nodes(g.managed_nodes, self.alive), timeout,
+                      self.alive, 'the lifecycle nodes active (lifecycle_manager)')
+        self.obs.wait(lambda: not self.obs.short_endpoints(self.endpoints), timeout,
+                      self.alive, 'topics connected: %s' % self.endpoints)
+        if ready is not None:
+            self.obs.wait(ready, timeout, self.alive, 'the graph ready')
+        self.alive()
+        self.summary['startup_s'] = time.monotonic() - t0
+        for ch in self.children:
+            ch.mark()
+
+    def alive(self):
+        """Raise when a process exited or another graph publishes on the topics."""
+        interrupt.check()
+        for ch in self.children:
+            if not ch.alive():
+                ch.thread.join(timeout=1.0)
+                if ch.proc.returncode == 2:
+                    raise BadInput(ch.last_error or '%s refused its parameters' % ch.name)
+                raise BringupError('%s exited with code %s%s' % (
+                    ch.name, ch.proc.returncode, (': ' + ch.last_error) if ch.last_error
+                    else ''))
+        now = time.monotonic()
+        if self.endpoints and self.obs is not None and now >= self._next_check:
+            self._next_check = now + 1.0
+            extra = self.obs.foreign_publishers(self.endpoints)
+            if extra:
+                raise BringupError(
+                    'another graph shares ROS_DOMAIN_ID=%s: %s; run on a domain of its own'
+                    % (os.environ.get('ROS_DOMAIN_ID', '0'), ', '.join(extra)))
+
+    def run(self, on=True):
+        """Start (or hold) every plant's sample clock (``<plant>/run``)."""
+        from std_srvs.srv import SetBool
+        if on and self.graph.record and getattr(self.graph, 'axes', None):
+            self.rec_base = self._recorder_base()
+        for p in self.plants:
+            self.obs.call(self.obs.client(SetBool, p + '/run'), SetBool.Request(data=on),
+                          5.0 if on else 0.5, self.alive)
+        if on and self.floor is None and self.plants and self.graph.sync_mode == 'realtime' \
+                and self.gp['machine_floor']:
+            plant = self.graph.node_params(self.plants[0])
+            self.floor = Floor(plant['rate_hz'], plant['realtime_priority'], self.tmp.name)
+            print('bringup: started machine_floor (pid %d)' % self.floor.proc.pid, flush=True)
+
+    @property
+    def cycle_goal(self):
+        """Return the share of missed periods a run is held to (the plant's parameter)."""
+        return float(self.graph.node_params(self.plants[0])['cycle_goal_missed_share']) \
+            if self.plants else 0.0
+
+    def floor_figures(self):
+        """Stop the machine-floor probe of the run; return its figures (``None``: none)."""
+        return self.floor.stop() if self.floor is not None else None
+
+    @property
+    def full_nodes(self):
+        """Return the full name of every node of the graph (``/station/in/x/...``)."""
+        return ['%s/%s' % (ns.rstrip('/'), n) for p in self.graph.processes
+                for n, ns in p.hosted(self.graph.namespace)]
+
+    def _recorder_base(self):
+        """
+        Wait until the recorder reads every writer of its topics; return the counts then.
+
+        The multi-axis graphs: a volatile message sent before the recorder matched its
+        writer (an activation, the sequencer's first setpoints) reaches no late reader, so
+        "every message in the bag" counts from here (the plants are still held: nothing
+        is published between this count and their start).
+        """
+        g, node = self.graph, self.obs.node
+        rec = '/%s/%s' % (g.namespace, RECORDER) if g.namespace else '/' + RECORDER
+        # the topics it reads in-process (hosted in the composed process) need no match
+        host = self._recorder_host()
+        local = set(host.local_topics(g.namespace)) if host is not None else set()
+        topics = [t for t in (node.resolve_topic_name(t)
+                              for t in g.node_params(RECORDER)['topics']) if t not in local]
+
+        def matched():
+            return all(not node.count_publishers(t) or any(
+                endpoint_node_name(i) == rec for i in node.get_subscriptions_info_by_topic(t))
+                for t in topics)
+        timeout = float(self.gp['startup_timeout_s'])
+        self.obs.wait(matched, timeout, self.alive, 'the recorder on every recorded topic')
+        t0 = time.monotonic()
+        diag = self.obs.watch.by_status['latest']
+        self.obs.wait(lambda: recorder_counts(diag, self.full_nodes, t0) is not None,
+                      timeout, self.alive, 'fresh counts of the recorder and every node')
+        return recorder_counts(diag, self.full_nodes, t0)
+
+    def stop(self, interrupted=False):
+        """Hold the plants, SIGINT the nodes, then the recorder, within stop_timeout_s."""
+        if self.stopping:
+            return self.summary
+        self.stopping = True
+        t_stop = time.monotonic()
+        deadline = t_stop + max(1.0, float(self.gp['stop_timeout_s']) - 0.5)
+        s = self.summary
+        if self.children:
+            s['processes'] = {ch.name: ch.usage() for ch in self.children}
+        # the realtime figures of the run itself: holding the plant below stops the
+        # loop's input, which the driver's watchdog then reports as a trip
+        latest = self.obs.watch.latest if self.obs is not None else {}
+        s['realtime'] = sm.realtime_figures(latest)
+        floor = self.floor_figures()
+        if floor is not None:
+            s['floor'] = floor
+        s['cycles'] = {n: dict(w) for n, w in self.obs.watch.worst.items()} if self.obs else {}
+        host = self._recorder_host()
+        # the recorder's process: its own (stopped after the others) or the composed one
+        rec = [ch for ch in self.children if host is not None and ch.name == host.name]
+        separate = bool(rec) and host.name == RECORDER
+        nodes = [ch for ch in self.children if not (separate and ch in rec)]
+        if self.obs is not None:
+            self.obs.active = False
+            if self.plants and all(ch.alive() for ch in nodes):
+                try:
+                    self.run(False)
+                except BringupError:
+                    pass
+            time.sleep(0.1)   # in-flight messages reach their subscribers
+        if rec and rec[0].alive() and self.obs is not None:
+            # the graph is held: the recorder works through its backlog before the
+            # publishers go (a writer that exits takes its undelivered samples with it)
+            limit = (deadline - 2.5 - time.monotonic()) if interrupted else 30.0
+            waited, short = self._wait_recorder(latest, rec[0], max(0.5, limit))
+            s['recorder_catch_up_s'] = waited
+            if short:
+                s['recorder_short'] = {k: list(v) for k, v in short.items()}
+        for ch in nodes:
+            ch.interrupt()
+        wait_all(nodes, deadline - (1.5 if separate else 0.0) - time.monotonic())
+        for ch in (rec if separate else ()):
+            ch.interrupt()
+            # at least 4 s: the recorder drains while the graph still publishes, then
+            # closes the bag; a SIGKILL before that leaves it without metadata
+            ch.wait(max(deadline - time.monotonic(), 4.0))
+        for ch in self.children:
+            s.setdefault('sent', {}).update(ch.sent)
+        s['children'] = {ch.name: {'pid': ch.proc.pid, 'exit_code': ch.proc.returncode,
+                                   'stop_s': ch.stop_s}
+                         for ch in self.children}
+        s['stop_s'] = time.monotonic() - t_stop
+        counts = Path(self.graph.record or '/nonexistent') / 'recorder_counts.json'
+        if counts.is_file():
+            s['recorded'] = json.loads(counts.read_text(encoding='utf-8'))
+        return s
+
+    def _recorder_host(self):
+        """Return the process that hosts the recorder (its own, or composed), or None."""
+        return next((p for p in self.graph.processes
+                     if any(b == RECORDER for b, _ in p.hosted(self.graph.namespace))), None)
+
+    def _wait_recorder(self, diag, ch, limit_s):
+        """
+        Wait until the recorder holds every message the nodes sent; return (s waited, short).
+
+        The rule is :func:`fiber_align.nodes._recording.recorder_short`; only reports made
+        after the plant was held count. Reliable delivery may need a retransmission after
+        a burst, so the wait is on the counts themselves, bounded by ``limit_s`` (s).
+        ``short``: topic -> (recorded, sent) left.
+        """
+        t0 = time.monotonic()
+        short = None
+        while time.monotonic() - t0 < limit_s and ch.alive():
+            time.sleep(0.05)
+            if getattr(self.graph, 'axes', None):       # the rig, the station
+                now = recorder_short_full(self.obs.watch.by_status['latest'], t0,
+                                          self.full_nodes, self.rec_base)
+            else:
+                now = recorder_short(diag, t0, self.graph.nodes)
+            if now is not None:
+                short = now
+                if not short:
+                    break
+        return time.monotonic() - t0, short or {}
+
+    def close(self):
+        """Destroy the observer (its threads leave rclpy first) and the params file."""
+        self.floor_figures()
+        if self.obs is not None:
+            self.obs.destroy()
+            self.obs = None
+        self.tmp.cleanup()
