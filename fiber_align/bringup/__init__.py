@@ -3,29 +3,17 @@
 ``bringup``: start the fiber_align graph, run a scenario, record, stop, summarise.
 
 The pip-only way to start the graph that ``ros2 launch fiber_align
-fiber_align.launch.py`` starts, for machines without the ROS 2 command line. By default
-the control nodes (and the scenario's source) run in one ``control_graph`` process
-(``--multi-process``: one process per node), the recorder (``--record DIR``) in its own.
-The graph is the one description of :mod:`fiber_align.graph`, the launch file's: the
-options are its launch arguments (:func:`~fiber_align.bringup.cli.graph`, through
-:func:`fiber_align.graph.arguments.describe`),
-``--params-file`` and ``-p NODE:NAME:=VALUE`` its user params, checked against the
-shipped files (an unknown node or parameter, or a value of the wrong type, is refused).
+fiber_align.launch.py`` starts, for machines without the ROS 2 command line: the options
+are its launch arguments (:func:`fiber_align.graph.arguments.describe` of
+:func:`~fiber_align.bringup.cli.arguments`), ``--params-file`` and ``-p
+NODE:NAME:=VALUE`` its user params, checked against the shipped files. Every graph runs
+on the one :class:`~fiber_align.bringup.harness.Harness`; what is run on it:
 
-Sequence (:class:`~fiber_align.bringup.harness.Harness`): refuse to start beside
-another graph in the same namespace; start the recorder and the description's processes;
-wait until every node is on the graph and ``lifecycle_manager`` has ``actuator_driver``
-active; wait until every topic has its publishers and subscribers; start the plant
-(``simulated_actuator/run``); run the scenario; hold the plant; stop every node (SIGINT,
-SIGKILL at the deadline) and the recorder last; print the summary (metrics, realtime
-figures, CPU and memory per process, sent and recorded counts).
-
-Scenarios: ``step``, ``sine``, ``triangle``, ``staircase`` and
-``hysteresis-experiment`` run the ``scenario_runner`` node (one setpoint, or open-loop
-drive, per sample); ``align`` runs ``alignment_sequencer`` (align, then ``--cycles``
-switch cycles); ``none`` runs until SIGINT (publish ``setpoint`` yourself).
-``--rig`` runs the two-axis rig instead (:mod:`~fiber_align.bringup.rig`):
-``align2d``, and in lockstep the comparison with the offline run.
+- the 1-D graph (default): its scenario, or ``align`` (:mod:`~fiber_align.bringup.run`);
+- ``--rig``, ``--station``: ``align2d``, the station; in lockstep compared with the
+  offline run (:mod:`~fiber_align.bringup.rig`);
+- ``--hardware [--rig] [--emulate]``: the sensorless bench, on an MDT693B + PM100 or
+  their emulators (:mod:`~fiber_align.bringup.hardware`).
 
 Signals: SIGINT and SIGTERM stop the run cleanly however ``bringup`` was started (its
 handlers are installed explicitly, also over an inherited SIG_IGN); a second signal
@@ -36,10 +24,6 @@ and ``bringup`` stops as on SIGTERM when the process that started it is gone
 node died, a timeout, a stall, another graph on the domain, an alignment FAULT,
 ``--strict`` goals missed), 2 bad input (options, params files, parameter values), 130
 interrupted.
-
-``--hardware`` runs the sensorless bench graph instead (``--emulate``: on the emulators;
-:mod:`fiber_align.bringup.hardware`); ``--rig --hardware`` the two-axis rig on one
-MDT693B. ``--station`` runs the coupled station as the rig (its sequence, its summary).
 """
 
 import os

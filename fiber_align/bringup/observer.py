@@ -36,6 +36,10 @@ class BadInput(BringupError):
     """A node refused its parameters (exit code 2): bringup exits 2 with its line."""
 
 
+class Refused(BringupError):
+    """The sequencer refused a command (its answer's ``success`` false)."""
+
+
 class StartStall(BringupError):
     """A lockstep graph did not answer its first sample within the start-up bound."""
 
@@ -290,6 +294,23 @@ class Observer:
             raise BringupError('service %s did not answer within %g s'
                                % (client.srv_name, timeout))
         return fut.result()
+
+    def command(self, name, data=None, alive=lambda: None, timeout=10.0):
+        """
+        Call the sequencer's ``name``; return the sample index of the state it caused.
+
+        ``align``, ``release`` (std_srvs/Trigger) or, with ``data``, ``switch``
+        (std_srvs/SetBool). :raises Refused: its answer's ``success`` false.
+        """
+        from std_srvs.srv import SetBool, Trigger
+        srv, req = (Trigger, Trigger.Request()) if data is None else (
+            SetBool, SetBool.Request(data=bool(data)))
+        n = len(self.states)
+        res = self.call(self.client(srv, name), req, timeout, alive)
+        if not res.success:
+            what = name if data is None else '%s %s' % (name, 'on' if data else 'off')
+            raise Refused('%s refused: %s' % (what, res.message))
+        return self.event(n)
 
     def wait(self, cond, timeout, alive, what):
         """Wait (bounded, s wall) until ``cond()``; ``alive()`` may raise meanwhile."""

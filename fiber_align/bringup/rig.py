@@ -1,14 +1,13 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-``bringup --rig``: start the two-axis rig (``graph_rig.py``), run ``align2d``, stop.
+``bringup --rig``, ``--station``: start a multi-axis graph, align, stop.
 
-Sequence: write the rig's params file (plants held: ``autostart`` false), start its
-processes (:mod:`~fiber_align.bringup.children`), wait until ``lifecycle_manager``
-has both drivers active, start both plants (``x/simulated_actuator/run``,
-``y/simulated_actuator/run``), let ``ALIGN_IDLE_S`` of samples pass, call ``align``, wait
-for TRACKING (at most ``ALIGN_MAX_S`` of sample time), ``LOSS_WINDOW_S`` more, hold both
-plants, stop every process. The observer records, per sample, both displacements, the
-optical power and both setpoints (reliable, deep, transient local: every sample).
+Sequence: start the processes (plants held: ``autostart`` false), wait until
+``lifecycle_manager`` has every driver active, start every plant (``<axis>/
+simulated_actuator/run``), let ``ALIGN_IDLE_S`` of samples pass, call ``align``, wait
+for TRACKING (at most ``ALIGN_MAX_S`` of sample time), ``LOSS_WINDOW_S`` more, hold the
+plants, stop every process. The observer records, per sample, the displacements, the
+optical power and the setpoints (reliable, deep, transient local: every sample).
 
 In lockstep the run is compared with the offline run of the same description
 (:func:`fiber_align.analysis.run_summary.compare_offline`: the offline ``align2d`` with
@@ -71,8 +70,6 @@ def run_rig(a, g):
         h.start(check_alone=False, ready=lambda: h.obs.client(Trigger, 'align')
                 .wait_for_service(timeout_sec=0.1))
         obs, alive = h.obs, h.alive
-        align = obs.client(Trigger, 'align')
-        release = obs.client(Trigger, 'release')
         h.run(True)
         summary['startup_s'] = h.summary['startup_s']
         t_run = time.monotonic()
@@ -80,13 +77,13 @@ def run_rig(a, g):
             lambda: int((time.monotonic() - t_run) * rate))
         k = int(round(sm.ALIGN_IDLE_S * rate))
         obs.wait(lambda: clock() >= k, 60.0, alive, 'sample %d' % k)
-        k_align, tracking = _align(obs, align, alive, rate, clock, max_s)
+        k_align, tracking = _align(obs, alive, rate, clock, max_s)
         k_end = clock() + int(round(sm.LOSS_WINDOW_S * rate)) + 5
         obs.wait(lambda: clock() >= k_end, 60.0, alive, 'sample %d' % k_end)
         summary.update(align_sample=k_align, tracking_sample=tracking['sample'],
                        time_to_peak_s=(tracking['sample'] - 1 - k_align) / rate,
                        peak_samples=tracking['peak_samples'])
-        cycles = [_release_align(obs, release, align, alive, rate, clock, max_s)
+        cycles = [_release_align(obs, alive, rate, clock, max_s)
                   for _ in range(a.cycles or 0)]
         if cycles:
             summary['cycles_tracking'] = len(cycles)
@@ -147,19 +144,14 @@ def run_rig(a, g):
     return code
 
 
-def _align(obs, align, alive, rate, clock, max_s=sm.ALIGN_MAX_S):
+def _align(obs, alive, rate, clock, max_s=sm.ALIGN_MAX_S):
     """
     Call ``align`` and wait for TRACKING; return ``(align sample, TRACKING status)``.
 
     :param clock: returns the samples so far (the wait's bound is in sample time).
     :param max_s: the bound (s of sample time).
     """
-    from std_srvs.srv import Trigger
-    n = len(obs.states)
-    res = obs.call(align, Trigger.Request(), 10.0, alive)
-    if not res.success:
-        raise BringupError('align refused: %s' % res.message)
-    k_align = obs.event(n)
+    k_align = obs.command('align', alive=alive)
     k_max = clock() + max_s * rate
     obs.wait(lambda: obs.status.get('state') in ('TRACKING', 'FAULT') or clock() > k_max,
              120.0, alive, 'TRACKING')
@@ -170,23 +162,20 @@ def _align(obs, align, alive, rate, clock, max_s=sm.ALIGN_MAX_S):
     return k_align, tracking
 
 
-def _release_align(obs, release, align, alive, rate, clock, max_s=sm.ALIGN_MAX_S):
+def _release_align(obs, alive, rate, clock, max_s=sm.ALIGN_MAX_S):
     """
     One switch cycle of the rig: ``release`` to IDLE, then ``align`` to TRACKING.
 
     :returns: the time to peak of the new alignment (s of sample time).
     :raises BringupError: a refused call, a FAULT, a timeout.
     """
-    from std_srvs.srv import Trigger
-    res = obs.call(release, Trigger.Request(), 10.0, alive)
-    if not res.success:
-        raise BringupError('release refused: %s' % res.message)
+    obs.command('release', alive=alive)
     obs.wait(lambda: obs.status.get('state') in ('IDLE', 'FAULT'), 60.0, alive, 'IDLE')
     if obs.status.get('state') != 'IDLE':
         raise BringupError('release ended in FAULT: %s' % obs.status.get('fault_reason'))
     k = clock() + int(round(sm.ALIGN_IDLE_S * rate))
     obs.wait(lambda: clock() >= k, 60.0, alive, 'sample %d' % k)
-    k_align, tracking = _align(obs, align, alive, rate, clock, max_s)
+    k_align, tracking = _align(obs, alive, rate, clock, max_s)
     return (tracking['sample'] - 1 - k_align) / rate
 
 

@@ -2,9 +2,17 @@
 """
 ``bringup`` on the simulated 1-D graph: its scenario on a :class:`~.harness.Harness`.
 
-Run the scenario's samples (``scenario_runner``) or ``align`` (the sequencer: align,
-hold, switch cycles), retry a lockstep start that stalled, report the run's metrics,
-realtime figures and counts (:func:`fiber_align.analysis.run_summary.format_summary`).
+Sequence: refuse to start beside another graph in the same namespace; start the recorder
+and the description's processes; wait until every node is on the graph, the lifecycle
+nodes are active and every topic has its publishers and subscribers; start the plant
+(``simulated_actuator/run``); run the scenario; hold the plant; stop every node and the
+recorder last; print the summary (metrics, realtime figures, CPU and memory per process,
+sent and recorded counts). A lockstep start that stalls is retried.
+
+Scenarios: ``step``, ``sine``, ``triangle``, ``staircase`` and
+``hysteresis-experiment`` run the ``scenario_runner`` node (one setpoint, or open-loop
+drive, per sample); ``align`` runs ``alignment_sequencer`` (align, then ``--cycles``
+switch cycles); ``none`` runs until SIGINT (publish ``setpoint`` yourself).
 """
 
 import json
@@ -148,18 +156,10 @@ class Bringup:
 
         :raises BringupError: a refused call, a FAULT, a timeout.
         """
-        from std_srvs.srv import SetBool, Trigger
         r, alive = self.h.obs, self.h.alive
 
         def k(seconds):
             return int(round(seconds * self.rate))
-
-        def call(srv, name, request, what):
-            n = len(r.states)
-            res = r.call(r.client(srv, name), request, 10.0)
-            if not res.success:
-                raise BringupError('%s refused: %s' % (what, res.message))
-            return r.event(n)
 
         def ended(events, what):
             st = r.status
@@ -170,7 +170,7 @@ class Bringup:
         wall = 30.0 + 40.0 * (sm.ALIGN_MAX_S + self.cycles * (sm.SWITCH_OFF_S
                                                               + sm.SWITCH_ON_S))
         r.wait_samples(k(sm.ALIGN_IDLE_S), wall, alive)
-        events = {'align': call(Trigger, 'align', Trigger.Request(), 'align')}
+        events = {'align': r.command('align', alive=alive)}
         r.wait_samples(events['align'] + k(sm.ALIGN_MAX_S), wall, alive,
                        lambda: r.status.get('state') in ('TRACKING', 'FAULT'))
         if r.status.get('state') != 'TRACKING':
@@ -180,9 +180,9 @@ class Bringup:
         r.wait_samples(events['tracking'] + k(sm.LOSS_WINDOW_S), wall, alive)
         events['cycles'] = []
         for _ in range(self.cycles):
-            k_off = call(SetBool, 'switch', SetBool.Request(data=False), 'switch off')
+            k_off = r.command('switch', False, alive)
             r.wait_samples(k_off + k(sm.SWITCH_OFF_S), wall, alive)
-            k_on = call(SetBool, 'switch', SetBool.Request(data=True), 'switch on')
+            k_on = r.command('switch', True, alive)
             r.wait_samples(k_on + k(sm.SWITCH_ON_S), wall, alive)
             events['cycles'].append((k_off, k_on, r.samples))
             if r.status.get('state') == 'FAULT':
