@@ -17,12 +17,11 @@ print a JSON summary (align wall time, peak power, states, faults). Exit 0 when 
 """
 
 import json
-import sys
 import time
 
 from fiber_align.bringup import interrupt
 from fiber_align.bringup.cli import graph
-from fiber_align.bringup.harness import Harness
+from fiber_align.bringup.harness import Harness, session
 from fiber_align.bringup.observer import BringupError, Refused
 from fiber_align.graph.hardware import build_hardware, POWER_METER
 from fiber_align.graph.hardware_rig import build_hardware_rig
@@ -215,60 +214,54 @@ def graph_trial(seed, slot_m=None, target_m=None, composed=None, settle_s=0.2,
 
 def run(args):
     """``bringup --hardware [--rig]``: run the bench as the docstring says; return the code."""
-    emu = None
-    summary = {}
-    code = 1
-    hw = None
-    try:
+    summary, parts = {}, {}
+
+    def steps():
         port, resource = args.port or '', args.visa_resource or ''
-        rig = bool(getattr(args, 'rig', False))
         if args.emulate:
             seed = args.seed if args.seed is not None else 0
             extra = ['--seed', str(seed)]
-            if rig:
+            if args.rig:
                 # the target of the simulated rig's run seed (graph/rig.py)
                 tx, ty = random_target(seed)
                 extra += ['--rig', '--target-x', repr(tx), '--target-y', repr(ty)]
             if args.slot is not None:
                 extra += ['--slot', repr(float(args.slot))]
-            emu, info = start_emulator(extra, quiet=args.quiet, priority=emulator_priority())
+            parts['emu'], info = start_emulator(extra, quiet=args.quiet,
+                                                priority=emulator_priority())
             port, resource = info['serial_link'], info['visa_resource']
             summary['emulator'] = info
-        hw = HardwareRun(graph(args, port=port, visa_resource=resource)[0], quiet=args.quiet)
+        hw = parts['hw'] = HardwareRun(graph(args, port=port, visa_resource=resource)[0],
+                                       quiet=args.quiet)
         t0 = time.monotonic()
         hw.start()
         summary['startup_s'] = time.monotonic() - t0
         ok, wall = hw.align()
         summary.update(aligned=ok, align_wall_s=wall, status=hw.status)
-        cycles = []
-        for _ in range((args.cycles or 0) if ok else 0):
-            cycles.append([hw.switch(False), hw.switch(True)])
-        summary['switch_cycles'] = cycles
-        ok = ok and all(a[0] and b[0] for a, b in cycles)
-        t_hold = time.monotonic() + (args.hold if args.hold else float('inf'))
-        while ok and time.monotonic() < t_hold and hw.status.get('state') != 'FAULT':
-            hw.alive()
-            time.sleep(0.05)
+        try:
+            cycles = summary['switch_cycles'] = []
+            for _ in range((args.cycles or 0) if ok else 0):
+                cycles.append([hw.switch(False), hw.switch(True)])
+            ok = ok and all(a[0] and b[0] for a, b in cycles)
+            t_hold = time.monotonic() + (args.hold if args.hold else float('inf'))
+            while ok and time.monotonic() < t_hold and hw.status.get('state') != 'FAULT':
+                hw.alive()
+                time.sleep(0.05)
+        except KeyboardInterrupt:
+            interrupt.handled()         # aligned: Ctrl-C ends the hold
+            return 0
         if hw.power:
             summary['last_power_w'] = hw.power[-1][1]
         summary['final_state'] = hw.status.get('state')
-        code = 0 if ok and summary['final_state'] == 'TRACKING' else 1
-    except KeyboardInterrupt:
-        interrupt.handled()
-        code = 130 if not summary.get('aligned') else 0
-    except (BringupError, DeviceError, ValueError) as exc:  # ValueError: GraphError, values
-        summary['error'] = str(exc)
-        print('bringup: error: %s' % exc, file=sys.stderr, flush=True)
-        code = 1 if isinstance(exc, (BringupError, DeviceError)) else 2
-    finally:
+        return 0 if ok and summary['final_state'] == 'TRACKING' else 1
+
+    def stop(code):
+        hw = parts.get('hw')
         if hw is not None:
             # every node's distinct ERROR messages
             summary['errors'] = hw.obs.watch.errors if hw.obs is not None else {}
             summary['exit_codes'] = hw.stop()
-        if emu is not None:
-            stop_process(emu)
-    print(json.dumps(summary, default=str), flush=True)
-    if getattr(args, 'summary', None):
-        with open(args.summary, 'w', encoding='utf-8') as f:
-            json.dump(summary, f, indent=1, default=str)
-    return code
+        if parts.get('emu') is not None:
+            stop_process(parts['emu'])
+        print(json.dumps(summary, default=str), flush=True)
+    return session(args, summary, steps, stop, (BringupError, DeviceError, ValueError))

@@ -12,6 +12,7 @@ waits for them. Its bounds are the ``bringup`` section of ``config/fiber_align.y
 import json
 import os
 from pathlib import Path
+import signal
 import sys
 import tempfile
 import time
@@ -23,6 +24,7 @@ from fiber_align.bringup.floor import Floor
 from fiber_align.bringup.observer import BadInput, BringupError, Observer
 from fiber_align.graph.description import dds_environment
 from fiber_align.graph.params import effective, merge_params, PLANT, RECORDER
+from fiber_align.jsonout import json_default
 from fiber_align.nodes._recording import recorder_counts, recorder_short, recorder_short_full
 from fiber_align.nodes.ros.diagnostics import endpoint_node_name
 
@@ -32,6 +34,46 @@ EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 def settings(graph):
     """Return the ``bringup`` section of the graph's params files (bounds, s)."""
     return effective(merge_params(graph.params_files), 'bringup')
+
+
+def _already_stopping(signum, frame):
+    # os.write, not print: a handler that interrupted a print would re-enter its buffer
+    os.write(1, b'bringup: already stopping (the stop is bounded by stop_timeout_s)\n')
+
+
+def session(a, summary, steps, stop, errors=(BringupError,)):
+    """
+    Run ``steps()``, then ``stop(code)`` however it ended; return the exit code.
+
+    The one way every mode ends: ``steps`` returns the code of a run that went through;
+    an error (``errors``) is one line and ``summary['error']`` (exit 1; 2 for bad input),
+    an interrupt exit 130 (``summary['interrupted']``); a signal during the stop is only
+    noted. ``--strict``: missed realtime goals exit 1; ``--summary``: ``summary`` (JSON).
+    """
+    code = EXIT_FAIL
+    try:
+        code = steps()
+    except KeyboardInterrupt:
+        interrupt.handled()
+        print('bringup: interrupted, stopping', flush=True)
+        summary['interrupted'] = True
+        code = EXIT_INTERRUPTED
+    except errors as exc:
+        print('bringup: error: %s' % exc, file=sys.stderr, flush=True)
+        summary['error'] = str(exc)
+        code = EXIT_BAD_INPUT if isinstance(exc, (BadInput, ValueError)) else EXIT_FAIL
+    finally:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, _already_stopping)
+        stop(code)
+    if code == EXIT_OK and a.strict and summary.get('goals_missed'):
+        print('bringup: --strict: %s' % '; '.join(summary['goals_missed']),
+              file=sys.stderr, flush=True)
+        code = EXIT_FAIL
+    if a.summary:
+        with open(a.summary, 'w', encoding='utf-8') as f:
+            json.dump(summary, f, indent=1, sort_keys=True, default=json_default)
+    return code
 
 
 class Harness:

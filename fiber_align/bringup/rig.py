@@ -15,12 +15,10 @@ the ``align`` command before the same sample): the summary's ``offline`` holds t
 difference of each stream, and the exit code is 1 when one exceeds the tolerance.
 """
 
-import json
 import time
 
 from fiber_align.analysis import run_summary as sm
-from fiber_align.bringup import interrupt
-from fiber_align.bringup.harness import Harness
+from fiber_align.bringup.harness import Harness, session
 from fiber_align.bringup.observer import BringupError
 from fiber_align.graph.registry import STATION_AXES as AXES4
 from fiber_align.simulation import station_scenarios as sc
@@ -63,8 +61,8 @@ def run_rig(a, g):
     # reads are load the graph's users do not have)
     full = g.sync_mode == 'lockstep' or bool(a.trace)
     h = Harness(g, dict(streams=streams if full else {}), a.quiet)
-    code = 0
-    try:
+
+    def steps():
         # the align server discovered before the clock starts: a late discovery would
         # otherwise let the lockstep graph idle on for seconds before the command
         h.start(check_alone=False, ready=lambda: h.obs.client(Trigger, 'align')
@@ -100,18 +98,7 @@ def run_rig(a, g):
         obs.watch.run_to = time.monotonic()
         if g.sync_mode == 'realtime':
             # before the hold: a held plant stops the drivers' input (a watchdog trip)
-            summary['axes'] = axis_figures(obs.watch.by_status, g.namespace, g.axes)
-            floor = h.floor_figures()
-            if floor is not None:
-                summary['floor'] = floor
-            per_axis = [(axis, {'realtime': rt, 'floor': floor})
-                        for axis, rt in summary['axes'].items()]
-            summary['goals_missed'] = [
-                '%s: %s' % (axis, m) for axis, s in per_axis
-                for m in sm.goals_missed(s, 'realtime', h.cycle_goal)]
-            summary['machine_limits'] = [
-                '%s: %s' % (axis, m) for axis, s in per_axis
-                for m in [sm.machine_limit(s, 'realtime', h.cycle_goal)] if m]
+            _realtime(summary, h, g)
         h.run(False)
         summary.update(state=obs.status.get('state'), samples=clock())
         if g.sync_mode == 'lockstep' and not (a.cycles or a.duration):
@@ -119,15 +106,10 @@ def run_rig(a, g):
             # the offline run has the shipped parameters: with others it is only reported
             comparable = not (a.param or a.params_file)
             summary['offline']['comparable'] = comparable
-            code = 0 if summary['offline']['equal'] or not comparable else 1
-    except BringupError as exc:
-        summary['error'] = str(exc)
-        code = 1
-    except KeyboardInterrupt:
-        interrupt.handled()
-        summary['error'] = 'interrupted'
-        code = 130
-    finally:
+            return 0 if summary['offline']['equal'] or not comparable else 1
+        return 0
+
+    def stop(code):
         s = h.stop(code == 130)
         summary['children'] = {n: c['exit_code'] for n, c in s.get('children', {}).items()}
         summary['processes'] = s.get('processes', {})
@@ -137,11 +119,21 @@ def run_rig(a, g):
         if a.trace and h.obs is not None:
             sm.write_trace(a.trace, arrays(h.obs, streams), rate)   # full: every stream
         h.close()
-    if code == 0 and a.strict and summary.get('goals_missed'):
-        print('bringup: --strict: %s' % '; '.join(summary['goals_missed']), flush=True)
-        code = 1
-    _report(summary, a)
-    return code
+        _report(summary)
+    return session(a, summary, steps, stop)
+
+
+def _realtime(summary, h, g):
+    """Put each axis's realtime figures, the floor's, missed goals and limits in ``summary``."""
+    summary['axes'] = axis_figures(h.obs.watch.by_status, g.namespace, g.axes)
+    floor = h.floor_figures()
+    if floor is not None:
+        summary['floor'] = floor
+    per_axis = [(axis, {'realtime': rt, 'floor': floor}) for axis, rt in summary['axes'].items()]
+    summary['goals_missed'] = ['%s: %s' % (axis, m) for axis, s in per_axis
+                               for m in sm.goals_missed(s, 'realtime', h.cycle_goal)]
+    summary['machine_limits'] = ['%s: %s' % (axis, m) for axis, s in per_axis
+                                 for m in [sm.machine_limit(s, 'realtime', h.cycle_goal)] if m]
 
 
 def _align(obs, alive, rate, clock, max_s=sm.ALIGN_MAX_S):
@@ -198,11 +190,8 @@ def axis_figures(by_status, namespace, axes=('x', 'y')):
     return out
 
 
-def _report(summary, a):
-    """Print the run for people (ms, um) and write ``--summary`` (JSON, SI)."""
-    if a.summary:
-        with open(a.summary, 'w', encoding='utf-8') as f:
-            json.dump(summary, f, indent=2, sort_keys=True, default=str)
+def _report(summary):
+    """Print the run for people (ms, um)."""
     off = summary.get('offline') or {}
 
     def worst(prefix):

@@ -15,29 +15,19 @@ drive, per sample); ``align`` runs ``alignment_sequencer`` (align, then ``--cycl
 switch cycles); ``none`` runs until SIGINT (publish ``setpoint`` yourself).
 """
 
-import json
 import os
-import signal
-import sys
+import shutil
 import time
 
 import numpy as np
 
 from fiber_align.analysis import run_summary as sm
 from fiber_align.analysis.report import hysteresis_metrics
-from fiber_align.bringup import interrupt
 from fiber_align.bringup.cli import TRACKING_SCENARIOS
-from fiber_align.bringup.harness import (EXIT_BAD_INPUT, EXIT_FAIL, EXIT_INTERRUPTED,
-                                         EXIT_OK, Harness, settings)
-from fiber_align.bringup.observer import BadInput, BringupError, StartStall
+from fiber_align.bringup.harness import EXIT_INTERRUPTED, EXIT_OK, Harness, session, settings
+from fiber_align.bringup.observer import BringupError, StartStall
 from fiber_align.graph.params import PLANT, RECORDER, SCENARIO_RUNNER
 from fiber_align.graph.registry import expected_endpoints
-from fiber_align.jsonout import json_default
-
-
-def _already_stopping(signum, frame):
-    # os.write, not print: a handler that interrupted a print would re-enter its buffer
-    os.write(1, b'bringup: already stopping (the stop is bounded by stop_timeout_s)\n')
 
 
 class Bringup:
@@ -69,51 +59,35 @@ class Bringup:
 
     def run(self):
         """Run the whole bring-up; return the exit code."""
-        code = EXIT_OK
+        return session(self.args, self.summary, self._steps, self._stop)
+
+    def _steps(self):
         retries = int(settings(self.graph)['start_retries'])
-        try:
-            for attempt in range(retries + 1):
-                self.h = self._harness()
-                try:
-                    self.h.start(check_alone=attempt == 0)
-                    print('bringup: graph up in %.2f s (%s, %g Hz, %s, %s)' % (
-                        self.h.summary['startup_s'], self.sync, self.rate,
-                        self.graph.controller, 'composed' if self.graph.composed
-                        else 'multi-process'), flush=True)
-                    self._run_scenario()
-                    break
-                except StartStall as exc:
-                    if attempt == retries:
-                        raise
-                    print('bringup: %s; restarting the graph (restart %d, counted in the '
-                          'summary)' % (exc, attempt + 1), flush=True)
-                    self.h.stop()
-                    self.h.close()
-                    self.summary['restarts'] = attempt + 1
-                    if self.graph.record and os.path.isdir(self.graph.record):
-                        import shutil
-                        shutil.rmtree(self.graph.record)
-        except KeyboardInterrupt:
-            interrupt.handled()
-            print('bringup: interrupted, stopping', flush=True)
-            code = EXIT_INTERRUPTED
-            self.summary['interrupted'] = True
-        except BringupError as exc:
-            print('bringup: error: %s' % exc, file=sys.stderr, flush=True)
-            self.summary['error'] = str(exc)
-            code = EXIT_BAD_INPUT if isinstance(exc, BadInput) else EXIT_FAIL
-        finally:
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                signal.signal(sig, _already_stopping)
-            if self.h is not None:
-                self.summary.update(self.h.stop(code == EXIT_INTERRUPTED))
-                self._report()
+        for attempt in range(retries + 1):
+            self.h = self._harness()
+            try:
+                self.h.start(check_alone=attempt == 0)
+                print('bringup: graph up in %.2f s (%s, %g Hz, %s, %s)' % (
+                    self.h.summary['startup_s'], self.sync, self.rate, self.graph.controller,
+                    'composed' if self.graph.composed else 'multi-process'), flush=True)
+                self._run_scenario()
+                return EXIT_OK
+            except StartStall as exc:
+                if attempt == retries:
+                    raise
+                print('bringup: %s; restarting the graph (restart %d, counted in the '
+                      'summary)' % (exc, attempt + 1), flush=True)
+                self.h.stop()
                 self.h.close()
-        if code == EXIT_OK and self.args.strict and self.summary.get('goals_missed'):
-            print('bringup: --strict: %s' % '; '.join(self.summary['goals_missed']),
-                  file=sys.stderr, flush=True)
-            code = EXIT_FAIL
-        return code
+                self.summary['restarts'] = attempt + 1
+                if self.graph.record and os.path.isdir(self.graph.record):
+                    shutil.rmtree(self.graph.record)
+
+    def _stop(self, code):
+        if self.h is not None:
+            self.summary.update(self.h.stop(code == EXIT_INTERRUPTED))
+            self._report()
+            self.h.close()
 
     def _run_scenario(self):
         h, r = self.h, self.h.obs
@@ -218,6 +192,3 @@ class Bringup:
         s['goals_missed'] = sm.goals_missed(s, self.sync, goal)
         s['machine_limits'] = [m for m in [sm.machine_limit(s, self.sync, goal)] if m]
         print(sm.format_summary(s), flush=True)
-        if a.summary:
-            with open(a.summary, 'w', encoding='utf-8') as f:
-                json.dump(s, f, indent=1, default=json_default)

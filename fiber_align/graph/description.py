@@ -294,6 +294,14 @@ def user_files(params_file):
     return out
 
 
+def check_record(record):
+    """Return the bag directory ``record`` made absolute; raise when it exists already."""
+    record = os.path.abspath(record)
+    if os.path.exists(record):
+        raise GraphError('record %s already exists: give a new bag directory' % record)
+    return record
+
+
 def graph_wide(over, sync_mode, controller):
     """Put the ``sync_mode`` and ``controller`` launch arguments (if given) into ``over``."""
     if sync_mode:
@@ -350,9 +358,7 @@ def build(namespace='', composed=None, sync_mode='', controller='', params_file=
             raise GraphError('model_file %s does not exist' % model_file)
         over[COMPENSATOR] = {'model_file': os.path.abspath(model_file)}
     if record:
-        record = os.path.abspath(record)
-        if os.path.exists(record):
-            raise GraphError('record %s already exists: give a new bag directory' % record)
+        record = check_record(record)
         over[RECORDER] = {'output': record}
         # realtime per-sample topics are volatile: the clock waits for the recorder
         over[PLANT] = {'start_after_reader': RECORDER}
