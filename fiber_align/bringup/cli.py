@@ -16,10 +16,9 @@ import sys
 import yaml
 
 from fiber_align.config import ConfigError
-from fiber_align.graph.arguments import describe
+from fiber_align.graph.arguments import ARGUMENTS, describe
 from fiber_align.graph.description import check_namespace
 from fiber_align.graph.params import GraphError, PLANT, RECORDER, SCENARIO_RUNNER
-from fiber_align.graph.registry import CONTROLLERS, SCENARIOS, SYNC_MODES
 from fiber_align.simulation.setpoints import setpoint_range, Source
 
 TRACKING_SCENARIOS = ('step', 'sine', 'triangle', 'staircase')
@@ -55,6 +54,33 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, '%s: error: %s\n' % (self.prog, message))
 
 
+#: bringup's option for each launch argument of :data:`ARGUMENTS` but ``composed``:
+#: ``name -> (option, argparse keywords)``; its help is the launch argument's text.
+OPTIONS = {
+    'namespace': ('--namespace', dict(type=_namespace, default='')),
+    'sync_mode': ('--sync', {}), 'controller': ('--controller', {}),
+    'params_file': ('--params-file', dict(action='append', default=[])),
+    'model_file': ('--model', dict(metavar='FILE')), 'record': ('--record', dict(metavar='DIR')),
+    'scenario': ('--scenario', {}), 'rig': ('--rig', dict(action='store_true')),
+    'station': ('--station', dict(action='store_true')), 'seed': ('--seed', dict(type=int)),
+    'hardware': ('--hardware', dict(action='store_true')), 'port': ('--port', {}),
+    'visa_resource': ('--visa-resource', {}), 'live': ('--live', dict(action='store_true')),
+    'live_port': ('--live-port', dict(type=int, metavar='PORT')),
+    'live_host': ('--live-host', dict(metavar='HOST')),
+}
+#: What ``bringup`` does beyond starting the graph, by option.
+NOTES = {
+    'scenario': '; bringup runs it to its end (align: then --cycles switch cycles)',
+    'rig': '; align2d, in lockstep compared with fiber-align simulate --scenario align2d',
+    'station': '; align, in lockstep compared with fiber-align simulate --scenario station',
+    'hardware': '; align, --cycles, --hold; with --rig both axes on one MDT693B',
+}
+
+
+def _dest(option):
+    return option.lstrip('-').replace('-', '_')
+
+
 def parse_args(argv):
     """Parse the command line (ROS arguments after ``--ros-args`` are ignored)."""
     if argv is None:
@@ -63,45 +89,28 @@ def parse_args(argv):
         argv = argv[:argv.index('--ros-args')]
     ap = _Parser(prog='bringup', description='Start the fiber_align graph, run a scenario, '
                  'record, stop, summarise.')
-    ap.add_argument('--scenario', choices=SCENARIOS, default=None,
-                    help='scenario to run (default: scenario_runner.scenario of '
-                         'config/scenario.yaml, as ros2 launch)')
-    ap.add_argument('--rig', action='store_true',
-                    help='the two-axis rig (/rig/x, /rig/y, optics, 2-D sequencer) running '
-                         'align2d; lockstep: compared with the offline run (--seed: the '
-                         "run seed, as fiber-align simulate --scenario align2d's)")
-    ap.add_argument('--station', action='store_true',
-                    help='the coupled station (/station/in/x .. /station/out/y, optics, '
-                         'station sequencer): align as --rig; lockstep: compared with '
-                         "fiber-align simulate --scenario station's run (--seed)")
-    ap.add_argument('--duration', type=_positive(float, '--duration'), default=None,
-                    help="scenario length (s of sample time; default: the scenario's); "
-                    '--rig, --station: hold TRACKING this long after the cycles')
-    ap.add_argument('--sync', choices=SYNC_MODES, default=None,
-                    help='sample clock (default: sync_mode of fiber_align.yaml)')
-    ap.add_argument('--controller', choices=CONTROLLERS, default=None,
-                    help='control law (default: controller of fiber_align.yaml)')
-    ap.add_argument('--model', metavar='FILE', default=None,
-                    help='PI model params file for the compensator (e.g. from fiber-align '
-                         'identify, or config/hysteresis_paper.yaml)')
-    ap.add_argument('--rate', type=_positive(float, '--rate'), default=None,
-                    help='control rate (Hz)')
-    ap.add_argument('--seed', type=int, default=None, help='plant sensor-noise seed')
-    ap.add_argument('--no-noise', action='store_true', help='sensor noise off')
-    ap.add_argument('--cycles', type=int, default=None,
-                    help='align: switch off/on cycles after TRACKING (default 5); --rig: '
-                    'release / align cycles after the first TRACKING (default 0)')
-    ap.add_argument('--record', metavar='DIR', default=None, help='record a bag into DIR')
-    ap.add_argument('--storage', choices=('mcap', 'sqlite3'), default=None)
+    for name, _, text, choices in ARGUMENTS:
+        if name in OPTIONS:
+            option, kw = OPTIONS[name]
+            if choices and 'action' not in kw:
+                kw = dict(kw, choices=[c for c in choices if c])
+            text = text[len('true: '):] if text.startswith('true: ') else text
+            ap.add_argument(option, help=text + NOTES.get(name, ''), **kw)
     layout = ap.add_mutually_exclusive_group()
     layout.add_argument('--composed', dest='composed', action='store_true', default=None,
                         help='the control nodes in one process (control_graph; default)')
     layout.add_argument('--multi-process', dest='composed', action='store_false',
                         help='one process per node')
-    ap.add_argument('--namespace', type=_namespace, default='',
-                    help='namespace of the whole graph')
-    ap.add_argument('--params-file', action='append', default=[],
-                    help='extra params file (applied after config/fiber_align.yaml)')
+    ap.add_argument('--duration', type=_positive(float, '--duration'), default=None,
+                    help="scenario length (s of sample time; default: the scenario's); "
+                    '--rig, --station: hold TRACKING this long after the cycles')
+    ap.add_argument('--rate', type=_positive(float, '--rate'), default=None,
+                    help='control rate (Hz)')
+    ap.add_argument('--no-noise', action='store_true', help='sensor noise off')
+    ap.add_argument('--cycles', type=int, default=None,
+                    help='align: switch off/on cycles after TRACKING (default 5); --rig: '
+                    'release / align cycles after the first TRACKING (default 0)')
+    ap.add_argument('--storage', choices=('mcap', 'sqlite3'), default=None)
     ap.add_argument('-p', '--param', action='append', default=[], metavar='NODE:NAME:=VALUE',
                     help='override one parameter (NODE may be **)')
     ap.add_argument('--trace', metavar='CSV', help='write t_s,r_m,y_m of every sample')
@@ -111,35 +120,18 @@ def parse_args(argv):
                          'watchdog trips, lost messages)')
     ap.add_argument('--quiet', action='store_true', help="do not relay the nodes' output")
     hw = ap.add_argument_group('hardware bench (docs/hardware.md)')
-    hw.add_argument('--hardware', action='store_true', help='the sensorless graph on an '
-                    'MDT693B + PM100 (no simulated plant): align, --cycles, hold; with '
-                    '--rig: both axes on one MDT693B (config/hardware_rig.yaml)')
     hw.add_argument('--emulate', action='store_true', help='with --hardware: start '
                     '`fiber-align emulate` and use its serial_link and visa_resource')
-    hw.add_argument('--port', help='MDT693B serial device (default: config/hardware.yaml)')
-    hw.add_argument('--visa-resource', help='PM100 VISA resource (default: hardware.yaml)')
     hw.add_argument('--slot', type=float, metavar='M', help='--emulate: slot position (m)')
     hw.add_argument('--hold', type=float, default=None, metavar='S',
                     help='--hardware: hold TRACKING this long (s) after the cycles; '
                          'default: until Ctrl-C')
-    lv = ap.add_argument_group('live view (docs/live_view.md)')
-    lv.add_argument('--live', action='store_true', help='serve the graph to Foxglove '
-                    '(ws://HOST:PORT; the live_view process)')
-    lv.add_argument('--live-port', type=int, default=None, metavar='PORT',
-                    help='--live: TCP port (default: config/live_view.yaml, 8765)')
-    lv.add_argument('--live-host', default=None, metavar='HOST',
-                    help='--live: address (default: config/live_view.yaml, 127.0.0.1)')
     a = ap.parse_args(argv)
-    if a.station and (a.rig or a.hardware):
-        ap.error('--station is a graph of its own: not with --rig or --hardware')
-    if not a.live and (a.live_port is not None or a.live_host is not None):
-        ap.error('--live-port and --live-host need --live')
-    if not a.hardware and (a.emulate or a.port or a.visa_resource or a.slot is not None
-                           or a.hold is not None):
-        ap.error('--emulate, --port, --visa-resource, --slot and --hold need --hardware')
-    if a.hardware and a.rig and (a.slot is not None or a.record or a.model):
-        ap.error('--slot, --record and --model are not available with --rig --hardware '
-                 '(--seed picks the emulated target; the models are in hardware_rig.yaml)')
+    # the launch arguments' combinations are describe()'s to check; these are bringup's
+    if not a.hardware and (a.emulate or a.slot is not None or a.hold is not None):
+        ap.error('--emulate, --slot and --hold need --hardware')
+    if a.slot is not None and a.rig:
+        ap.error('--slot is not available with --rig (--seed picks the emulated target)')
     if a.emulate and (a.port or a.visa_resource):
         ap.error('--emulate chooses the port and the VISA resource itself')
     if a.cycles is not None and a.cycles < 0:
@@ -153,12 +145,8 @@ def parse_args(argv):
 
 def arguments(a, **given):
     """Return the options ``a`` as launch arguments: ``{name: value}`` of ``ARGUMENTS``."""
-    out = dict(namespace=a.namespace, composed=a.composed, sync_mode=a.sync,
-               controller=a.controller, params_file=a.params_file, model_file=a.model,
-               record=a.record, scenario=a.scenario, rig=a.rig, station=a.station,
-               seed=a.seed, hardware=a.hardware, port=a.port, visa_resource=a.visa_resource,
-               live=a.live, live_port=a.live_port, live_host=a.live_host)
-    out.update(given)
+    out = {name: getattr(a, _dest(option)) for name, (option, _) in OPTIONS.items()}
+    out.update(composed=a.composed, **given)
     return out
 
 
