@@ -105,8 +105,11 @@ def run_bringup(tmp, tag, seconds, sync, extra=(), tree=None):
     """
     bag = os.path.join(tmp, tag + '_bag')
     summary = os.path.join(tmp, tag + '.json')
-    cmd = BRINGUP + ['--scenario', 'sine', '--sync', sync, '--duration', str(seconds),
-                     '--quiet', '--summary', summary] + list(extra)
+    head = BRINGUP
+    if tree and not os.path.isdir(os.path.join(tree, 'fiber_align', 'bringup')):
+        head = BRINGUP[:2] + ['fiber_align.nodes.bringup']     # a tree from before the move
+    cmd = head + ['--scenario', 'sine', '--sync', sync, '--duration', str(seconds),
+                  '--quiet', '--summary', summary] + list(extra)
     if sync == 'realtime':
         cmd += ['--record', bag]
     limit = 120 + 3 * seconds
