@@ -97,7 +97,7 @@ class RigGraph(g.Graph):
             if n in base:
                 out['%s/%s' % (root, n)] = base[n]
         # a copy per section: no shared mappings, so no YAML aliases in the params file;
-        # /** first, as graph.py writes it (graph_params.wildcard_first)
+        # /** first, as description.py writes it (params.wildcard_first)
         return wildcard_first({k: copy.deepcopy(v) for k, v in out.items()})
 
     def node_params(self, node):
