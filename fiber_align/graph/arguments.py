@@ -87,14 +87,15 @@ class Machine:
     seed: str = ''
 
 
-TRACKING = ('sync_mode', 'controller')
+#: The arguments of the simulated loop, and of the devices.
+SIMULATED = ('sync_mode', 'controller')
 HARDWARE = ('port', 'visa_resource')
 #: (rig, station, hardware) -> the machine they choose.
 MACHINES = {
-    (False, False, False): Machine(build, TRACKING + ('model_file', 'record', 'scenario'),
+    (False, False, False): Machine(build, SIMULATED + ('model_file', 'record', 'scenario'),
                                    'the simulated 1-D graph', seed='plant'),
-    (True, False, False): Machine(build_rig, TRACKING, 'rig:=true', RIG_NAMESPACE, 'run'),
-    (False, True, False): Machine(build_station, TRACKING + ('record',), 'station:=true',
+    (True, False, False): Machine(build_rig, SIMULATED, 'rig:=true', RIG_NAMESPACE, 'run'),
+    (False, True, False): Machine(build_station, SIMULATED + ('record',), 'station:=true',
                                   STATION_NAMESPACE, 'run'),
     (False, False, True): Machine(build_hardware, HARDWARE + ('model_file', 'record'),
                                   'hardware:=true'),
