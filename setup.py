@@ -27,7 +27,6 @@ NODES = [
     'station_optics',
     'station_sequencer',
     'bag_recorder',
-    'bringup',
     'control_graph',
     'scenario_runner',
     'power_meter',
@@ -90,6 +89,8 @@ setup(
     entry_points={
         'console_scripts': [
             'fiber-align = fiber_align.cli:main',
+            # the harness is not a node: its own folder beside nodes/ (docs/CONTRACTS.md)
+            'bringup = fiber_align.bringup:main',
         ] + ['{0} = fiber_align.nodes.{0}:main'.format(n) for n in NODES],
     },
 )

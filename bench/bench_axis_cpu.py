@@ -45,7 +45,10 @@ def run_once(tree, case, seconds, tmp, cycles=20):
     summary = os.path.join(tmp, 'summary-%s-%s.json' % (case, os.getpid()))
     if os.path.exists(summary):
         os.remove(summary)
-    cmd = [sys.executable, '-m', 'fiber_align.nodes.bringup'] + [
+    # a baseline tree from before the harness left nodes/ has it at fiber_align.nodes.bringup
+    harness = 'fiber_align.bringup' if os.path.isdir(
+        os.path.join(tree, 'fiber_align', 'bringup')) else 'fiber_align.nodes.bringup'
+    cmd = [sys.executable, '-m', harness] + [
         x.format(seconds=seconds, cycles=cycles) for x in args] + [
         '--sync', 'realtime', '--quiet', '--summary', summary]
     if recorded:

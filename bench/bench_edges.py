@@ -96,7 +96,7 @@ def one_run(params=(), flood_s=FLOOD_S, cycles=5, stall_ms=0.0):
 
     from fiber_align.nodes.ros import qos
     extra = [a for p in params for a in ('-p', p)]
-    graph = subprocess.Popen([sys.executable, '-m', 'fiber_align.nodes.bringup', '--scenario',
+    graph = subprocess.Popen([sys.executable, '-m', 'fiber_align.bringup', '--scenario',
                               'none', '--sync', 'realtime', '--duration', '300', '--quiet']
                              + extra, stdout=subprocess.DEVNULL, start_new_session=True)
     rclpy.init()

@@ -42,7 +42,7 @@ import numpy as np
 from fiber_align.analysis.run_summary import beyond_floor
 from fiber_align.hardware.process import stop_process
 
-BRINGUP = [sys.executable, '-m', 'fiber_align.nodes.bringup']
+BRINGUP = [sys.executable, '-m', 'fiber_align.bringup']
 
 
 _SLEEP_LOOP = (
@@ -105,8 +105,11 @@ def run_bringup(tmp, tag, seconds, sync, extra=(), tree=None):
     """
     bag = os.path.join(tmp, tag + '_bag')
     summary = os.path.join(tmp, tag + '.json')
-    cmd = BRINGUP + ['--scenario', 'sine', '--sync', sync, '--duration', str(seconds),
-                     '--quiet', '--summary', summary] + list(extra)
+    head = BRINGUP
+    if tree and not os.path.isdir(os.path.join(tree, 'fiber_align', 'bringup')):
+        head = BRINGUP[:2] + ['fiber_align.nodes.bringup']     # a tree from before the move
+    cmd = head + ['--scenario', 'sine', '--sync', sync, '--duration', str(seconds),
+                  '--quiet', '--summary', summary] + list(extra)
     if sync == 'realtime':
         cmd += ['--record', bag]
     limit = 120 + 3 * seconds

@@ -38,8 +38,7 @@ from fiber_align.config import load_params
 from fiber_align.graph.hardware import build_hardware
 from fiber_align.graph.hardware_rig import build_hardware_rig
 from fiber_align.hardware.mdt693b import MDT693BChannels
-from fiber_align.nodes.bringup.hardware import (graph_trial, HardwareRigRun, HardwareRun,
-                                                rig_graph_trial)
+from fiber_align.bringup.hardware import graph_trial, HardwareRun
 from fiber_align.plant.optics2d import OpticalLink2D
 from fiber_align.simulation.alignment2d_scenarios import random_target
 
@@ -284,7 +283,7 @@ def rig_track(track_s, drift=0.2e-6, seed=7, target=(30e-6, 30e-6)):
     """Align the rig through the graph, then track a target drifting on both axes (dB)."""
     with emulated(seed=seed, rig=True, position_x_m=target[0], position_y_m=target[1],
                   drift_x_m_per_s=drift, drift_y_m_per_s=drift) as (bench, mdt, pm):
-        hw = HardwareRigRun(build_hardware_rig(port=mdt.port, visa_resource=pm.resource))
+        hw = HardwareRun(build_hardware_rig(port=mdt.port, visa_resource=pm.resource))
         try:
             hw.start()
             ok, wall = hw.align()
@@ -311,7 +310,7 @@ def rig_main(n_slots, track_s=0.0):
     trials = []
     for i in range(n_slots):
         target = random_target(1000 + i)
-        t = rig_graph_trial(seed=i, target_m=target)
+        t = graph_trial(seed=i, target_m=target)
         trials.append(t)
         print('| %d | %.1f, %.1f | %s | %s | %s | %.3f | %s | %s | %s |' % (
             i, target[0] * 1e6, target[1] * 1e6,

@@ -37,7 +37,7 @@ def run_once(tree, seconds, echoes, tmp, env):
     genv = dict(env, PYTHONPATH=tree)
     with open(log, 'w') as f:
         proc = subprocess.Popen(
-            [sys.executable, '-m', 'fiber_align.nodes.bringup', '--scenario', 'step',
+            [sys.executable, '-m', 'fiber_align.bringup', '--scenario', 'step',
              '--duration', str(seconds), '--sync', 'realtime', '--summary', summary],
             stdout=f, stderr=subprocess.STDOUT, env=genv, cwd=tree)
     ages = []

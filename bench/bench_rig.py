@@ -22,7 +22,7 @@ import sys
 import tempfile
 import time
 
-BRINGUP = [sys.executable, '-m', 'fiber_align.nodes.bringup', '--rig', '--quiet']
+BRINGUP = [sys.executable, '-m', 'fiber_align.bringup', '--rig', '--quiet']
 
 
 def run(seed, sync, multi, timeout=180.0):

@@ -41,7 +41,7 @@ import numpy as np
 
 from fiber_align.analysis.run_summary import beyond_floor
 from fiber_align.graph.description import build
-from fiber_align.nodes.bringup.children import rss_bytes
+from fiber_align.bringup.children import rss_bytes
 
 
 def main(argv=None):
@@ -86,7 +86,7 @@ def soak(a, extra):
 
     log = tempfile.NamedTemporaryFile('w+', suffix='.log', delete=False)
     summary = log.name + '.summary.json'
-    proc = subprocess.Popen([sys.executable, '-m', 'fiber_align.nodes.bringup', '--scenario',
+    proc = subprocess.Popen([sys.executable, '-m', 'fiber_align.bringup', '--scenario',
                              'none', '--sync', 'realtime', '--quiet', '--summary', summary]
                             + list(extra),
                             stdout=log,
@@ -202,7 +202,7 @@ def graph_cycles(path):
     Return the run's missed cycles beside the machine's floor, from bringup's summary.
 
     ``missed_share`` (the plant's, the whole run), ``floor`` (the bare loop beside the
-    graph: :mod:`fiber_align.nodes.machine_floor`), ``beyond_floor_share``, and the
+    graph: :mod:`fiber_align.bringup.floor`), ``beyond_floor_share``, and the
     summary's ``goals_missed`` and ``machine_limits``; ``{}`` without a summary.
     """
     try:

@@ -31,7 +31,7 @@ def main(argv=None):
     with tempfile.TemporaryDirectory(prefix='bench_startup_') as tmp:
         for i in range(a.runs):
             summary = os.path.join(tmp, '%d.json' % i)
-            cmd = [sys.executable, '-m', 'fiber_align.nodes.bringup', '--sync', 'lockstep',
+            cmd = [sys.executable, '-m', 'fiber_align.bringup', '--sync', 'lockstep',
                    '--scenario', 'step', '--duration', '0.05', '--quiet', '--summary', summary,
                    '--composed' if a.composed else '--multi-process']
             p = subprocess.run(cmd, capture_output=True, text=True, timeout=120)

@@ -105,7 +105,7 @@ def run_bringup(name, out, args, log):
     :param log: open text file that gets bringup's output.
     """
     dur = (QUICK_DURATION_S if args.quick else DURATION_S)[name]
-    cmd = [sys.executable, '-m', 'fiber_align.nodes.bringup', '--scenario', name,
+    cmd = [sys.executable, '-m', 'fiber_align.bringup', '--scenario', name,
            '--sync', args.sync, '--record', str(out / 'bag'),
            '--summary', str(out / 'bringup.json'), '--quiet']
     if dur is not None:

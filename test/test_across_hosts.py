@@ -249,7 +249,7 @@ def test_workstation_commands_the_rig_across_hosts(hosts, tmp_path, case):
         {k: hosts.addr.get(v, v) if k == 'ROS_STATIC_PEERS' else v for k, v in d.items()}
         for d in CASES[case])
     log = tmp_path / 'graph.log'
-    graph = hosts.start('a', [sys.executable, '-m', 'fiber_align.nodes.bringup',
+    graph = hosts.start('a', [sys.executable, '-m', 'fiber_align.bringup',
                               '--scenario', 'none', '--quiet'], _env(graph_vars), log)
     t0 = time.monotonic()
     _wait_graph_up(graph, log)

@@ -242,7 +242,7 @@ def test_trip_mid_align_on_the_graph_ends_tracking_at_the_peak():
     from std_srvs.srv import Trigger
 
     from fiber_align.graph.description import build
-    from fiber_align.nodes.bringup.run import Harness
+    from fiber_align.bringup.harness import Harness
     g = build(scenario='align', sync_mode='realtime')
     h = Harness(g, dict(streams={'y': 'displacement'}, clock='y'))
     try:

@@ -3,9 +3,11 @@
 The package's layering, checked from the imports that the source states (parsed by ast).
 
 The rule (docs/CONTRACTS.md): ``config < design, hysteresis < plant, control < alignment
-< simulation < analysis < graph < nodes < tools``. A module imports only its own area and areas
-of a lower rank; areas of one rank do not import each other; every import of the
-package's own modules is at module level; there is no import cycle.
+< simulation, hardware < analysis < graph < nodes < bringup < tools``. A module imports
+only its own area and areas of a lower rank; areas of one rank do not import each other;
+every import of the package's own modules is at module level; there is no import cycle;
+no module imports an executable of ``nodes/`` but its own area (``bringup`` uses the ROS
+helpers ``nodes/ros/`` and ``nodes/_*.py``, never a node).
 """
 
 import ast
@@ -24,14 +26,15 @@ RANKS = {
     'analysis': 5,
     'graph': 6,
     'nodes': 7,
-    'tools': 8,
+    'bringup': 8,
+    'tools': 9,
 }
 # The two command-line entry points beside the tools package belong to it.
 TOOLS_MODULES = {'cli': 'tools', 'demo': 'tools'}
 
-# Imports by name at run time that the rule does not see. The ROS layer composes its
-# nodes by executable name (fiber_align.nodes.bringup, owned by the ROS-layer work).
-DYNAMIC_IMPORT_ALLOWED = {'fiber_align.nodes.bringup'}
+# Modules allowed to import one of the package's own modules by a constant name at run
+# time (the rule does not see such an import): none.
+DYNAMIC_IMPORT_ALLOWED = set()
 
 
 def module_name(path):
@@ -161,6 +164,27 @@ def test_imports_only_point_down():
     """No upward or sideways import, no function-local import of the package's modules."""
     bad = forbidden_edges()
     assert not bad, '\n'.join(['%d forbidden import(s):' % len(bad)] + bad)
+
+
+def executable(module):
+    """Return True for a node executable's module (``fiber_align.nodes.<name>``)."""
+    parts = module.split('.')
+    return len(parts) >= 3 and parts[1] == 'nodes' and parts[2] not in ('ros', '__init__') \
+        and not parts[2].startswith('_')
+
+
+def test_no_executable_imported_from_outside_nodes():
+    """
+    Outside ``nodes/`` nothing imports an executable (the harness neither).
+
+    What two programs share lives in the core or in the ROS helpers, not in one of them.
+    """
+    known = modules()
+    where = '%s:%d: imports the executable %s'
+    bad = sorted({where % (path.relative_to(ROOT.parent), line, t)
+                  for me, path in known.items() if area(me) != 'nodes'
+                  for t, line, _ in own_imports(path, known) if executable(t)})
+    assert not bad, '\n'.join(bad)
 
 
 def test_no_import_cycle():

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from fiber_align.nodes.bringup.children import Child
+from fiber_align.bringup.children import Child
 
 pytestmark = pytest.mark.ros
 

@@ -12,7 +12,7 @@ import pytest
 
 from fiber_align.analysis import run_summary as sm
 from fiber_align.control.cycle import cycle_warning, DeadlineGrid
-from fiber_align.nodes.machine_floor import Floor
+from fiber_align.bringup.floor import Floor
 
 GOAL = 0.001
 
@@ -103,7 +103,7 @@ def test_the_probe_counts_the_periods_of_its_run_and_stops_on_sigint(tmp_path):
 @pytest.mark.ros  # starts processes
 def test_the_probe_ends_and_writes_its_figures_when_its_launcher_is_killed(tmp_path):
     code = ('import sys, time\n'
-            'from fiber_align.nodes.machine_floor import Floor\n'
+            'from fiber_align.bringup.floor import Floor\n'
             'p = Floor(1000.0, 0, sys.argv[1])\n'
             'print(p.proc.pid, flush=True)\n'
             'time.sleep(60)\n')

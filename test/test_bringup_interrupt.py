@@ -1,12 +1,12 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Tests of :mod:`fiber_align.nodes.bringup.interrupt`: an interrupt cannot be lost."""
+"""Tests of :mod:`fiber_align.bringup.interrupt`: an interrupt cannot be lost."""
 
 import gc
 import signal
 
 import pytest
 
-from fiber_align.nodes.bringup import interrupt
+from fiber_align.bringup import interrupt
 
 
 @pytest.fixture(autouse=True)

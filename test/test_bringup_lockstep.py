@@ -27,7 +27,7 @@ def run_bringup(tmp_path, tag, *args, timeout=120):
     """
     trace = tmp_path / ('%s.csv' % tag)
     summary = tmp_path / ('%s.json' % tag)
-    cmd = [sys.executable, '-m', 'fiber_align.nodes.bringup', '--sync', 'lockstep',
+    cmd = [sys.executable, '-m', 'fiber_align.bringup', '--sync', 'lockstep',
            '--trace', str(trace), '--summary', str(summary), '--quiet'] + list(args)
     code, out = run_bounded(cmd, timeout)
     assert code == 0, out
@@ -118,8 +118,8 @@ def test_composed_in_a_namespace_equals_multi_process(step_runs, tmp_path):
 
 RETRY = """
 import sys
-from fiber_align.nodes import bringup as b
-from fiber_align.nodes.bringup.observer import Observer, StartStall
+from fiber_align import bringup as b
+from fiber_align.bringup.observer import Observer, StartStall
 start, injected = Observer.start, []
 
 

@@ -7,7 +7,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from fiber_align.nodes.bringup.observer import Observer
+from fiber_align.bringup.observer import Observer
 
 
 def state(lockstep=False, done_ago=None, own_done=False):

@@ -52,7 +52,7 @@ def test_sigint_mid_scenario_stops_cleanly_and_finalises_the_bag(tmp_path):
     summary = tmp_path / 'summary.json'
     # realtime: the 10 s sine is still running when SIGINT comes (lockstep would be
     # done: the composed graph runs 10,000 lockstep samples in about a second)
-    cmd = [sys.executable, '-m', 'fiber_align.nodes.bringup', '--scenario', 'sine',
+    cmd = [sys.executable, '-m', 'fiber_align.bringup', '--scenario', 'sine',
            '--sync', 'realtime', '--record', str(bag), '--summary', str(summary), '--quiet']
     proc = subprocess.Popen(cmd, env=dict(os.environ), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)

@@ -20,7 +20,7 @@ import pytest
 import procs
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
-BRINGUP = [sys.executable, '-m', 'fiber_align.nodes.bringup']
+BRINGUP = [sys.executable, '-m', 'fiber_align.bringup']
 
 
 def _pids(text):

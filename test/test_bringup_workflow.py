@@ -22,7 +22,7 @@ def _run(cmd, timeout=150):
 
 
 def _bringup(*args):
-    code, out = _run([sys.executable, '-m', 'fiber_align.nodes.bringup', '--sync',
+    code, out = _run([sys.executable, '-m', 'fiber_align.bringup', '--sync',
                       'lockstep', '--quiet'] + list(args))
     assert code == 0, out
     return out

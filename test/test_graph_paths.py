@@ -107,7 +107,7 @@ def test_launch_and_bringup_give_every_node_the_same_parameters(ros2_env, tmp_pa
                 pass
     env = dict(os.environ)
     with open(tmp_path / 'bringup.log', 'wb') as log:
-        b = subprocess.Popen([sys.executable, '-m', 'fiber_align.nodes.bringup', '--namespace',
+        b = subprocess.Popen([sys.executable, '-m', 'fiber_align.bringup', '--namespace',
                               NAMESPACE, '--controller', 'pid', '--quiet'], env=env,
                              stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     try:

@@ -3,7 +3,7 @@
 
 import pytest
 
-from fiber_align.nodes.bringup.hardware import graph_trial
+from fiber_align.bringup.hardware import graph_trial
 
 
 @pytest.mark.ros  # starts a process
@@ -60,7 +60,7 @@ def test_unplugged_amplifier_errors_graph_runs_on_and_reconnects(tmp_path):
     from std_srvs.srv import Trigger
 
     from fiber_align.hardware.bench import emulated
-    from fiber_align.nodes.bringup.hardware import HardwareRun
+    from fiber_align.bringup.hardware import HardwareRun
     from fiber_align.graph.hardware import build_hardware
     bag = tmp_path / 'bag'
     with emulated(seed=2, slot_position_m=20e-6) as (bench, mdt, pm):
@@ -105,7 +105,7 @@ def test_bringup_hardware_emulate_end_to_end(tmp_path):
 
     from procs import run_bounded
     summary = tmp_path / 's.json'
-    code, out = run_bounded([sys.executable, '-m', 'fiber_align.nodes.bringup', '--hardware',
+    code, out = run_bounded([sys.executable, '-m', 'fiber_align.bringup', '--hardware',
                              '--emulate', '--slot', '25e-6', '--cycles', '1', '--hold',
                              '0.3', '--quiet', '--summary', str(summary)], timeout=60)
     assert code == 0, out[-2000:]
@@ -126,7 +126,7 @@ def test_the_emulator_runs_at_the_graph_priority():
     import subprocess
 
     from fiber_align.hardware.process import start_emulator, stop_process
-    from fiber_align.nodes.bringup.hardware import emulator_priority
+    from fiber_align.bringup.hardware import emulator_priority
     prio = emulator_priority()
     assert prio == 50                       # config/fiber_align.yaml realtime_priority
     probe = subprocess.Popen(['sleep', '10'])

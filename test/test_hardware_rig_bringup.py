@@ -14,7 +14,7 @@ from procs import run_bounded
 @pytest.mark.ros  # starts processes
 def test_bringup_rig_hardware_emulate(tmp_path):
     summary = tmp_path / 's.json'
-    code, out = run_bounded([sys.executable, '-m', 'fiber_align.nodes.bringup', '--rig',
+    code, out = run_bounded([sys.executable, '-m', 'fiber_align.bringup', '--rig',
                              '--hardware', '--emulate', '--seed', '2', '--hold', '0.3',
                              '--quiet', '--summary', str(summary)], timeout=60)
     assert code == 0, out[-2000:]
@@ -28,7 +28,7 @@ def test_bringup_rig_hardware_emulate(tmp_path):
 @pytest.mark.ros  # starts processes
 def test_bringup_refuses_v_max_above_the_switch_in_one_line(tmp_path):
     summary = tmp_path / 's.json'
-    code, out = run_bounded([sys.executable, '-m', 'fiber_align.nodes.bringup', '--rig',
+    code, out = run_bounded([sys.executable, '-m', 'fiber_align.bringup', '--rig',
                              '--hardware', '--emulate', '-p', 'mdt693b_driver:y.v_max:=120.0',
                              '--hold', '0.3', '--quiet', '--summary', str(summary)],
                             timeout=60)

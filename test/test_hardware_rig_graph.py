@@ -8,7 +8,7 @@ import pytest
 from fiber_align.graph.hardware_rig import build_hardware_rig
 from fiber_align.graph.params import GraphError
 from fiber_align.hardware.bench import emulated
-from fiber_align.nodes.bringup.hardware import HardwareRigRun, rig_graph_trial
+from fiber_align.bringup.hardware import graph_trial, HardwareRun
 
 AMP = 'mdt693b_driver'
 
@@ -41,7 +41,7 @@ def test_hardware_rig_description():
 
 @pytest.mark.ros  # starts processes
 def test_the_rig_aligns_through_the_graph_on_one_mdt693b():
-    r = rig_graph_trial(seed=3, target_m=(22e-6, 47e-6))
+    r = graph_trial(seed=3, target_m=(22e-6, 47e-6))
     assert r['aligned'], repr(r)
     assert r['align_wall_s'] < 5.0, r
     assert r['final_loss_db'] < 0.1, r
@@ -57,7 +57,7 @@ def test_unplug_mid_align_error_in_1s_and_recover_on_replug():
     from std_srvs.srv import Trigger
     with emulated(seed=4, rig=True, position_x_m=50e-6, position_y_m=15e-6) as (
             bench, mdt, pm):
-        hw = HardwareRigRun(build_hardware_rig(port=mdt.port, visa_resource=pm.resource))
+        hw = HardwareRun(build_hardware_rig(port=mdt.port, visa_resource=pm.resource))
         try:
             hw.start()
             client = hw.obs.client(Trigger, 'align')
@@ -102,7 +102,7 @@ def test_a_meter_that_stops_answering_mid_spiral():
     from std_srvs.srv import Trigger
     with emulated(seed=6, rig=True, position_x_m=60e-6, position_y_m=5e-6) as (
             bench, mdt, pm):
-        hw = HardwareRigRun(build_hardware_rig(port=mdt.port, visa_resource=pm.resource))
+        hw = HardwareRun(build_hardware_rig(port=mdt.port, visa_resource=pm.resource))
         try:
             hw.start()
             assert hw.call(hw.obs.client(Trigger, 'align'), Trigger.Request()).success

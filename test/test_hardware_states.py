@@ -24,7 +24,7 @@ def test_unplugged_amplifier_holds_refuses_align_and_the_first_align_after_replu
 
     from fiber_align.graph.hardware import build_hardware
     from fiber_align.hardware.bench import emulated
-    from fiber_align.nodes.bringup.hardware import HardwareRun
+    from fiber_align.bringup.hardware import HardwareRun
     with emulated(seed=2, slot_position_m=20e-6) as (bench, mdt, pm):
         g = build_hardware(port=mdt.port, visa_resource=pm.resource)
         period_s = float(g.node_params('alignment_sequencer')['diagnostics_period_s'])
@@ -88,7 +88,7 @@ def test_a_driver_process_that_exits_holds_the_sequencer_within_a_diagnostics_pe
 
     from fiber_align.graph.hardware import build_hardware
     from fiber_align.hardware.bench import emulated
-    from fiber_align.nodes.bringup.hardware import HardwareRun
+    from fiber_align.bringup.hardware import HardwareRun
     with emulated(seed=2, slot_position_m=20e-6) as (bench, mdt, pm):
         g = build_hardware(port=mdt.port, visa_resource=pm.resource, composed='false')
         period_s = float(g.node_params('alignment_sequencer')['diagnostics_period_s'])

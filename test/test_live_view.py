@@ -46,7 +46,7 @@ pytestmark = pytest.mark.ros
 
 ROOT = Path(__file__).resolve().parents[1]
 PROTOCOL = 'foxglove.sdk.v1'
-BRINGUP = [sys.executable, '-m', 'fiber_align.nodes.bringup']
+BRINGUP = [sys.executable, '-m', 'fiber_align.bringup']
 UM = 1e-6
 
 

@@ -97,7 +97,7 @@ def test_bad_rig_arguments_are_refused_in_one_line(kwargs):
                                     ['-p', 'no-equals-sign']])
 @pytest.mark.ros  # starts a process
 def test_bringup_rig_refuses_one_axis_options_and_bad_params_in_one_line(option, tmp_path):
-    proc = subprocess.run([sys.executable, '-m', 'fiber_align.nodes.bringup', '--rig']
+    proc = subprocess.run([sys.executable, '-m', 'fiber_align.bringup', '--rig']
                           + option, cwd=tmp_path, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()

@@ -2,7 +2,7 @@
 """
 ``ros2 launch fiber_align fiber_align.launch.py rig:=true``: the two-axis rig as a user starts it.
 
-The launch file builds the rig from ``graph_rig.py`` (the same description ``bringup
+The launch file builds the rig from ``graph/rig.py`` (the same description ``bringup
 --rig`` uses); with the colcon-built package and the ``ros2`` command line
 (``test_ros2_cli.py``'s environment), ``ros2 service call /<ns>/align`` aligns to
 TRACKING (realtime; the two axes' loops, the optics and the sequencer all take part), and

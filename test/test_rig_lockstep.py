@@ -2,7 +2,7 @@
 """
 The two-axis rig on the ROS graph (``bringup --rig``) against the offline ``align2d``.
 
-``bringup --rig --sync lockstep`` starts the rig of ``graph_rig.py`` (two actuator graphs
+``bringup --rig --sync lockstep`` starts the rig of ``graph/rig.py`` (two actuator graphs
 ``/rig/x``, ``/rig/y``, the optics and the 2-D sequencer), aligns and writes every sample's
 displacements, power and setpoints; the offline bench of
 :mod:`fiber_align.simulation.alignment2d_scenarios`, with ``align`` before the same sample,
@@ -26,7 +26,7 @@ pytestmark = [pytest.mark.ros]
 def run_rig(tmp_path, seed, *args, timeout=90):
     """Run ``bringup --rig`` in lockstep; return ``(trace columns, summary)``."""
     trace, summary = tmp_path / 'rig.csv', tmp_path / 'rig.json'
-    cmd = [sys.executable, '-m', 'fiber_align.nodes.bringup', '--rig', '--sync', 'lockstep',
+    cmd = [sys.executable, '-m', 'fiber_align.bringup', '--rig', '--sync', 'lockstep',
            '--seed', str(seed), '--trace', str(trace), '--summary', str(summary),
            '--quiet'] + list(args)
     code, out = run_bounded(cmd, timeout)

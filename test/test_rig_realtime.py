@@ -20,7 +20,7 @@ pytestmark = [pytest.mark.ros]
 
 def test_rig_release_align_cycles_in_realtime_end_in_tracking(tmp_path):
     summary = tmp_path / 'rig.json'
-    code, out = run_bounded([sys.executable, '-m', 'fiber_align.nodes.bringup', '--rig',
+    code, out = run_bounded([sys.executable, '-m', 'fiber_align.bringup', '--rig',
                              '--sync', 'realtime', '--cycles', '2', '--duration', '2',
                              '--summary', str(summary), '--quiet'], 120)
     assert code == 0, out

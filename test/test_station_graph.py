@@ -83,7 +83,7 @@ def test_record_hosts_the_recorder_in_the_composed_process_else_the_clock_waits(
 @pytest.mark.ros  # starts the station's processes
 def test_station_lockstep_equals_the_offline_run(tmp_path):
     trace, summary = tmp_path / 'station.csv', tmp_path / 'station.json'
-    code, out = run_bounded([sys.executable, '-m', 'fiber_align.nodes.bringup', '--station',
+    code, out = run_bounded([sys.executable, '-m', 'fiber_align.bringup', '--station',
                              '--sync', 'lockstep', '--seed', '2', '--trace', str(trace),
                              '--summary', str(summary), '--quiet'], 120)
     assert code == 0, out
@@ -115,7 +115,7 @@ def test_a_driver_disabled_mid_align_holds_the_station_which_resumes_after_the_r
     from std_srvs.srv import SetBool, Trigger
 
     from fiber_align.graph.params import PLANT
-    from fiber_align.nodes.bringup.run import Harness
+    from fiber_align.bringup.harness import Harness
     g = gs.build_station(seed=2, sync_mode='realtime', overrides={PLANT: {'autostart': False}})
     facets = np.array([g.node_params(gs.OPTICS)[k] for k in gs.FACET_KEYS])
     h = Harness(g, dict(streams={}))

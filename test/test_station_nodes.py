@@ -24,7 +24,7 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Bool, Float64  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
-from fiber_align.graph.description import STATION_AXES as AXES  # noqa: E402
+from fiber_align.graph.registry import STATION_AXES as AXES  # noqa: E402
 from fiber_align.nodes.ros.qos import CONTROL_QOS, LATCHED_QOS  # noqa: E402
 from fiber_align.plant import station_optics as so  # noqa: E402
 

@@ -43,7 +43,7 @@ SHARED = dict(
                                'setpoint_max_m', 'realtime_setpoint_rate_m_per_s',
                                'realtime_setpoint_accel_m_per_s2')]
     + [(k, (COMPENSATOR, CONTROLLER)) for k in SHAPING_KEYS]
-    # no displacement sensor (the hardware graph, graph_hardware.py)
+    # no displacement sensor (the hardware graph, graph/hardware.py)
     + [('sensorless', (COMPENSATOR, DRIVER, SEQUENCER))])
 
 

@@ -35,13 +35,14 @@ two plants and the optics advance in step; the x plant publishes ``/clock``.
 import copy
 from dataclasses import dataclass
 import os
-from typing import Tuple
+from typing import Callable, Dict, Tuple
 
 from fiber_align.config import config_dir
 from fiber_align.graph import description as g
 from fiber_align.graph.params import (check_user, DRIVER, effective, GraphError, LIFECYCLE_MANAGER,
                                       LIVE_VIEW, merge, merge_params, PLANT, RECORDER,
                                       wildcard_first)
+from fiber_align.graph.registry import NODES
 from fiber_align.simulation import seeds2d
 
 RIG_NAMESPACE = 'rig'
@@ -49,15 +50,14 @@ AXES = ('x', 'y')
 OPTICS = 'simulated_optics_2d'
 SEQUENCER_2D = 'alignment_sequencer_2d'
 #: The rig's own nodes: name -> executable (from the registry, :data:`~graph.NODES`).
-RIG_NODES = {g.NODES[n].node: g.NODES[n].executable for n in (OPTICS, SEQUENCER_2D)}
+RIG_NODES = {NODES[n].node: NODES[n].executable for n in (OPTICS, SEQUENCER_2D)}
 #: Each axis's nodes, in start order (the 1-D graph without a setpoint source).
 AXIS_NODES = g.control_nodes('none')
 #: Executables (``control_graph --nodes`` names) of the axis nodes that differ from the
 #: node name: the rig's plant also publishes its true tip position (``rig_actuator``).
 AXIS_EXECUTABLES = {PLANT: 'rig_actuator'}
 #: Params files of the rig's nodes, merged after the 1-D graph's area files.
-RIG_FILES = tuple(f for n in RIG_NODES for f in g.NODES[n].configs)
-MANAGED = tuple('%s/%s' % (a, DRIVER) for a in AXES)
+RIG_FILES = tuple(f for n in RIG_NODES for f in NODES[n].configs)
 
 
 @dataclass(frozen=True)
@@ -97,7 +97,7 @@ class RigGraph(g.Graph):
             if n in base:
                 out['%s/%s' % (root, n)] = base[n]
         # a copy per section: no shared mappings, so no YAML aliases in the params file;
-        # /** first, as graph.py writes it (graph_params.wildcard_first)
+        # /** first, as description.py writes it (params.wildcard_first)
         return wildcard_first({k: copy.deepcopy(v) for k, v in out.items()})
 
     def node_params(self, node):
@@ -152,29 +152,81 @@ def check_seed(seed):
     return seed
 
 
-def multi_axis_start(namespace, composed, config_directory, own, params_file, overrides,
-                     seed, sync_mode, controller):
+@dataclass(frozen=True)
+class Machine:
     """
-    Return what every multi-axis graph checks first: ``(ns, composed, files, seed, over)``.
+    A graph of several actuator axes below one namespace, as data.
 
-    The namespace and layout checked, the params files (:func:`multi_axis_files`), the
-    run seed (:func:`check_seed`) and the overrides started with the graph-wide
-    ``sync_mode`` and ``controller`` (:func:`~fiber_align.graph.description.graph_wide`).
+    :ivar scenario: its run (``align2d``, ``station``: the offline scenario it equals).
+    :ivar namespace: its namespace when none is given (and its composed process's name).
+    :ivar axes: the axes' namespaces below it (``x``, ``y``; ``in/x`` ...).
+    :ivar own: ``{node: executable}`` of its nodes in its own namespace (optics, sequencer).
+    :ivar plant_seeds: ``seed -> (noise seed of each axis's plant)`` for the run seed.
+    :ivar seeded: ``seed -> {node: {name: value}}``: what else the run seed sets.
+    :ivar recorded: the topics ``record`` records (relative; empty: no ``record``).
     """
-    ns = g.check_namespace(namespace)
+
+    scenario: str
+    namespace: str
+    axes: Tuple[str, ...]
+    own: Dict[str, str]
+    plant_seeds: Callable
+    seeded: Callable
+    recorded: Tuple[str, ...] = ()
+
+
+def build_axes(m, namespace='', composed=None, sync_mode='', controller='', params_file='',
+               seed=0, record='', config_directory=None, overrides=None):
+    """
+    Describe the multi-axis graph ``m`` for the given launch arguments; return a :class:`RigGraph`.
+
+    :param m: the :class:`Machine` (:data:`RIG`, :data:`fiber_align.graph.station.STATION`).
+    :param namespace: its namespace (``''``: ``m.namespace``).
+    :param composed: layout (bool or ``'true'``/``'false'``; ``None``/``''``: default).
+    :param sync_mode: ``realtime`` | ``lockstep`` (``''``: as the params files say).
+    :param controller: control law of every axis (``''``: as the params files say).
+    :param params_file: a params file merged after ``fiber_align.yaml`` (bare node
+        sections apply to every axis, ``<axis>/<node>`` to one).
+    :param seed: the run seed ``S`` (seeds, target or facets as offline).
+    :param record: bag directory (must not exist; machines with :attr:`Machine.recorded`).
+    :param overrides: further ``{node: {name: value}}`` (bringup's options), applied last.
+    :raises GraphError: a value is not allowed or a file is missing.
+    """
+    ns = g.check_namespace(namespace or m.namespace)
     composed = g.DEFAULT_COMPOSED if composed in (None, '') else g.parse_bool('composed',
                                                                               composed)
-    files = multi_axis_files(config_directory, own, params_file, overrides)
+    files = multi_axis_files(config_directory, m.own, params_file, overrides)
+    seed = check_seed(seed)
     over = {'/**': {}}
     g.graph_wide(over, sync_mode, controller)
-    return ns, composed, files, check_seed(seed), over
+    over[PLANT] = {'optical_power_every': 0, 'tip_position_every': 1}
+    for i, (a, s) in enumerate(zip(m.axes, m.plant_seeds(seed))):
+        over['%s/%s' % (a, PLANT)] = {'seed': s, 'publish_clock': i == 0}
+    over.update(m.seeded(seed))
+    managed = tuple('%s/%s' % (a, DRIVER) for a in m.axes)
+    over[LIFECYCLE_MANAGER] = {'managed_nodes': list(managed)}
+    if record:
+        record = g.check_record(record)
+        over[RECORDER] = {'output': record, 'topics': list(m.recorded)}
+        if not composed:
+            # realtime per-sample topics are volatile: the clock waits for the recorder
+            # (composed, it reads them in-process from before the first sample)
+            over[PLANT]['start_after_reader'] = '/%s/%s' % (ns, RECORDER) if ns else RECORDER
+    over = g.add_overrides(over, overrides)
+    sync, law = in_effect(files, over)
+    return RigGraph(namespace=ns, composed=composed, sync_mode=sync, controller=law,
+                    scenario=m.scenario, record=record or '',
+                    processes=rig_processes(ns, composed, m.axes, m.own, m.namespace,
+                                            bool(record)),
+                    params_files=tuple(files), overrides=over, remappings=g.REMAPPINGS,
+                    managed_nodes=managed, seed=seed, axes=m.axes, own_nodes=tuple(m.own))
 
 
 def multi_axis_files(config_directory, own, params_file, overrides):
     """Return the params files of a multi-axis graph: area files, its nodes', the user's."""
     d = config_dir() if config_directory is None else config_directory
     files = list(g.area_files(d)) + [os.path.join(str(d), f) for n in own
-                                     for f in g.NODES[n].configs]
+                                     for f in NODES[n].configs]
     users = g.user_files(params_file)
     check_user(files, users, overrides)
     return list(dict.fromkeys(files + users))
@@ -187,35 +239,21 @@ def in_effect(files, over):
             g._choice('controller', plant.get('controller', 'composite'), g.CONTROLLERS))
 
 
+def _rig_seeded(seed):
+    seeds, target = seeds2d.run_seeds(seed), seeds2d.random_target(seed)
+    return {OPTICS: {'seed': seeds['detector'], 'target.position_x_m': target[0],
+                     'target.position_y_m': target[1]}}
+
+
+#: The two-axis rig: plant seeds ``2 S``, ``2 S + 1``, detector seed ``S + 1000``, the
+#: target ``random_target(S)`` (:mod:`fiber_align.simulation.seeds2d`).
+RIG = Machine('align2d', RIG_NAMESPACE, AXES, RIG_NODES,
+              lambda seed: (seeds2d.run_seeds(seed)['plant_x'],
+                            seeds2d.run_seeds(seed)['plant_y']), _rig_seeded)
+
+
 def build_rig(namespace=RIG_NAMESPACE, composed=None, sync_mode='', controller='',
               params_file='', seed=0, config_directory=None, overrides=None):
-    """
-    Describe the rig for the given launch arguments; return a :class:`RigGraph`.
-
-    :param namespace: the rig namespace (``rig``).
-    :param composed: layout (bool or ``'true'``/``'false'``; ``None``/``''``: default).
-    :param sync_mode: ``realtime`` | ``lockstep`` (``''``: as the params files say).
-    :param controller: control law of both axes (``''``: as the params files say).
-    :param params_file: a params file merged after ``fiber_align.yaml`` (bare node
-        sections apply to both axes, ``x/<node>`` to one).
-    :param seed: the run seed ``S`` (seeds and target as offline, module docstring).
-    :param overrides: further ``{node: {name: value}}`` (bringup's options), applied last.
-    :raises GraphError: a value is not allowed or a file is missing.
-    """
-    ns, composed, files, seed, over = multi_axis_start(
-        namespace, composed, config_directory, RIG_NODES, params_file, overrides, seed,
-        sync_mode, controller)
-    seeds = seeds2d.run_seeds(seed)
-    target = seeds2d.random_target(seed)
-    over[PLANT] = {'optical_power_every': 0, 'tip_position_every': 1}
-    over['x/' + PLANT] = {'seed': seeds['plant_x'], 'publish_clock': True}
-    over['y/' + PLANT] = {'seed': seeds['plant_y'], 'publish_clock': False}
-    over[OPTICS] = {'seed': seeds['detector'], 'target.position_x_m': target[0],
-                    'target.position_y_m': target[1]}
-    over[LIFECYCLE_MANAGER] = {'managed_nodes': list(MANAGED)}
-    over = g.add_overrides(over, overrides)
-    sync, law = in_effect(files, over)
-    return RigGraph(namespace=ns, composed=composed, sync_mode=sync, controller=law,
-                    scenario='align2d', record='', processes=rig_processes(ns, composed),
-                    params_files=tuple(files), overrides=over, remappings=g.REMAPPINGS,
-                    managed_nodes=MANAGED, seed=seed)
+    """Describe the rig for the given launch arguments (:func:`build_axes` of :data:`RIG`)."""
+    return build_axes(RIG, namespace, composed, sync_mode, controller, params_file, seed,
+                      config_directory=config_directory, overrides=overrides)

@@ -27,7 +27,7 @@ import sys
 from rclpy.executors import ExternalShutdownException
 from rclpy.utilities import remove_ros_args
 
-from fiber_align.graph import description as graph
+from fiber_align.graph import registry
 from fiber_align.nodes.ros import runtime as c
 from fiber_align.nodes.ros.bus import LocalBus
 from fiber_align.nodes.ros.sender import Sender
@@ -35,7 +35,7 @@ from fiber_align.nodes.ros.sender import Sender
 #: Nodes a composed process can host: ``--nodes`` name -> (module, class), in build
 #: order (the order of in-process delivery): the graph description's registry.
 HOSTABLE = {n: ('fiber_align.nodes.' + spec.executable, spec.node_class)
-            for n, spec in graph.HOSTABLE.items()}
+            for n, spec in registry.HOSTABLE.items()}
 DEFAULT_NODES = ('simulated_actuator', 'hysteresis_compensator', 'fuzzy_pid_controller',
                  'actuator_driver')
 
@@ -116,7 +116,7 @@ def build(names, bus=None, argv=()):
                   cli_args=['--ros-args'] + ros) if sub else {}
         specs.append((base, node_ns, kw, importlib.import_module(HOSTABLE[base][0])))
     for base, node_ns, _, _ in specs:
-        bus.provide(*graph.provided_topics(base, node_ns))
+        bus.provide(*registry.provided_topics(base, node_ns))
     nodes = []
     try:
         for base, _, kw, m in specs:

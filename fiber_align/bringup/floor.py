@@ -15,7 +15,7 @@ it), and counts the periods it lost by the plant's rule
 of every realtime run and puts its figures beside the graph's in the summary
 (:class:`Floor`).
 
-Run alone: ``python -m fiber_align.nodes.machine_floor --rate-hz 1000 --priority 51
+Run alone: ``python -m fiber_align.bringup.floor --rate-hz 1000 --priority 51
 --out FILE``; it stops at the end of its standard input (the pipe :class:`Floor` holds:
 closed by :meth:`Floor.stop`, or by the kernel when the process that started it is gone,
 however it ended), on SIGINT or on SIGTERM, and then writes its figures to ``FILE``
@@ -130,7 +130,7 @@ class Floor:
         self.out = os.path.join(directory, 'floor.json')
         prio = min(99, int(priority) + 1) if int(priority) > 0 else 0
         self.proc = subprocess.Popen(
-            [sys.executable, '-m', 'fiber_align.nodes.machine_floor', '--rate-hz',
+            [sys.executable, '-m', 'fiber_align.bringup.floor', '--rate-hz',
              repr(float(rate_hz)), '--priority', str(prio), '--out', self.out],
             stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
             text=True, start_new_session=True)

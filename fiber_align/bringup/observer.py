@@ -8,7 +8,7 @@ source is the graph's own node (``scenario_runner`` or a sequencer) and
 the streams it is given (reliable, deep, transient local: every sample), the
 ``alignment_state`` changes and, through its own thread, ``/diagnostics``. With a
 ``clock`` stream (the 1-D ``displacement``) it keeps the sample times and the scenario's
-reference at each (:class:`~fiber_align.nodes.scenario_runner.Source`). Service clients
+reference at each (:class:`~fiber_align.simulation.setpoints.Source`). Service clients
 live on a second node that only the calling thread spins, so a call never waits on the
 executor thread. Its rclpy context is its own.
 """
@@ -34,6 +34,10 @@ class BringupError(RuntimeError):
 
 class BadInput(BringupError):
     """A node refused its parameters (exit code 2): bringup exits 2 with its line."""
+
+
+class Refused(BringupError):
+    """The sequencer refused a command (its answer's ``success`` false)."""
 
 
 class StartStall(BringupError):
@@ -290,6 +294,23 @@ class Observer:
             raise BringupError('service %s did not answer within %g s'
                                % (client.srv_name, timeout))
         return fut.result()
+
+    def command(self, name, data=None, alive=lambda: None, timeout=10.0):
+        """
+        Call the sequencer's ``name``; return the sample index of the state it caused.
+
+        ``align``, ``release`` (std_srvs/Trigger) or, with ``data``, ``switch``
+        (std_srvs/SetBool). :raises Refused: its answer's ``success`` false.
+        """
+        from std_srvs.srv import SetBool, Trigger
+        srv, req = (Trigger, Trigger.Request()) if data is None else (
+            SetBool, SetBool.Request(data=bool(data)))
+        n = len(self.states)
+        res = self.call(self.client(srv, name), req, timeout, alive)
+        if not res.success:
+            what = name if data is None else '%s %s' % (name, 'on' if data else 'off')
+            raise Refused('%s refused: %s' % (what, res.message))
+        return self.event(n)
 
     def wait(self, cond, timeout, alive, what):
         """Wait (bounded, s wall) until ``cond()``; ``alive()`` may raise meanwhile."""

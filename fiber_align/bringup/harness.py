@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-``bringup``'s one orchestrator: spawn a described graph, observe it, stop it, summarise.
+``bringup``'s one orchestrator: spawn a described graph, observe it, stop it.
 
 Every mode (the 1-D graph, ``--rig``, ``--hardware``) runs a graph of
 :mod:`fiber_align.graph` through :class:`Harness`: the processes, node names, params
@@ -17,19 +17,15 @@ import sys
 import tempfile
 import time
 
-import numpy as np
-
 from fiber_align.analysis import run_summary as sm
-from fiber_align.analysis.report import hysteresis_metrics
+from fiber_align.bringup import interrupt
+from fiber_align.bringup.children import Child, wait_all
+from fiber_align.bringup.floor import Floor
+from fiber_align.bringup.observer import BadInput, BringupError, Observer
 from fiber_align.graph.description import dds_environment
-from fiber_align.graph.params import effective, merge_params, PLANT, RECORDER, SCENARIO_RUNNER
+from fiber_align.graph.params import effective, merge_params, PLANT, RECORDER
 from fiber_align.jsonout import json_default
 from fiber_align.nodes._recording import recorder_counts, recorder_short, recorder_short_full
-from fiber_align.nodes.bringup import interrupt
-from fiber_align.nodes.bringup.children import Child, wait_all
-from fiber_align.nodes.bringup.cli import expected_endpoints, TRACKING_SCENARIOS
-from fiber_align.nodes.bringup.observer import BadInput, BringupError, Observer, StartStall
-from fiber_align.nodes.machine_floor import Floor
 from fiber_align.nodes.ros.diagnostics import endpoint_node_name
 
 EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -45,12 +41,47 @@ def _already_stopping(signum, frame):
     os.write(1, b'bringup: already stopping (the stop is bounded by stop_timeout_s)\n')
 
 
+def session(a, summary, steps, stop, errors=(BringupError,)):
+    """
+    Run ``steps()``, then ``stop(code)`` however it ended; return the exit code.
+
+    The one way every mode ends: ``steps`` returns the code of a run that went through;
+    an error (``errors``) is one line and ``summary['error']`` (exit 1; 2 for bad input),
+    an interrupt exit 130 (``summary['interrupted']``); a signal during the stop is only
+    noted. ``--strict``: missed realtime goals exit 1; ``--summary``: ``summary`` (JSON).
+    """
+    code = EXIT_FAIL
+    try:
+        code = steps()
+    except KeyboardInterrupt:
+        interrupt.handled()
+        print('bringup: interrupted, stopping', flush=True)
+        summary['interrupted'] = True
+        code = EXIT_INTERRUPTED
+    except errors as exc:
+        print('bringup: error: %s' % exc, file=sys.stderr, flush=True)
+        summary['error'] = str(exc)
+        code = EXIT_BAD_INPUT if isinstance(exc, (BadInput, ValueError)) else EXIT_FAIL
+    finally:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, _already_stopping)
+        stop(code)
+    if code == EXIT_OK and a.strict and summary.get('goals_missed'):
+        print('bringup: --strict: %s' % '; '.join(summary['goals_missed']),
+              file=sys.stderr, flush=True)
+        code = EXIT_FAIL
+    if a.summary:
+        with open(a.summary, 'w', encoding='utf-8') as f:
+            json.dump(summary, f, indent=1, sort_keys=True, default=json_default)
+    return code
+
+
 class Harness:
     """
     The processes of one graph and its observer: start, watch, stop in order.
 
     :param graph: a :class:`~fiber_align.graph.description.Graph` (or the rig's).
-    :param observe: :class:`~fiber_align.nodes.bringup.observer.Observer` keyword
+    :param observe: :class:`~fiber_align.bringup.observer.Observer` keyword
         arguments (``streams``, ``clock``, ...).
     :param endpoints: ``{topic: (publishers, subscribers)}`` to wait for (``{}``: none).
     """
@@ -281,194 +312,3 @@ class Harness:
             self.obs.destroy()
             self.obs = None
         self.tmp.cleanup()
-
-
-class Bringup:
-    """The 1-D graph: run its scenario on a :class:`Harness`, retry a stalled start."""
-
-    def __init__(self, args, graph, source):
-        """Keep the options, the graph and the scenario's source (``None``: none)."""
-        self.args, self.graph, self.source = args, graph, source
-        self.scenario, self.sync = graph.scenario, graph.sync_mode
-        self.rate = float(graph.node_params(PLANT)['rate_hz'])
-        self.duration = float(graph.node_params(SCENARIO_RUNNER).get('duration_s', 0.0)) \
-            if source is not None else float('inf')
-        self.cycles = args.cycles if args.cycles is not None else int(
-            settings(graph)['switch_cycles'])
-        self.summary, self.h = {}, None
-
-    def _harness(self):
-        streams = {'y': 'displacement', 'v': 'drive_voltage'}
-        if self.source is None:
-            streams.update(r_ref='reference', p='optical_power')
-        recorded = self.graph.node_params(RECORDER).get('topics', ()) \
-            if self.graph.record else ()
-        want = expected_endpoints(self.graph, tuple(streams.values()) + (
-            ('alignment_state',) if self.source is None else ()), recorded)
-        return Harness(self.graph, dict(streams=streams, clock='y', source=self.source,
-                                        lockstep=self.sync == 'lockstep', rate_hz=self.rate,
-                                        duration_s=self.duration),
-                       self.args.quiet, want)
-
-    def run(self):
-        """Run the whole bring-up; return the exit code."""
-        code = EXIT_OK
-        retries = int(settings(self.graph)['start_retries'])
-        try:
-            for attempt in range(retries + 1):
-                self.h = self._harness()
-                try:
-                    self.h.start(check_alone=attempt == 0)
-                    print('bringup: graph up in %.2f s (%s, %g Hz, %s, %s)' % (
-                        self.h.summary['startup_s'], self.sync, self.rate,
-                        self.graph.controller, 'composed' if self.graph.composed
-                        else 'multi-process'), flush=True)
-                    self._run_scenario()
-                    break
-                except StartStall as exc:
-                    if attempt == retries:
-                        raise
-                    print('bringup: %s; restarting the graph (restart %d, counted in the '
-                          'summary)' % (exc, attempt + 1), flush=True)
-                    self.h.stop()
-                    self.h.close()
-                    self.summary['restarts'] = attempt + 1
-                    if self.graph.record and os.path.isdir(self.graph.record):
-                        import shutil
-                        shutil.rmtree(self.graph.record)
-        except KeyboardInterrupt:
-            interrupt.handled()
-            print('bringup: interrupted, stopping', flush=True)
-            code = EXIT_INTERRUPTED
-            self.summary['interrupted'] = True
-        except BringupError as exc:
-            print('bringup: error: %s' % exc, file=sys.stderr, flush=True)
-            self.summary['error'] = str(exc)
-            code = EXIT_BAD_INPUT if isinstance(exc, BadInput) else EXIT_FAIL
-        finally:
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                signal.signal(sig, _already_stopping)
-            if self.h is not None:
-                self.summary.update(self.h.stop(code == EXIT_INTERRUPTED))
-                self._report()
-                self.h.close()
-        if code == EXIT_OK and self.args.strict and self.summary.get('goals_missed'):
-            print('bringup: --strict: %s' % '; '.join(self.summary['goals_missed']),
-                  file=sys.stderr, flush=True)
-            code = EXIT_FAIL
-        return code
-
-    def _run_scenario(self):
-        h, r = self.h, self.h.obs
-        t0 = time.monotonic()
-        r.start()
-        h.run(True)
-        if self.scenario == 'none':
-            print('bringup: running; publish `setpoint` (m). Ctrl-C stops.', flush=True)
-            while True:
-                h.alive()
-                time.sleep(0.1)
-        try:
-            if self.scenario == 'align':
-                self.summary['align_events'] = self._align()
-                return
-            wall_limit = 60.0 + 20.0 * self.duration
-            drain_s = float(h.gp['observer_drain_s'])
-            while not r.done.wait(0.02):
-                h.alive()
-                r.check_stall()
-                if r.behind(drain_s):
-                    # the graph's run is over; this observer's record ends short of it
-                    # (its sample count says how short)
-                    print('bringup: the scenario ended %.1f s ago and this observer is '
-                          'behind its streams (%d samples read): stopping'
-                          % (time.monotonic() - r.runner_done_at, r.samples), flush=True)
-                    self.summary['observer_behind'] = True
-                    break
-                if time.monotonic() - t0 > wall_limit:
-                    raise BringupError('scenario did not finish within %g s' % wall_limit)
-        finally:
-            self.summary['run_wall_s'] = time.monotonic() - t0
-            r.watch.run_to = time.monotonic()
-
-    def _align(self):
-        """
-        Align, hold, run ``self.cycles`` switch cycles; return the events (sample indices).
-
-        Waits count samples (sample time), each bounded in wall time.
-
-        :raises BringupError: a refused call, a FAULT, a timeout.
-        """
-        from std_srvs.srv import SetBool, Trigger
-        r, alive = self.h.obs, self.h.alive
-
-        def k(seconds):
-            return int(round(seconds * self.rate))
-
-        def call(srv, name, request, what):
-            n = len(r.states)
-            res = r.call(r.client(srv, name), request, 10.0)
-            if not res.success:
-                raise BringupError('%s refused: %s' % (what, res.message))
-            return r.event(n)
-
-        def ended(events, what):
-            st = r.status
-            self.summary['align_events'] = events
-            raise BringupError('%s ended in %s: %s' % (
-                what, st.get('state'), st.get('fault_reason') or 'timeout'))
-
-        wall = 30.0 + 40.0 * (sm.ALIGN_MAX_S + self.cycles * (sm.SWITCH_OFF_S
-                                                              + sm.SWITCH_ON_S))
-        r.wait_samples(k(sm.ALIGN_IDLE_S), wall, alive)
-        events = {'align': call(Trigger, 'align', Trigger.Request(), 'align')}
-        r.wait_samples(events['align'] + k(sm.ALIGN_MAX_S), wall, alive,
-                       lambda: r.status.get('state') in ('TRACKING', 'FAULT'))
-        if r.status.get('state') != 'TRACKING':
-            ended(events, 'alignment')
-        k_tracking = r.first('TRACKING', events['align'])[0]
-        events['tracking'] = r.samples if k_tracking is None else k_tracking
-        r.wait_samples(events['tracking'] + k(sm.LOSS_WINDOW_S), wall, alive)
-        events['cycles'] = []
-        for _ in range(self.cycles):
-            k_off = call(SetBool, 'switch', SetBool.Request(data=False), 'switch off')
-            r.wait_samples(k_off + k(sm.SWITCH_OFF_S), wall, alive)
-            k_on = call(SetBool, 'switch', SetBool.Request(data=True), 'switch on')
-            r.wait_samples(k_on + k(sm.SWITCH_ON_S), wall, alive)
-            events['cycles'].append((k_off, k_on, r.samples))
-            if r.status.get('state') == 'FAULT':
-                break
-        if r.status.get('state') != 'TRACKING':
-            ended(events, 'switch cycles')
-        return events
-
-    def _report(self):
-        s, a, g = self.summary, self.args, self.graph
-        s.update({'scenario': self.scenario, 'sync_mode': self.sync, 'rate_hz': self.rate,
-                  'controller': g.controller, 'composed': g.composed,
-                  'namespace': g.namespace, 'record': g.record or None,
-                  'model_file': os.path.abspath(a.model) if a.model else None})
-        r = self.h.obs
-        if r is not None:
-            t, ref, y = r.trace()
-            if self.source is None:
-                ref = r.series('r_ref')
-            s['samples'] = int(t.size)
-            if t.size > 2 and self.scenario in TRACKING_SCENARIOS:
-                s['metrics'] = sm.scenario_metrics(self.scenario, t, ref, y, r.series('v'))
-            elif t.size > 2 and self.scenario == 'hysteresis-experiment':
-                s['metrics'] = hysteresis_metrics(r.series('v'), y)
-            elif t.size > 2 and self.scenario == 'align':
-                s['align'] = sm.align_metrics(t, y, r.series('p'), r.states,
-                                              s.get('align_events', {}),
-                                              g.node_params(PLANT), self.rate)
-            if a.trace and t.size:
-                np.savetxt(a.trace, np.column_stack([t, ref, y]), delimiter=',',
-                           header='t_s,r_m,y_m', comments='')
-        goal = self.h.cycle_goal if self.h is not None else 0.0
-        s['goals_missed'] = sm.goals_missed(s, self.sync, goal)
-        s['machine_limits'] = [m for m in [sm.machine_limit(s, self.sync, goal)] if m]
-        print(sm.format_summary(s), flush=True)
-        if a.summary:
-            with open(a.summary, 'w', encoding='utf-8') as f:
-                json.dump(s, f, indent=1, default=json_default)

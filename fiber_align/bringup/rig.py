@@ -1,14 +1,13 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-``bringup --rig``: start the two-axis rig (``graph_rig.py``), run ``align2d``, stop.
+``bringup --rig``, ``--station``: start a multi-axis graph, align, stop.
 
-Sequence: write the rig's params file (plants held: ``autostart`` false), start its
-processes (:mod:`~fiber_align.nodes.bringup.children`), wait until ``lifecycle_manager``
-has both drivers active, start both plants (``x/simulated_actuator/run``,
-``y/simulated_actuator/run``), let ``ALIGN_IDLE_S`` of samples pass, call ``align``, wait
-for TRACKING (at most ``ALIGN_MAX_S`` of sample time), ``LOSS_WINDOW_S`` more, hold both
-plants, stop every process. The observer records, per sample, both displacements, the
-optical power and both setpoints (reliable, deep, transient local: every sample).
+Sequence: start the processes (plants held: ``autostart`` false), wait until
+``lifecycle_manager`` has every driver active, start every plant (``<axis>/
+simulated_actuator/run``), let ``ALIGN_IDLE_S`` of samples pass, call ``align``, wait
+for TRACKING (at most ``ALIGN_MAX_S`` of sample time), ``LOSS_WINDOW_S`` more, hold the
+plants, stop every process. The observer records, per sample, the displacements, the
+optical power and the setpoints (reliable, deep, transient local: every sample).
 
 In lockstep the run is compared with the offline run of the same description
 (:func:`fiber_align.analysis.run_summary.compare_offline`: the offline ``align2d`` with
@@ -16,14 +15,12 @@ the ``align`` command before the same sample): the summary's ``offline`` holds t
 difference of each stream, and the exit code is 1 when one exceeds the tolerance.
 """
 
-import json
 import time
 
 from fiber_align.analysis import run_summary as sm
-from fiber_align.graph.description import STATION_AXES as AXES4
-from fiber_align.nodes.bringup import interrupt
-from fiber_align.nodes.bringup.observer import BringupError
-from fiber_align.nodes.bringup.run import Harness
+from fiber_align.bringup.harness import Harness, session
+from fiber_align.bringup.observer import BringupError
+from fiber_align.graph.registry import STATION_AXES as AXES4
 from fiber_align.simulation import station_scenarios as sc
 
 #: Streams recorded per sample: name -> topic.
@@ -64,15 +61,13 @@ def run_rig(a, g):
     # reads are load the graph's users do not have)
     full = g.sync_mode == 'lockstep' or bool(a.trace)
     h = Harness(g, dict(streams=streams if full else {}), a.quiet)
-    code = 0
-    try:
+
+    def steps():
         # the align server discovered before the clock starts: a late discovery would
         # otherwise let the lockstep graph idle on for seconds before the command
         h.start(check_alone=False, ready=lambda: h.obs.client(Trigger, 'align')
                 .wait_for_service(timeout_sec=0.1))
         obs, alive = h.obs, h.alive
-        align = obs.client(Trigger, 'align')
-        release = obs.client(Trigger, 'release')
         h.run(True)
         summary['startup_s'] = h.summary['startup_s']
         t_run = time.monotonic()
@@ -80,13 +75,13 @@ def run_rig(a, g):
             lambda: int((time.monotonic() - t_run) * rate))
         k = int(round(sm.ALIGN_IDLE_S * rate))
         obs.wait(lambda: clock() >= k, 60.0, alive, 'sample %d' % k)
-        k_align, tracking = _align(obs, align, alive, rate, clock, max_s)
+        k_align, tracking = _align(obs, alive, rate, clock, max_s)
         k_end = clock() + int(round(sm.LOSS_WINDOW_S * rate)) + 5
         obs.wait(lambda: clock() >= k_end, 60.0, alive, 'sample %d' % k_end)
         summary.update(align_sample=k_align, tracking_sample=tracking['sample'],
                        time_to_peak_s=(tracking['sample'] - 1 - k_align) / rate,
                        peak_samples=tracking['peak_samples'])
-        cycles = [_release_align(obs, release, align, alive, rate, clock, max_s)
+        cycles = [_release_align(obs, alive, rate, clock, max_s)
                   for _ in range(a.cycles or 0)]
         if cycles:
             summary['cycles_tracking'] = len(cycles)
@@ -103,18 +98,7 @@ def run_rig(a, g):
         obs.watch.run_to = time.monotonic()
         if g.sync_mode == 'realtime':
             # before the hold: a held plant stops the drivers' input (a watchdog trip)
-            summary['axes'] = axis_figures(obs.watch.by_status, g.namespace, g.axes)
-            floor = h.floor_figures()
-            if floor is not None:
-                summary['floor'] = floor
-            per_axis = [(axis, {'realtime': rt, 'floor': floor})
-                        for axis, rt in summary['axes'].items()]
-            summary['goals_missed'] = [
-                '%s: %s' % (axis, m) for axis, s in per_axis
-                for m in sm.goals_missed(s, 'realtime', h.cycle_goal)]
-            summary['machine_limits'] = [
-                '%s: %s' % (axis, m) for axis, s in per_axis
-                for m in [sm.machine_limit(s, 'realtime', h.cycle_goal)] if m]
+            _realtime(summary, h, g)
         h.run(False)
         summary.update(state=obs.status.get('state'), samples=clock())
         if g.sync_mode == 'lockstep' and not (a.cycles or a.duration):
@@ -122,15 +106,10 @@ def run_rig(a, g):
             # the offline run has the shipped parameters: with others it is only reported
             comparable = not (a.param or a.params_file)
             summary['offline']['comparable'] = comparable
-            code = 0 if summary['offline']['equal'] or not comparable else 1
-    except BringupError as exc:
-        summary['error'] = str(exc)
-        code = 1
-    except KeyboardInterrupt:
-        interrupt.handled()
-        summary['error'] = 'interrupted'
-        code = 130
-    finally:
+            return 0 if summary['offline']['equal'] or not comparable else 1
+        return 0
+
+    def stop(code):
         s = h.stop(code == 130)
         summary['children'] = {n: c['exit_code'] for n, c in s.get('children', {}).items()}
         summary['processes'] = s.get('processes', {})
@@ -140,26 +119,31 @@ def run_rig(a, g):
         if a.trace and h.obs is not None:
             sm.write_trace(a.trace, arrays(h.obs, streams), rate)   # full: every stream
         h.close()
-    if code == 0 and a.strict and summary.get('goals_missed'):
-        print('bringup: --strict: %s' % '; '.join(summary['goals_missed']), flush=True)
-        code = 1
-    _report(summary, a)
-    return code
+        _report(summary)
+    return session(a, summary, steps, stop)
 
 
-def _align(obs, align, alive, rate, clock, max_s=sm.ALIGN_MAX_S):
+def _realtime(summary, h, g):
+    """Put each axis's realtime figures, the floor's, missed goals and limits in ``summary``."""
+    summary['axes'] = axis_figures(h.obs.watch.by_status, g.namespace, g.axes)
+    floor = h.floor_figures()
+    if floor is not None:
+        summary['floor'] = floor
+    per_axis = [(axis, {'realtime': rt, 'floor': floor}) for axis, rt in summary['axes'].items()]
+    summary['goals_missed'] = ['%s: %s' % (axis, m) for axis, s in per_axis
+                               for m in sm.goals_missed(s, 'realtime', h.cycle_goal)]
+    summary['machine_limits'] = ['%s: %s' % (axis, m) for axis, s in per_axis
+                                 for m in [sm.machine_limit(s, 'realtime', h.cycle_goal)] if m]
+
+
+def _align(obs, alive, rate, clock, max_s=sm.ALIGN_MAX_S):
     """
     Call ``align`` and wait for TRACKING; return ``(align sample, TRACKING status)``.
 
     :param clock: returns the samples so far (the wait's bound is in sample time).
     :param max_s: the bound (s of sample time).
     """
-    from std_srvs.srv import Trigger
-    n = len(obs.states)
-    res = obs.call(align, Trigger.Request(), 10.0, alive)
-    if not res.success:
-        raise BringupError('align refused: %s' % res.message)
-    k_align = obs.event(n)
+    k_align = obs.command('align', alive=alive)
     k_max = clock() + max_s * rate
     obs.wait(lambda: obs.status.get('state') in ('TRACKING', 'FAULT') or clock() > k_max,
              120.0, alive, 'TRACKING')
@@ -170,23 +154,20 @@ def _align(obs, align, alive, rate, clock, max_s=sm.ALIGN_MAX_S):
     return k_align, tracking
 
 
-def _release_align(obs, release, align, alive, rate, clock, max_s=sm.ALIGN_MAX_S):
+def _release_align(obs, alive, rate, clock, max_s=sm.ALIGN_MAX_S):
     """
     One switch cycle of the rig: ``release`` to IDLE, then ``align`` to TRACKING.
 
     :returns: the time to peak of the new alignment (s of sample time).
     :raises BringupError: a refused call, a FAULT, a timeout.
     """
-    from std_srvs.srv import Trigger
-    res = obs.call(release, Trigger.Request(), 10.0, alive)
-    if not res.success:
-        raise BringupError('release refused: %s' % res.message)
+    obs.command('release', alive=alive)
     obs.wait(lambda: obs.status.get('state') in ('IDLE', 'FAULT'), 60.0, alive, 'IDLE')
     if obs.status.get('state') != 'IDLE':
         raise BringupError('release ended in FAULT: %s' % obs.status.get('fault_reason'))
     k = clock() + int(round(sm.ALIGN_IDLE_S * rate))
     obs.wait(lambda: clock() >= k, 60.0, alive, 'sample %d' % k)
-    k_align, tracking = _align(obs, align, alive, rate, clock, max_s)
+    k_align, tracking = _align(obs, alive, rate, clock, max_s)
     return (tracking['sample'] - 1 - k_align) / rate
 
 
@@ -209,11 +190,8 @@ def axis_figures(by_status, namespace, axes=('x', 'y')):
     return out
 
 
-def _report(summary, a):
-    """Print the run for people (ms, um) and write ``--summary`` (JSON, SI)."""
-    if a.summary:
-        with open(a.summary, 'w', encoding='utf-8') as f:
-            json.dump(summary, f, indent=2, sort_keys=True, default=str)
+def _report(summary):
+    """Print the run for people (ms, um)."""
     off = summary.get('offline') or {}
 
     def worst(prefix):

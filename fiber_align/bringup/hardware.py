@@ -2,12 +2,11 @@
 """
 ``bringup --hardware``: the sensorless bench graph on a real or emulated MDT693B + PM100.
 
-The graph is :func:`fiber_align.graph.hardware.build_hardware` (the description the
-hardware launch file uses too): ``alignment_sequencer``, ``hysteresis_compensator`` and
-``actuator_driver`` (backend ``mdt693b``) in one process, ``power_meter``,
-``lifecycle_manager`` (activates the driver) and, with ``--record``, ``bag_recorder``.
-``--emulate`` first starts ``fiber-align emulate`` as a child (it dies with ``bringup``,
-``PR_SET_PDEATHSIG``) and uses the ``serial_link`` and ``visa_resource`` it prints.
+The graph is ``hardware:=true``'s (:mod:`fiber_align.graph.hardware`; with ``--rig``
+:mod:`fiber_align.graph.hardware_rig`: both axes on one MDT693B). ``--emulate`` first
+starts ``fiber-align emulate`` as a child (it ends with ``bringup``) and uses the
+``serial_link`` and ``visa_resource`` it prints; with ``--rig``, ``fiber-align emulate
+--rig`` with the target of the run seed (``--seed``, as the simulated rig's).
 
 Sequence: start the processes; wait until the driver is active, the meter reads and the
 sequencer has its floor (``floor_wait_s``); ``align`` (std_srvs/Trigger) and time it to
@@ -15,29 +14,22 @@ TRACKING; ``--cycles`` switch off/on cycles; hold TRACKING for ``--hold`` s (0: 
 SIGINT); stop every child (SIGINT: the driver ramps the amplifier to the safe voltage);
 print a JSON summary (align wall time, peak power, states, faults). Exit 0 when aligned,
 1 on a fault or a timeout, 2 on bad input, 130 when interrupted before the end.
-
-``bringup --rig --hardware [--emulate]``: the same steps on the two-axis rig
-(:func:`fiber_align.graph.hardware_rig.build_hardware_rig`: both axes on one MDT693B,
-``mdt693b_driver``); ``--emulate`` starts ``fiber-align emulate --rig`` with the target
-of the run seed (``--seed``, as the simulated rig's).
 """
 
 import json
-import sys
 import time
 
+from fiber_align.bringup import interrupt
+from fiber_align.bringup.cli import graph
+from fiber_align.bringup.harness import Harness, session
+from fiber_align.bringup.observer import BringupError, Refused
 from fiber_align.graph.hardware import build_hardware, POWER_METER
-from fiber_align.graph.hardware_rig import AMPLIFIER, build_hardware_rig
-from fiber_align.graph.params import DRIVER, LIFECYCLE_MANAGER, RECORDER
-from fiber_align.graph.rig import RIG_NAMESPACE
+from fiber_align.graph.hardware_rig import build_hardware_rig
+from fiber_align.graph.params import LIFECYCLE_MANAGER, RECORDER
 from fiber_align.hardware.bench import emulated
 from fiber_align.hardware.errors import DeviceError
 from fiber_align.hardware.process import start_emulator, stop_process
 from fiber_align.nodes.ros.qos import REALTIME_QOS
-from fiber_align.nodes.bringup import interrupt
-from fiber_align.nodes.bringup.cli import live, parse_params
-from fiber_align.nodes.bringup.observer import BringupError
-from fiber_align.nodes.bringup.run import Harness
 from fiber_align.simulation.seeds2d import random_target
 
 #: Bounds (s, wall) of the steps; the align bound is the issue's 3 s goal plus margin.
@@ -58,19 +50,19 @@ def emulator_priority():
 
 class HardwareRun(Harness):
     """
-    The hardware graph on the :class:`~fiber_align.nodes.bringup.run.Harness`, and its steps.
+    A hardware graph on the :class:`~fiber_align.bringup.harness.Harness`, and its steps.
 
-    :param graph: a :class:`~fiber_align.graph.description.Graph` from ``build_hardware``
-        (or ``build_hardware_rig``: :attr:`driver` is then ``mdt693b_driver``).
+    :param graph: a graph of ``hardware:=true`` (``build_hardware``, or
+        ``build_hardware_rig``); :attr:`driver`, the lifecycle node that owns the
+        amplifier, is the one it manages (``actuator_driver``, ``mdt693b_driver``).
     :param quiet: do not relay the children's output.
     """
-
-    #: the lifecycle node that owns the amplifier
-    driver = DRIVER
 
     def __init__(self, graph, quiet=True):
         """Write the params file; nothing starts until :meth:`start`."""
         super().__init__(graph, dict(streams={'p': 'optical_power'}, qos=REALTIME_QOS), quiet)
+        self.driver = graph.managed_nodes[0]
+        self._failed, self._starting = None, False
 
     @property
     def status(self):
@@ -95,15 +87,12 @@ class HardwareRun(Harness):
 
     def start(self):
         """Start the graph; wait until it is ready to align (the meter reading, IDLE)."""
-        self._failed = None
         self._starting = True
         try:
             super().start(check_alone=False, ready=self._ready)
         finally:
             self._starting = False
         time.sleep(FLOOR_WAIT_S)          # the sequencer's floor readings (IDLE)
-
-    _starting = False
 
     def alive(self):
         """Raise when a process exited, or (starting) when the driver's start-up failed."""
@@ -143,10 +132,12 @@ class HardwareRun(Harness):
         """Call a service (bounded); return the response."""
         return self.obs.call(client, request, timeout_s, self.alive)
 
-    def _command(self, srv, name, request, goal, timeout_s):
-        """Call service ``name``; return ``(ok, wall s)`` from the call to ``goal`` or FAULT."""
+    def _command(self, name, goal, timeout_s, data=None):
+        """Call ``name``; return ``(ok, wall s)`` from the call to ``goal`` (or FAULT)."""
         t0, n = time.monotonic(), len(self.obs.states)
-        if not self.call(self.obs.client(srv, name), request).success:
+        try:
+            self.obs.command(name, data, self.alive)
+        except Refused:
             return False, time.monotonic() - t0
         self.wait(lambda: len(self.obs.states) > n and self.status.get('state') in (
             goal, 'FAULT'), timeout_s, goal)
@@ -154,14 +145,11 @@ class HardwareRun(Harness):
 
     def align(self, timeout_s=ALIGN_TIMEOUT_S):
         """Call ``align``; return ``(ok, wall s)`` from the call to TRACKING (or FAULT)."""
-        from std_srvs.srv import Trigger
-        return self._command(Trigger, 'align', Trigger.Request(), 'TRACKING', timeout_s)
+        return self._command('align', 'TRACKING', timeout_s)
 
     def switch(self, on, timeout_s=ALIGN_TIMEOUT_S):
         """Switch the light off (to IDLE) or on (to TRACKING); return ``(ok, wall s)``."""
-        from std_srvs.srv import SetBool
-        return self._command(SetBool, 'switch', SetBool.Request(data=bool(on)),
-                             'TRACKING' if on else 'IDLE', timeout_s)
+        return self._command('switch', 'TRACKING' if on else 'IDLE', timeout_s, bool(on))
 
     def stop(self):
         """Stop the children (the driver ramps to safe), recorder last; return exit codes."""
@@ -170,59 +158,28 @@ class HardwareRun(Harness):
         return {n: c['exit_code'] for n, c in s['children'].items()}
 
 
-def graph_trial(seed, slot_m, composed=None, settle_s=0.2, timeout_s=ALIGN_TIMEOUT_S):
+def graph_trial(seed, slot_m=None, target_m=None, composed=None, settle_s=0.2,
+                timeout_s=ALIGN_TIMEOUT_S, emulator_params=None, overrides=None):
     """
-    Align once through the hardware graph on fresh in-process emulators; return SI metrics.
+    Align once through a hardware graph on fresh in-process emulators; return SI metrics.
 
-    ``final_loss_db``: the mean true loss (the emulator's truth) over the first
-    ``settle_s`` (s) of TRACKING, as :func:`fiber_align.hardware.bench.align_trial`;
-    ``align_wall_s``: wall time (s) from the ``align`` call to TRACKING; ``v_range``: the
-    lowest and highest voltage the emulated amplifier received (V).
+    The 1-D bench with the slot at ``slot_m`` (m), or with ``target_m`` (the output core
+    ``(x, y)``, m) the two-axis rig on one MDT693B. ``final_loss_db``: the mean true loss
+    (the emulator's truth) over the first ``settle_s`` (s) of TRACKING, as
+    :func:`fiber_align.hardware.bench.align_trial`; ``align_wall_s``: wall time (s) from
+    the ``align`` call to TRACKING; ``v_range``: the lowest and highest voltage the
+    emulated amplifier received (V; the rig: on the axes' channels). The rig adds
+    ``commands`` per channel, the link's achieved write rate (``link_rate_hz``: voltage
+    commands a second between ``align`` and TRACKING, a combined one counted once), the
+    amplifier's diagnostics and watchdog trips.
     """
-    with emulated(seed=seed, slot_position_m=slot_m) as (bench, mdt, pm):
-        g = build_hardware(port=mdt.port, visa_resource=pm.resource, composed=composed)
-        hw = HardwareRun(g)
-        try:
-            hw.start()
-            ok, wall = hw.align(timeout_s)
-            losses = []
-            end = time.monotonic() + settle_s
-            while ok and time.monotonic() < end:
-                losses.append(bench.true_loss_db())
-                time.sleep(0.01)
-            sent = [row[3] for row in mdt.command_log]
-            out = dict(seed=seed, slot_m=slot_m, aligned=ok, align_wall_s=wall,
-                       status=dict(hw.status), commands=len(sent),
-                       final_loss_db=sum(losses) / len(losses) if losses else None,
-                       max_loss_db=max(losses) if losses else None,
-                       v_range=(min(sent), max(sent)) if sent else None)
-        finally:
-            codes = hw.stop()
-        out['exit_codes'] = codes
-        return out
-
-
-class HardwareRigRun(HardwareRun):
-    """The hardware rig (``build_hardware_rig``): the same steps, ``mdt693b_driver``."""
-
-    driver = AMPLIFIER
-
-
-def rig_graph_trial(seed, target_m, composed=None, settle_s=0.2, timeout_s=ALIGN_TIMEOUT_S,
-                    emulator_params=None, overrides=None):
-    """
-    Align once through the hardware rig's graph on fresh in-process emulators (SI metrics).
-
-    :param target_m: the output core ``(x, y)`` (m).
-    :returns: as :func:`graph_trial`, plus ``commands`` per channel, the link's achieved
-        write rate (``link_rate_hz``: voltage commands a second between ``align`` and
-        TRACKING, a combined one counted once) and the peak samples.
-    """
-    with emulated(seed=seed, emulator_params=emulator_params, rig=True,
-                  position_x_m=target_m[0], position_y_m=target_m[1]) as (bench, mdt, pm):
-        g = build_hardware_rig(port=mdt.port, visa_resource=pm.resource, composed=composed,
-                               overrides=overrides)
-        hw = HardwareRigRun(g)
+    rig = target_m is not None
+    optics = dict(position_x_m=target_m[0], position_y_m=target_m[1]) if rig else dict(
+        slot_position_m=slot_m)
+    with emulated(seed=seed, emulator_params=emulator_params, rig=rig, **optics) as (
+            bench, mdt, pm):
+        hw = HardwareRun((build_hardware_rig if rig else build_hardware)(
+            port=mdt.port, visa_resource=pm.resource, composed=composed, overrides=overrides))
         try:
             hw.start()
             t0 = time.monotonic()
@@ -234,18 +191,21 @@ def rig_graph_trial(seed, target_m, composed=None, settle_s=0.2, timeout_s=ALIGN
                 losses.append(bench.true_loss_db())
                 time.sleep(0.01)
             log = list(mdt.command_log)
-            sent = [row[3] for row in log if row[1] in bench.axes.values()]
-            during = {(row[0], row[2]) for row in log if t0 <= row[0] <= t1}
-            out = dict(seed=seed, target_m=tuple(target_m), aligned=ok, align_wall_s=wall,
-                       status=dict(hw.status), peak_samples=hw.status.get('peak_samples'),
-                       commands={ch: sum(1 for r in log if r[1] == ch) for ch in 'xyz'},
-                       link_rate_hz=len(during) / (t1 - t0) if t1 > t0 else None,
+            sent = [row[3] for row in log if not rig or row[1] in bench.axes.values()]
+            out = dict(seed=seed, aligned=ok, align_wall_s=wall, status=dict(hw.status),
+                       peak_samples=hw.status.get('peak_samples'),
                        final_loss_db=sum(losses) / len(losses) if losses else None,
                        max_loss_db=max(losses) if losses else None,
-                       v_range=(min(sent), max(sent)) if sent else None,
-                       diag=hw.diag.get(AMPLIFIER), trips='%s, %s' % tuple(
-                           (hw.obs.watch.latest.get(a) or {}).get('watchdog_count', '-')
-                           for a in ('x', 'y')))
+                       v_range=(min(sent), max(sent)) if sent else None)
+            if not rig:
+                out.update(slot_m=slot_m, commands=len(sent))
+            else:
+                during = {(row[0], row[2]) for row in log if t0 <= row[0] <= t1}
+                out.update(target_m=tuple(target_m), diag=hw.diag.get(hw.driver),
+                           commands={ch: sum(1 for r in log if r[1] == ch) for ch in 'xyz'},
+                           link_rate_hz=len(during) / (t1 - t0) if t1 > t0 else None,
+                           trips='%s, %s' % tuple((hw.obs.watch.latest.get(a) or {}).get(
+                               'watchdog_count', '-') for a in ('x', 'y')))
         finally:
             codes = hw.stop()
         out['exit_codes'] = codes
@@ -254,72 +214,54 @@ def rig_graph_trial(seed, target_m, composed=None, settle_s=0.2, timeout_s=ALIGN
 
 def run(args):
     """``bringup --hardware [--rig]``: run the bench as the docstring says; return the code."""
-    emu = None
-    summary = {}
-    code = 1
-    hw = None
-    try:
+    summary, parts = {}, {}
+
+    def steps():
         port, resource = args.port or '', args.visa_resource or ''
-        rig = bool(getattr(args, 'rig', False))
         if args.emulate:
             seed = args.seed if args.seed is not None else 0
             extra = ['--seed', str(seed)]
-            if rig:
+            if args.rig:
                 # the target of the simulated rig's run seed (graph/rig.py)
                 tx, ty = random_target(seed)
                 extra += ['--rig', '--target-x', repr(tx), '--target-y', repr(ty)]
             if args.slot is not None:
                 extra += ['--slot', repr(float(args.slot))]
-            emu, info = start_emulator(extra, quiet=args.quiet, priority=emulator_priority())
+            parts['emu'], info = start_emulator(extra, quiet=args.quiet,
+                                                priority=emulator_priority())
             port, resource = info['serial_link'], info['visa_resource']
             summary['emulator'] = info
-        if rig:
-            g = live(args, build_hardware_rig(
-                port=port, visa_resource=resource, namespace=args.namespace or RIG_NAMESPACE,
-                composed=args.composed, params_file=args.params_file,
-                overrides=parse_params(args.param, {})))
-            hw = HardwareRigRun(g, quiet=args.quiet)
-        else:
-            g = live(args, build_hardware(
-                port=port, visa_resource=resource, namespace=args.namespace,
-                composed=args.composed, params_file=args.params_file,
-                model_file=args.model or '', record=args.record or '',
-                overrides=parse_params(args.param, {})))
-            hw = HardwareRun(g, quiet=args.quiet)
+        hw = parts['hw'] = HardwareRun(graph(args, port=port, visa_resource=resource)[0],
+                                       quiet=args.quiet)
         t0 = time.monotonic()
         hw.start()
         summary['startup_s'] = time.monotonic() - t0
         ok, wall = hw.align()
         summary.update(aligned=ok, align_wall_s=wall, status=hw.status)
-        cycles = []
-        for _ in range((args.cycles or 0) if ok else 0):
-            cycles.append([hw.switch(False), hw.switch(True)])
-        summary['switch_cycles'] = cycles
-        ok = ok and all(a[0] and b[0] for a, b in cycles)
-        t_hold = time.monotonic() + (args.hold if args.hold else float('inf'))
-        while ok and time.monotonic() < t_hold and hw.status.get('state') != 'FAULT':
-            hw.alive()
-            time.sleep(0.05)
+        try:
+            cycles = summary['switch_cycles'] = []
+            for _ in range((args.cycles or 0) if ok else 0):
+                cycles.append([hw.switch(False), hw.switch(True)])
+            ok = ok and all(a[0] and b[0] for a, b in cycles)
+            t_hold = time.monotonic() + (args.hold if args.hold else float('inf'))
+            while ok and time.monotonic() < t_hold and hw.status.get('state') != 'FAULT':
+                hw.alive()
+                time.sleep(0.05)
+        except KeyboardInterrupt:
+            interrupt.handled()         # aligned: Ctrl-C ends the hold
+            return 0
         if hw.power:
             summary['last_power_w'] = hw.power[-1][1]
         summary['final_state'] = hw.status.get('state')
-        code = 0 if ok and summary['final_state'] == 'TRACKING' else 1
-    except KeyboardInterrupt:
-        interrupt.handled()
-        code = 130 if not summary.get('aligned') else 0
-    except (BringupError, DeviceError, ValueError) as exc:  # ValueError: GraphError, values
-        summary['error'] = str(exc)
-        print('bringup: error: %s' % exc, file=sys.stderr, flush=True)
-        code = 1 if isinstance(exc, (BringupError, DeviceError)) else 2
-    finally:
+        return 0 if ok and summary['final_state'] == 'TRACKING' else 1
+
+    def stop(code):
+        hw = parts.get('hw')
         if hw is not None:
             # every node's distinct ERROR messages
             summary['errors'] = hw.obs.watch.errors if hw.obs is not None else {}
             summary['exit_codes'] = hw.stop()
-        if emu is not None:
-            stop_process(emu)
-    print(json.dumps(summary, default=str), flush=True)
-    if getattr(args, 'summary', None):
-        with open(args.summary, 'w', encoding='utf-8') as f:
-            json.dump(summary, f, indent=1, default=str)
-    return code
+        if parts.get('emu') is not None:
+            stop_process(parts['emu'])
+        print(json.dumps(summary, default=str), flush=True)
+    return session(args, summary, steps, stop, (BringupError, DeviceError, ValueError))

@@ -1,0 +1,214 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+``bringup``'s command line: options, their checks, and the graph they describe.
+
+The options map onto the launch arguments (:func:`arguments`), which
+:func:`fiber_align.graph.arguments.describe` turns into the graph as under ``ros2
+launch``, and the rest onto parameter overrides of the description; bringup merges
+nothing itself.
+"""
+
+import argparse
+import math
+import os
+import sys
+
+import yaml
+
+from fiber_align.config import ConfigError
+from fiber_align.graph.arguments import ARGUMENTS, describe
+from fiber_align.graph.description import check_namespace
+from fiber_align.graph.params import GraphError, PLANT, RECORDER, SCENARIO_RUNNER
+from fiber_align.simulation.setpoints import setpoint_range, Source
+
+TRACKING_SCENARIOS = ('step', 'sine', 'triangle', 'staircase')
+#: bringup's options that are no launch argument, of the simulated 1-D graph only:
+#: (attribute, option); the launch arguments' are :func:`describe`'s.
+ONE_AXIS_OPTIONS = (('rate', '--rate'), ('no_noise', '--no-noise'))
+
+
+def _positive(kind, what):
+    def conv(text):
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError('%s: %r is not a number' % (what, text))
+        if not (math.isfinite(v) and v > 0):
+            raise argparse.ArgumentTypeError('%s must be > 0, got %r' % (what, text))
+        return v
+    return conv
+
+
+def _namespace(text):
+    try:                # the description's rule, as under ros2 launch
+        return check_namespace(text)
+    except GraphError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (``bringup: error: ...``), exit 2."""
+
+    def error(self, message):
+        """Print one line naming what is wrong and what is allowed; exit 2."""
+        self.exit(2, '%s: error: %s\n' % (self.prog, message))
+
+
+#: bringup's option for each launch argument of :data:`ARGUMENTS` but ``composed``:
+#: ``name -> (option, argparse keywords)``; its help is the launch argument's text.
+OPTIONS = {
+    'namespace': ('--namespace', dict(type=_namespace, default='')),
+    'sync_mode': ('--sync', {}), 'controller': ('--controller', {}),
+    'params_file': ('--params-file', dict(action='append', default=[])),
+    'model_file': ('--model', dict(metavar='FILE')), 'record': ('--record', dict(metavar='DIR')),
+    'scenario': ('--scenario', {}), 'rig': ('--rig', dict(action='store_true')),
+    'station': ('--station', dict(action='store_true')), 'seed': ('--seed', dict(type=int)),
+    'hardware': ('--hardware', dict(action='store_true')), 'port': ('--port', {}),
+    'visa_resource': ('--visa-resource', {}), 'live': ('--live', dict(action='store_true')),
+    'live_port': ('--live-port', dict(type=int, metavar='PORT')),
+    'live_host': ('--live-host', dict(metavar='HOST')),
+}
+#: What ``bringup`` does beyond starting the graph, by option.
+NOTES = {
+    'scenario': '; bringup runs it to its end (align: then --cycles switch cycles)',
+    'rig': '; align2d, in lockstep compared with fiber-align simulate --scenario align2d',
+    'station': '; align, in lockstep compared with fiber-align simulate --scenario station',
+    'hardware': '; align, --cycles, --hold; with --rig both axes on one MDT693B',
+}
+
+
+def _dest(option):
+    return option.lstrip('-').replace('-', '_')
+
+
+def parse_args(argv):
+    """Parse the command line (ROS arguments after ``--ros-args`` are ignored)."""
+    if argv is None:
+        argv = sys.argv[1:]
+    if '--ros-args' in argv:
+        argv = argv[:argv.index('--ros-args')]
+    ap = _Parser(prog='bringup', description='Start the fiber_align graph, run a scenario, '
+                 'record, stop, summarise.')
+    for name, _, text, choices in ARGUMENTS:
+        if name in OPTIONS:
+            option, kw = OPTIONS[name]
+            if choices and 'action' not in kw:
+                kw = dict(kw, choices=[c for c in choices if c])
+            text = text[len('true: '):] if text.startswith('true: ') else text
+            ap.add_argument(option, help=text + NOTES.get(name, ''), **kw)
+    layout = ap.add_mutually_exclusive_group()
+    layout.add_argument('--composed', dest='composed', action='store_true', default=None,
+                        help='the control nodes in one process (control_graph; default)')
+    layout.add_argument('--multi-process', dest='composed', action='store_false',
+                        help='one process per node')
+    ap.add_argument('--duration', type=_positive(float, '--duration'), default=None,
+                    help="scenario length (s of sample time; default: the scenario's); "
+                    '--rig, --station: hold TRACKING this long after the cycles')
+    ap.add_argument('--rate', type=_positive(float, '--rate'), default=None,
+                    help='control rate (Hz)')
+    ap.add_argument('--no-noise', action='store_true', help='sensor noise off')
+    ap.add_argument('--cycles', type=int, default=None,
+                    help='align: switch off/on cycles after TRACKING (default 5); --rig: '
+                    'release / align cycles after the first TRACKING (default 0)')
+    ap.add_argument('--storage', choices=('mcap', 'sqlite3'), default=None)
+    ap.add_argument('-p', '--param', action='append', default=[], metavar='NODE:NAME:=VALUE',
+                    help='override one parameter (NODE may be **)')
+    ap.add_argument('--trace', metavar='CSV', help='write t_s,r_m,y_m of every sample')
+    ap.add_argument('--summary', metavar='JSON', help='write the summary as JSON')
+    ap.add_argument('--strict', action='store_true',
+                    help='exit 1 when the run misses its realtime goals (missed cycles, '
+                         'watchdog trips, lost messages)')
+    ap.add_argument('--quiet', action='store_true', help="do not relay the nodes' output")
+    hw = ap.add_argument_group('hardware bench (docs/hardware.md)')
+    hw.add_argument('--emulate', action='store_true', help='with --hardware: start '
+                    '`fiber-align emulate` and use its serial_link and visa_resource')
+    hw.add_argument('--slot', type=float, metavar='M', help='--emulate: slot position (m)')
+    hw.add_argument('--hold', type=float, default=None, metavar='S',
+                    help='--hardware: hold TRACKING this long (s) after the cycles; '
+                         'default: until Ctrl-C')
+    a = ap.parse_args(argv)
+    # the launch arguments' combinations are describe()'s to check; these are bringup's
+    if not a.hardware and (a.emulate or a.slot is not None or a.hold is not None):
+        ap.error('--emulate, --slot and --hold need --hardware')
+    if a.slot is not None and a.rig:
+        ap.error('--slot is not available with --rig (--seed picks the emulated target)')
+    if a.emulate and (a.port or a.visa_resource):
+        ap.error('--emulate chooses the port and the VISA resource itself')
+    if a.cycles is not None and a.cycles < 0:
+        ap.error('--cycles must be >= 0, got %d' % a.cycles)
+    for path, opt in ((a.trace, '--trace'), (a.summary, '--summary'), (a.record, '--record')):
+        if path and not os.path.isdir(os.path.dirname(os.path.abspath(path))):
+            ap.error('%s %s: the folder %s does not exist'
+                     % (opt, path, os.path.dirname(os.path.abspath(path))))
+    return a
+
+
+def arguments(a, **given):
+    """Return the options ``a`` as launch arguments: ``{name: value}`` of ``ARGUMENTS``."""
+    out = {name: getattr(a, _dest(option)) for name, (option, _) in OPTIONS.items()}
+    out.update(composed=a.composed, **given)
+    return out
+
+
+def graph(a, **given):
+    """
+    Return ``(graph, source)`` the options ``a`` describe (and ``given`` launch arguments).
+
+    The graph is :func:`fiber_align.graph.arguments.describe` of :func:`arguments`, with
+    ``bringup``'s own options (``--rate``, ``--no-noise``, ``--storage``, ``-p``) as
+    overrides. The harness holds the simulated plants until the graph is connected
+    (``autostart`` false); with a scenario it ends the run itself (the runner's
+    ``exit_when_done`` false, ``duration_s`` set). ``source``: the scenario's setpoints
+    (:class:`~fiber_align.simulation.setpoints.Source`) or ``None``.
+
+    :raises GraphError: a bad option, params file or ``-p`` (exit code 2).
+    """
+    one_axis = not (a.rig or a.station or a.hardware)
+    bad = [opt for attr, opt in ONE_AXIS_OPTIONS if getattr(a, attr) and not one_axis]
+    if bad:
+        raise GraphError('%s: only on the simulated 1-D graph' % ', '.join(bad))
+    ov = {}
+    if a.rate:
+        ov['/**'] = {'rate_hz': float(a.rate)}
+    if a.no_noise:
+        ov[PLANT] = {'noise_rms_m': 0.0}
+    if a.storage:
+        ov[RECORDER] = {'storage': a.storage}
+    ov = parse_params(a.param, ov)
+    args = arguments(a, **given)
+    if a.rig or a.station:
+        ov[PLANT] = dict(ov.get(PLANT, {}), autostart=False)
+    g = describe(args, ov)
+    if not one_axis or g.scenario == 'none':
+        return g, None
+    ov[PLANT] = dict(ov.get(PLANT, {}), autostart=False)
+    src = None
+    if SCENARIO_RUNNER in g.nodes:
+        sp = g.node_params(SCENARIO_RUNNER)
+        src = Source(g.scenario, *setpoint_range(sp['setpoint_min_m'], sp['setpoint_max_m'],
+                                                 sp['reach_m']))
+        dur = a.duration or float(sp['duration_s']) or float(src.sc.duration_s)
+        ov[SCENARIO_RUNNER] = dict(ov.get(SCENARIO_RUNNER, {}), exit_when_done=False,
+                                   wait_for_recorder=False, duration_s=float(dur))
+    return describe(dict(args, scenario=g.scenario), ov), src
+
+
+def parse_params(items, ov):
+    """
+    Return ``ov`` (``{node or '/**': {name: value}}``) updated by ``-p`` items.
+
+    :param items: ``NODE:NAME:=VALUE`` strings (``NODE`` ``**`` = all nodes; VALUE YAML).
+    :raises ConfigError: an item that is not ``NODE:NAME:=VALUE`` or not YAML.
+    """
+    # NODE may be <axis>/<node> (the rig): the description checks the names
+    for item in items:
+        node, sep1, rest = item.partition(':')
+        name, sep2, value = rest.partition(':=')
+        if not (node and sep1 and name and sep2):
+            raise ConfigError('-p wants NODE:NAME:=VALUE, got %r' % item)
+        try:
+            parsed = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise ConfigError('-p %s: %r is not a YAML value' % (item, value)) from None
+        ov.setdefault('/**' if node in ('**', '/**') else node, {})[name] = parsed
+    return ov

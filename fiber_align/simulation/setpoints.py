@@ -1,0 +1,43 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+A scenario's setpoints at sample times, clamped as the graph clamps them (pure).
+
+Shared by the ``scenario_runner`` node (what it publishes) and ``bringup`` (the reference
+of its trace), so that both hold one rule: the references of
+:mod:`fiber_align.simulation.scenarios`, clamped to the setpoint limits and the plant's
+reach (:func:`setpoint_range`).
+"""
+
+from fiber_align.simulation import scenarios
+
+
+class Source:
+    """
+    A scenario's values at sample times.
+
+    :param name: a scenario of :func:`fiber_align.simulation.scenarios.make`.
+    :param lo: lowest setpoint (m).
+    :param hi: highest setpoint (m).
+    """
+
+    def __init__(self, name, lo=0.0, hi=float('inf')):
+        """Build the scenario of :mod:`fiber_align.simulation.scenarios`."""
+        self.sc = scenarios.make(name)
+        self.lo, self.hi = max(0.0, float(lo)), float(hi)
+
+    @property
+    def open_loop(self):
+        """Return True for an open-loop drive (V) instead of a setpoint (m)."""
+        return self.sc.open_loop
+
+    def value(self, t):
+        """Return the setpoint (m) or, open loop, the drive (V) at sample time ``t`` (s)."""
+        if self.sc.open_loop:
+            return self.sc.drive(t)
+        return min(max(self.sc.reference(t), self.lo), self.hi)
+
+
+def setpoint_range(lo, hi, reach_m):
+    """Return the clamp range (m) of the setpoints: ``[max(0, lo), min(hi, reach)]``."""
+    return max(0.0, float(lo)), (min(float(hi), float(reach_m)) if reach_m > 0
+                                 else float(hi))
