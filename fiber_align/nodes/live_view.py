@@ -49,6 +49,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from fiber_align.analysis import liveview as lv
+from fiber_align.analysis import powermap
 from fiber_align.config import ConfigError, load_params
 from fiber_align.nodes._msgtypes import message_class
 from fiber_align.nodes.ros.params import declare, node_defaults
@@ -205,12 +206,12 @@ class LiveViewNode(Node):
         self.last_align = None
         self.map = self.pairer = self.ch_map = None
         if p['power_map']:
-            self.map = lv.PowerMap(p['range_x_min_m'], p['range_x_max_m'],
-                                   p['range_y_min_m'], p['range_y_max_m'],
-                                   p['power_map_cell_m'])
-            self.pairer = lv.SamplePairer()
+            self.map = powermap.PowerMap(p['range_x_min_m'], p['range_x_max_m'],
+                                         p['range_y_min_m'], p['range_y_max_m'],
+                                         p['power_map_cell_m'])
+            self.pairer = powermap.SamplePairer()
             self.ch_map = self._json_channel(
-                own + '/power_map', lv.GRID_SCHEMA, 'every %g s: the brightest reading per '
+                own + '/power_map', powermap.GRID_SCHEMA, 'every %g s: the brightest reading per '
                 '%g m cell since the search began' % (p['power_map_period_s'],
                                                       p['power_map_cell_m']))
             self.map_state = None
