@@ -48,9 +48,10 @@ import re
 from typing import Dict, Optional, Tuple
 
 from fiber_align.config import config_dir, config_path, dump_params
+from fiber_align.control.factory import CONTROLLERS
 from fiber_align.graph.params import (
     check_user, COMPENSATOR, CONTROLLER, DRIVER, effective, GraphError, LIFECYCLE_MANAGER,
-    LIVE_VIEW, merge_params, PLANT, RECORDER, SCENARIO_RUNNER, SEQUENCER)
+    LIVE_VIEW, merge_params, PLANT, RECORDER, SCENARIO_RUNNER, SEQUENCER, SYNC_MODES)
 from fiber_align.plant.actuator import PARAM_KEYS, SimulatedActuator
 
 PACKAGE = 'fiber_align'
@@ -174,9 +175,6 @@ OPTIONAL_FILES = ()
 #: Graph-wide params file, merged after the per-area files.
 GRAPH_FILE = 'fiber_align.yaml'
 
-SYNC_MODES = ('realtime', 'lockstep')
-#: Control laws, as in ``fiber-align simulate --controller``.
-CONTROLLERS = ('composite', 'composite-pid', 'fuzzy', 'pid', 'feedforward', 'open-loop')
 SCENARIOS = ('none', 'step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment',
              'align')
 

@@ -79,7 +79,7 @@ def parse_args(argv):
     ap.add_argument('--duration', type=_positive(float, '--duration'), default=None,
                     help="scenario length (s of sample time; default: the scenario's); "
                     '--rig, --station: hold TRACKING this long after the cycles')
-    ap.add_argument('--sync', choices=('realtime', 'lockstep'), default=None,
+    ap.add_argument('--sync', choices=gd.SYNC_MODES, default=None,
                     help='sample clock (default: sync_mode of fiber_align.yaml)')
     ap.add_argument('--controller', choices=gd.CONTROLLERS, default=None,
                     help='control law (default: controller of fiber_align.yaml)')
