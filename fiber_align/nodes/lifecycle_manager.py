@@ -25,12 +25,13 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallb
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
+from fiber_align.graph.description import NODES
 from fiber_align.nodes.ros.diagnostics import ERROR, Health, OK
 from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults
 from fiber_align.nodes.ros.runtime import run_node
 
-NODE_NAME = 'lifecycle_manager'
-AREA_FILES = ('lifecycle_manager.yaml',)
+#: the registry's entry of this node: its name and params files
+SPEC = NODES['lifecycle_manager']
 #: lifecycle_msgs State ids and Transition ids used here (lifecycle_msgs/msg/*).
 UNCONFIGURED, INACTIVE, ACTIVE, FINALIZED = 1, 2, 3, 4
 CONFIGURE, CLEANUP, ACTIVATE, DEACTIVATE = 1, 2, 3, 4
@@ -43,8 +44,8 @@ class LifecycleManager(Node):
 
     def __init__(self, **kwargs):
         """Declare the parameters (defaults from config/), create the services."""
-        super().__init__(NODE_NAME, **kwargs)
-        d = node_defaults(NODE_NAME, AREA_FILES)
+        super().__init__(SPEC.node, **kwargs)
+        d = node_defaults(SPEC.node, SPEC.configs)
         d = dict({'managed_nodes': [], 'autostart': True}, **d)
         declare(self, d, 'managed_nodes', 'lifecycle nodes to configure and activate, in '
                 'order (relative or absolute names)', read_only=True)
@@ -242,7 +243,7 @@ class LifecycleManager(Node):
 
 def main(args=None):
     """Run the node (bad parameters: one line, exit 2)."""
-    return run_node(LifecycleManager, NODE_NAME, args, realtime=lambda node: False,
+    return run_node(LifecycleManager, SPEC.node, args, realtime=lambda node: False,
                     threads=3)
 
 
