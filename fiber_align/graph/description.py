@@ -510,7 +510,7 @@ def build(namespace='', composed=None, sync_mode='', controller='', params_file=
     if record:
         procs.append(Process(RECORDER, RECORDER, (RECORDER,), node_name=RECORDER))
     managed = tuple(n for n in nodes if NODES[n].lifecycle)
-    over[LIFECYCLE_MANAGER] = {'managed_nodes': list(managed)}
+    over[LIFECYCLE_MANAGER] = {'node_names': list(managed)}
     return Graph(namespace=ns, composed=composed, sync_mode=sync, controller=law,
                  scenario=scen, record=record, processes=tuple(procs),
                  params_files=tuple(files), overrides=over, remappings=REMAPPINGS,

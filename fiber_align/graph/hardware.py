@@ -67,7 +67,7 @@ def build_hardware(port='', visa_resource='', namespace='', composed=None, param
         over[DRIVER] = {'port': str(port)}
     if visa_resource:
         over[POWER_METER] = {'resource': str(visa_resource)}
-    over[LIFECYCLE_MANAGER] = {'managed_nodes': [DRIVER]}
+    over[LIFECYCLE_MANAGER] = {'node_names': [DRIVER]}
     over = gr.add_overrides(over, overrides)
     merged = merge_params(files, over, base.namespace)
     wide = effective(merged, DRIVER, base.namespace)

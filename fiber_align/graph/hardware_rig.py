@@ -138,7 +138,7 @@ def build_hardware_rig(port='', visa_resource='', namespace=RIG_NAMESPACE, compo
         over[AMPLIFIER] = {'port': str(port)}
     if visa_resource:
         over[POWER_METER] = {'resource': str(visa_resource)}
-    over[LIFECYCLE_MANAGER] = {'managed_nodes': [AMPLIFIER]}
+    over[LIFECYCLE_MANAGER] = {'node_names': [AMPLIFIER]}
     over = g.add_overrides(over, overrides)
     merged = merge_params(files, over)
     amp = effective(merged, AMPLIFIER)

@@ -212,7 +212,7 @@ def build_rig(namespace=RIG_NAMESPACE, composed=None, sync_mode='', controller='
     over['y/' + PLANT] = {'seed': seeds['plant_y'], 'publish_clock': False}
     over[OPTICS] = {'seed': seeds['detector'], 'target.position_x_m': target[0],
                     'target.position_y_m': target[1]}
-    over[LIFECYCLE_MANAGER] = {'managed_nodes': list(MANAGED)}
+    over[LIFECYCLE_MANAGER] = {'node_names': list(MANAGED)}
     over = g.add_overrides(over, overrides)
     sync, law = in_effect(files, over)
     return RigGraph(namespace=ns, composed=composed, sync_mode=sync, controller=law,

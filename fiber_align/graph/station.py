@@ -77,7 +77,7 @@ def build_station(namespace=STATION_NAMESPACE, composed=None, sync_mode='', cont
     for i, a in enumerate(AXES):
         over['%s/%s' % (a, PLANT)] = {'seed': seeds['plant'] + i, 'publish_clock': i == 0}
     over[OPTICS] = dict(zip(FACET_KEYS, sc.random_facets(seed)), seed=seeds['detector'])
-    over[LIFECYCLE_MANAGER] = {'managed_nodes': list(MANAGED)}
+    over[LIFECYCLE_MANAGER] = {'node_names': list(MANAGED)}
     if record:
         record = os.path.abspath(record)
         if os.path.exists(record):
