@@ -196,7 +196,7 @@ class Process:
         processes only; ``None`` for a process hosting several nodes).
     :ivar ends_graph: the graph stops when this process exits (it hosts
         ``scenario_runner``, which exits when its scenario is over).
-    :ivar namespace: the process's own namespace (the rig's axes, ``graph_rig.py``);
+    :ivar namespace: the process's own namespace (the rig's axes, ``graph/rig.py``);
         ``None``: the graph's.
     """
 

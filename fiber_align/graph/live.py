@@ -17,12 +17,11 @@ import socket
 
 from fiber_align.config import config_path
 from fiber_align.graph import description as gd
-from fiber_align.graph.params import GraphError, LIVE_VIEW
+from fiber_align.graph.params import GraphError, LIVE_VIEW, SEQUENCER_2D
 
 #: The view's params file (in ``config/``).
 LIVE_FILE = 'live_view.yaml'
-#: The 2-D sequencer's node and the keys of its range (the power map's extent).
-SEQUENCER_2D = 'alignment_sequencer_2d'
+#: The keys of the 2-D sequencer's range (the power map's extent).
 RANGE_KEYS = ('range_x_min_m', 'range_x_max_m', 'range_y_min_m', 'range_y_max_m')
 
 

@@ -2,8 +2,8 @@
 """
 The two-axis rig of the fiber_align graph, described once (pure Python: no rclpy).
 
-Built on :mod:`fiber_align.graph.description` (its :class:`~graph.Process`, params merge and
-checks) and used by the launch file (``rig:=true``) and ``bringup --rig``. Under one rig
+Built on :mod:`fiber_align.graph.description` (its :class:`~.description.Process`, params
+merge and checks) and used by the launch file (``rig:=true``) and ``bringup --rig``. Under one rig
 namespace (``rig`` unless told):
 
 - ``/rig/x/...`` and ``/rig/y/...``: two actuator graphs, each the control nodes of the
@@ -40,15 +40,13 @@ from typing import Tuple
 from fiber_align.config import config_dir
 from fiber_align.graph import description as g
 from fiber_align.graph.params import (check_user, DRIVER, effective, GraphError, LIFECYCLE_MANAGER,
-                                      LIVE_VIEW, merge, merge_params, PLANT, RECORDER,
-                                      wildcard_first)
+                                      LIVE_VIEW, merge, merge_params, OPTICS_2D as OPTICS,
+                                      PLANT, RECORDER, SEQUENCER_2D, wildcard_first)
 from fiber_align.simulation import seeds2d
 
 RIG_NAMESPACE = 'rig'
 AXES = ('x', 'y')
-OPTICS = 'simulated_optics_2d'
-SEQUENCER_2D = 'alignment_sequencer_2d'
-#: The rig's own nodes: name -> executable (from the registry, :data:`~graph.NODES`).
+#: The rig's own nodes: name -> executable (from the registry, :data:`~.description.NODES`).
 RIG_NODES = {g.NODES[n].node: g.NODES[n].executable for n in (OPTICS, SEQUENCER_2D)}
 #: Each axis's nodes, in start order (the 1-D graph without a setpoint source).
 AXIS_NODES = g.control_nodes('none')
@@ -63,7 +61,7 @@ MANAGED = tuple('%s/%s' % (a, DRIVER) for a in AXES)
 @dataclass(frozen=True)
 class RigGraph(g.Graph):
     """
-    The rig (a :class:`~graph.Graph` whose processes carry their own namespaces).
+    The rig (a :class:`~.description.Graph` whose processes carry their own namespaces).
 
     Node names relative to the rig namespace: ``x/simulated_actuator``, ...,
     ``simulated_optics_2d``. ``overrides`` keys: ``/**``, a bare node name (both axes'
@@ -97,7 +95,7 @@ class RigGraph(g.Graph):
             if n in base:
                 out['%s/%s' % (root, n)] = base[n]
         # a copy per section: no shared mappings, so no YAML aliases in the params file;
-        # /** first, as graph.py writes it (graph_params.wildcard_first)
+        # /** first, as description.py writes it (graph.params.wildcard_first)
         return wildcard_first({k: copy.deepcopy(v) for k, v in out.items()})
 
     def node_params(self, node):

@@ -34,14 +34,14 @@ sample k, so the four plants and the optics advance in step; the in/x plant publ
 import os
 
 from fiber_align.graph import description as g
-from fiber_align.graph.params import GraphError, LIFECYCLE_MANAGER, PLANT, RECORDER
+from fiber_align.graph.params import (GraphError, LIFECYCLE_MANAGER, PLANT, RECORDER,
+                                      STATION_OPTICS as OPTICS,
+                                      STATION_SEQUENCER as SEQUENCER)
 from fiber_align.graph.rig import in_effect, multi_axis_start, rig_processes, RigGraph
 from fiber_align.simulation import station_scenarios as sc
 
 STATION_NAMESPACE = 'station'
 AXES = g.STATION_AXES
-OPTICS = 'simulated_station_optics'
-SEQUENCER = 'station_sequencer'
 #: The station's own nodes: name -> executable.
 OWN_NODES = {n: g.NODES[n].executable for n in (OPTICS, SEQUENCER)}
 MANAGED = tuple('%s/actuator_driver' % a for a in AXES)

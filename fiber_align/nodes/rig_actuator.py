@@ -3,7 +3,7 @@
 ``rig_actuator`` (node ``simulated_actuator``): one axis's plant in the two-axis rig.
 
 The 1-D graph's :class:`~fiber_align.nodes.simulated_actuator.SimulatedActuatorNode`,
-unchanged, plus what the rig needs from each axis (``graph_rig.py`` runs this executable
+unchanged, plus what the rig needs from each axis (``graph/rig.py`` runs this executable
 in ``/rig/x`` and ``/rig/y``):
 
 - pub ``tip_position`` (sensor_msgs/JointState, joint ``bimorph_tip``: ``position[0]`` the

@@ -52,7 +52,7 @@ from fiber_align.simulation import scenarios
 #: the registry's entry of this node: its name and params files
 SPEC = NODES['scenario_runner']
 SCENARIOS = ('step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment')
-#: Accepted as a parameter value; ``none`` starts no runner (graph.py, bringup).
+#: Accepted as a parameter value; ``none`` starts no runner (graph/description.py, bringup).
 CHOICES = ('none',) + SCENARIOS
 
 

@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-``bringup --rig``: start the two-axis rig (``graph_rig.py``), run ``align2d``, stop.
+``bringup --rig``: start the two-axis rig (``graph/rig.py``), run ``align2d``, stop.
 
 Sequence: write the rig's params file (plants held: ``autostart`` false), start its
 processes (:mod:`~fiber_align.nodes.bringup.children`), wait until ``lifecycle_manager``

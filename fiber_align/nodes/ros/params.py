@@ -177,9 +177,9 @@ def declare_shaping(node, defaults):
     Declare the reference shaping and design-model parameters (read-only); return them.
 
     The compensator's shaper and the controller's reference model are built from these
-    values; the graph keeps them one value for both (:data:`graph.SHARED`).
+    values; the graph keeps them one value for both (:data:`fiber_align.graph.params.SHARED`).
 
-    :returns: ``{name: value}`` of :data:`graph.SHAPING_KEYS` (SI units).
+    :returns: ``{name: value}`` of :data:`fiber_align.graph.params.SHAPING_KEYS` (SI units).
     """
     out = {'shaping': declare(node, defaults, 'shaping',
                               'resonance suppression of the reference', read_only=True,
