@@ -42,18 +42,6 @@ WARN_LEVEL = b'\x01'
 NAMESPACE = 'parameters_test'
 
 
-@pytest.fixture
-def ctx():
-    """Yield a private rclpy context, shut down after the test (no global state left)."""
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    nodes = []
-    yield context, nodes
-    for n in nodes:
-        n.destroy_node()
-    rclpy.shutdown(context=context)
-
-
 def make(ctx, cls, *overrides, params_file=None):
     """Build node ``cls`` with ``-p`` ``overrides`` (``name:=value``) and a params file."""
     context, nodes = ctx
