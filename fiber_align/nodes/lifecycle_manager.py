@@ -2,17 +2,13 @@
 """
 ``lifecycle_manager``: bring the graph's managed (lifecycle) nodes to active, in order.
 
-The stand-in for nav2's ``lifecycle_manager`` (``nav2_lifecycle_manager``), which a pip
-install of ROS 2 lacks, with its parameter names: swap it for nav2's where nav2 is
-installed. It works whatever process hosts the managed nodes (one per node or the
-composed ``control_graph``).
-
-Parameters (defaults in ``config/lifecycle_manager.yaml``; the graph descriptions in
-:mod:`fiber_align.graph` set ``node_names``): ``node_names`` (as nav2's: activated in
-this order, deactivated in the reverse), ``autostart`` (as nav2's), ``service_timeout_s``
-(s: the bound on each wait for a node's lifecycle services and on each call),
-``diagnostics_period_s``. ``managed_nodes``, this parameter's name before, is an alias of
-``node_names``: set, it wins, with one deprecation WARN.
+The stand-in for nav2's ``lifecycle_manager``, which a pip install of ROS 2 lacks, with
+its parameter names (swap it for nav2's where that is installed); any process may host
+the managed nodes. Parameters (defaults in ``config/lifecycle_manager.yaml``; the graph
+descriptions set ``node_names``): ``node_names`` and ``autostart`` as nav2's (activated in
+this order, deactivated in the reverse), ``service_timeout_s`` (s: the bound on each
+wait for services and on each call), ``diagnostics_period_s``. ``managed_nodes``, the
+old name of ``node_names``, still works: set, it wins, with one deprecation WARN.
 
 Services (std_srvs/Trigger): ``~/startup`` (configure what is unconfigured, activate
 what is inactive) and ``~/shutdown`` (deactivate, clean up: the nodes end
@@ -32,6 +28,7 @@ from std_srvs.srv import Trigger
 
 from fiber_align.graph.description import NODES
 from fiber_align.nodes.ros.diagnostics import ERROR, Health, OK
+from fiber_align.nodes.ros.lifecycle import call_bounded
 from fiber_align.nodes.ros.params import (
     declare, declare_graph_values, descriptor, node_defaults)
 from fiber_align.nodes.ros.runtime import run_node
@@ -77,11 +74,7 @@ class LifecycleManager(Node):
                 0.01, self._autostart, callback_group=MutuallyExclusiveCallbackGroup())
 
     def _node_names(self):
-        """
-        Return ``node_names``, or ``managed_nodes`` (deprecated alias) when that is set.
-
-        The alias has no default (declared by type only): set, it wins, with one WARN.
-        """
+        """Return ``node_names``, or the deprecated alias (no default) when it is set."""
         self.declare_parameter(
             DEPRECATED_NAMES, Parameter.Type.STRING_ARRAY, descriptor(
                 'deprecated: use node_names (same meaning)', read_only=True))
@@ -215,36 +208,9 @@ class LifecycleManager(Node):
         return None
 
     def _call(self, name, srv, request, resend_s=None):
-        """
-        Call a service with a bounded wait; return the response or the reason (str).
-
-        :param resend_s: for a query (``get_state``): send the request again when no
-            answer came within this many seconds (a server may drop its response while
-            the discovery of this client is still under way).
-        """
-        cl = self._client(name, srv)
-        done = threading.Event()
-        end = time.monotonic() + self._timeout()
-        futs, sent = [], 0.0
-        while not futs or not done.wait(WAIT_SLICE_S):
-            now = time.monotonic()
-            if futs and (now >= end or not self.context.ok()):
-                for f in futs:
-                    cl.remove_pending_request(f)
-                return 'no answer from %s within %g s' % (cl.srv_name, self._timeout())
-            if not futs or (resend_s is not None and now - sent >= resend_s):
-                fut = cl.call_async(request)
-                fut.add_done_callback(lambda f: done.set())
-                futs.append(fut)
-                sent = now
-        fut = next(f for f in futs if f.done())     # the first answer of any request
-        for f in futs:
-            if f is not fut and not f.done():
-                cl.remove_pending_request(f)
-        exc = fut.exception()
-        if exc is not None:
-            return '%s failed: %s' % (cl.srv_name, exc)
-        return fut.result()
+        """Call a service (bounded, :func:`call_bounded`); the response or why (str)."""
+        return call_bounded(self._client(name, srv), request, self._timeout(),
+                            self.context.ok, resend_s, WAIT_SLICE_S)
 
     def _get_state(self, name):
         from lifecycle_msgs.srv import GetState
