@@ -59,6 +59,7 @@ import time
 
 from fiber_align import cli
 from fiber_align.graph.description import build
+from fiber_align.graph.params import SYNC_MODES
 from fiber_align.jsonout import json_restore
 from fiber_align.analysis.run_summary import scenario_skip_s
 from fiber_align.simulation.metrics import run_scores
@@ -83,7 +84,7 @@ def parse_args(argv=None):
                     help='short runs (0.3 s sine and triangle, one switch cycle)')
     ap.add_argument('--out', default=None,
                     help='output directory (default runs/demo-<YYYYmmdd-HHMMSS>)')
-    ap.add_argument('--sync', choices=('lockstep', 'realtime'), default='lockstep')
+    ap.add_argument('--sync', choices=SYNC_MODES, default='lockstep')
     ap.add_argument('--multi-process', action='store_true',
                     help='every node its own process (default: the control nodes in one '
                          'control_graph process; the recorder is always separate)')

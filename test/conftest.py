@@ -174,3 +174,21 @@ def _no_global_state_left(request):
         pytest.fail(f'{request.node.nodeid} left global state behind: environment '
                     f'{changed}, cwd {now!r} (was {cwd!r}); use monkeypatch.setenv / '
                     f'monkeypatch.chdir', pytrace=False)
+
+
+@pytest.fixture
+def ctx():
+    """
+    Yield ``(context, nodes)``: a private rclpy context, its nodes destroyed after.
+
+    A test that builds nodes in this process (in ``nodes``) on a context of its own, shut
+    down after it: no global rclpy state is left. The test is marked ``ros``.
+    """
+    import rclpy
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    nodes = []
+    yield context, nodes
+    for n in nodes:
+        n.destroy_node()
+    rclpy.shutdown(context=context)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from fiber_align.analysis import liveview as lv
+from fiber_align.analysis import powermap
 from fiber_align.analysis.bag.common import typestore
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -90,7 +91,7 @@ def test_cdr_decoders_read_what_rosbags_serialises():
 
 
 def test_pairer_pairs_as_the_realtime_sequencer():
-    p = lv.SamplePairer()
+    p = powermap.SamplePairer()
     assert p.x(1.0) is None                 # no y, no power yet
     p.y(2.0)
     p.power(1e-6)
@@ -100,7 +101,7 @@ def test_pairer_pairs_as_the_realtime_sequencer():
 
 
 def test_power_map_keeps_the_brightest_reading_per_cell_and_its_grid_says_so():
-    m = lv.PowerMap(0.0, 65e-6, 0.0, 65e-6, 0.5e-6)
+    m = powermap.PowerMap(0.0, 65e-6, 0.0, 65e-6, 0.5e-6)
     assert (m.nx, m.ny) == (130, 130) and m.peak() is None
     rng = np.random.default_rng(0)
     peak = (31.3e-6, 40.9e-6)
@@ -111,8 +112,8 @@ def test_power_map_keeps_the_brightest_reading_per_cell_and_its_grid_says_so():
     assert math.hypot(x - peak[0], y - peak[1]) < 0.75e-6     # within a cell diagonal
     g = json.loads(lv.json_bytes(m.grid(1_000_000_123, 'rig')))
     assert g['timestamp'] == {'sec': 1, 'nsec': 123} and g['column_count'] == 130
-    assert g['row_stride'] == 130 * 4 and g['fields'][0]['type'] == lv.FLOAT32
-    gx, gy, v = lv.grid_peak(g)
+    assert g['row_stride'] == 130 * 4 and g['fields'][0]['type'] == powermap.FLOAT32
+    gx, gy, v = powermap.grid_peak(g)
     assert (gx, gy) == pytest.approx((x, y)) and v == pytest.approx(lv.dbm(p), abs=1e-4)
     m.reset()
     assert m.peak() is None and m.count == 0

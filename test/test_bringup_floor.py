@@ -93,7 +93,8 @@ def test_the_probe_counts_the_periods_of_its_run_and_stops_on_sigint(tmp_path):
     assert probe.proc.returncode == 0
     # about a second of 1 kHz periods (start-up of the interpreter not counted)
     assert 500 <= f['periods'] <= 1500 and f['rate_hz'] == 1000.0
-    assert f['scheduling'] == 'SCHED_OTHER' and 0.0 <= f['lost_share'] <= 1.0
+    assert f['scheduling'] == 'SCHED_OTHER'
+    assert f['lost_share'] == pytest.approx(f['lost'] / f['periods']) and f['lost_share'] < 0.1
     assert f['lost'] >= f['stalls'] == len(f['stall_times_s'])
     # the machine's speed: a fixed piece of work, timed on about every tenth tick
     assert 1e-7 < f['work_median_s'] < 0.05, f

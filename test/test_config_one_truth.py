@@ -112,3 +112,76 @@ def test_the_check_sees_a_value_set_in_two_files(tmp_path, monkeypatch):
     places = where_set(('a.yaml', 'b.yaml'))
     assert places['rate_hz'] == [('a.yaml', 'x'), ('b.yaml', '/**')]
     assert places[('x', 'k')] == [('a.yaml', 'x'), ('b.yaml', 'x')]
+
+
+NODES_DIR = Path(__file__).resolve().parents[1] / 'fiber_align' / 'nodes'
+
+
+def graph_values_declared(path):
+    """
+    Return the graph-wide names a node module declares (``declare_graph_values`` calls).
+
+    A starred argument (``*GRAPH``) is resolved through the module's own tuple of that
+    name; an imported one (``*PRIORITY``, the scheduling values) is not a shared value.
+    """
+    import ast
+    tree = ast.parse(path.read_text(encoding='utf-8'))
+    tuples = {t.id: node.value for node in tree.body if isinstance(node, ast.Assign)
+              for t in node.targets if isinstance(t, ast.Name)}
+    out = set()
+    for call in ast.walk(tree):
+        if not (isinstance(call, ast.Call) and getattr(call.func, 'id', '') ==
+                'declare_graph_values'):
+            continue
+        for arg in call.args:
+            if isinstance(arg, ast.Starred) and isinstance(arg.value, ast.Name):
+                arg = tuples.get(arg.value.id)      # a tuple, or tuples added together
+            out.update(i.value for i in (ast.walk(arg) if arg is not None else ())
+                       if isinstance(i, ast.Constant) and isinstance(i.value, str))
+    return out
+
+
+def declared_by_node():
+    """Return ``{node name: graph-wide names it declares}`` over the registry's nodes."""
+    out = {}
+    for spec in description.NODES.values():
+        path = NODES_DIR / (spec.executable + '.py')
+        if not path.exists():
+            continue
+        text = path.read_text(encoding='utf-8')
+        names = graph_values_declared(path)
+        # the helper modules of an executable (fiber_align.nodes._<name>) declare for it
+        for helper in sorted(NODES_DIR.glob('_*.py')):
+            if 'fiber_align.nodes.%s import' % helper.stem in text:
+                names |= graph_values_declared(helper)
+        out.setdefault(spec.node, set()).update(names)
+    return out
+
+
+@pytest.mark.parametrize('name', ['rate_hz', 'sync_mode'])
+def test_every_node_that_declares_the_graph_rate_or_sync_mode_gets_the_graph_value(name):
+    declaring = {node for node, names in declared_by_node().items() if name in names}
+    # the scan sees the loop's nodes and the nodes of several axes (a scan that saw none
+    # would pass anything)
+    assert {'simulated_actuator', 'station_sequencer', 'simulated_optics_2d'} <= declaring
+    assert declaring - set(SHARED[name]) == set(), (
+        'these nodes declare %s but graph.params.SHARED does not give them the graph '
+        'value' % name)
+
+
+@pytest.mark.parametrize('node', ['station_sequencer', 'simulated_station_optics',
+                                  'alignment_sequencer_2d', 'simulated_optics_2d'])
+def test_a_user_file_cannot_give_a_multi_axis_node_a_rate_of_its_own(tmp_path, node):
+    from fiber_align.graph.params import effective, GraphError, merge_params
+    files = [CONFIG / f for f in BASE + rig.RIG_FILES]
+    user = tmp_path / 'user.yaml'
+    user.write_text('%s:\n  ros__parameters:\n    rate_hz: 500.0\n' % node)
+    merged = merge_params(files + [user])
+    for n in (node, 'simulated_actuator', 'actuator_driver'):
+        assert effective(merged, n)['rate_hz'] == 500.0, n
+    merged = merge_params(files, overrides={node: {'rate_hz': 250.0}})
+    assert effective(merged, 'simulated_actuator')['rate_hz'] == 250.0
+    user.write_text('%s:\n  ros__parameters:\n    rate_hz: 500.0\n'
+                    'simulated_actuator:\n  ros__parameters:\n    rate_hz: 1000.0\n' % node)
+    with pytest.raises(GraphError, match='rate_hz is one value'):
+        merge_params(files + [user])

@@ -37,7 +37,7 @@ def test_hardware_graph_description(tmp_path):
         'mdt693b', '/dev/ttyUSB7', True, 0.0)
     assert g.node_params('power_meter')['resource'] == 'TCPIP::h::1::SOCKET'
     assert g.node_params('alignment_sequencer')['rate_hz'] == 100.0
-    assert g.node_params('lifecycle_manager')['managed_nodes'] == ['actuator_driver']
+    assert g.node_params('lifecycle_manager')['node_names'] == ['actuator_driver']
     assert g.controller == 'feedforward' and g.managed_nodes == ('actuator_driver',)
     assert 'simulated_actuator' not in g.nodes and 'fuzzy_pid_controller' not in g.nodes
     # the simulated graph is untouched: no hardware file, the topic backend

@@ -38,6 +38,7 @@ import numpy as np
 import pytest
 
 from fiber_align.analysis import liveview as lv
+from fiber_align.analysis import powermap
 from fiber_align.graph import description as gd
 from fiber_align.graph.live import graph_published, with_live
 from procs import stop
@@ -375,7 +376,7 @@ def test_rig_power_map_peaks_within_1_um_of_the_aligned_point(tmp_path):
     states = [json.loads(p) for s, _, p, _ in c.data if s == 2]
     aligned = [s for s in states if s.get('state') == 'TRACKING'][-1]
     grid = json.loads([p for s, _, p, _ in c.data[n:] if s == 1][-1])
-    x, y, peak_dbm = lv.grid_peak(grid)
+    x, y, peak_dbm = powermap.grid_peak(grid)
     assert math.hypot(x - aligned['aligned_x_m'], y - aligned['aligned_y_m']) <= 1 * UM, (
         (x, y), (aligned['aligned_x_m'], aligned['aligned_y_m']))
     assert peak_dbm > -30.0                 # light at the peak

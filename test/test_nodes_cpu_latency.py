@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: Apache-2.0
-"""The realtime processes' PM QoS request (``nodes.ros.runtime.CpuLatencyRequest``)."""
+"""The realtime processes' PM QoS request (``nodes.ros.scheduling.CpuLatencyRequest``)."""
 
 import os
 import struct
@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from fiber_align.nodes.ros.runtime import CpuLatencyRequest
+from fiber_align.nodes.ros.scheduling import CpuLatencyRequest
 
 PATH = CpuLatencyRequest.PATH
 
@@ -60,7 +60,7 @@ def test_the_request_ends_with_a_killed_process():
     before = _target_us() if writable else None
     child = subprocess.Popen(
         [sys.executable, '-c', 'import sys, time\n'
-         'from fiber_align.nodes.ros.runtime import CpuLatencyRequest\n'
+         'from fiber_align.nodes.ros.scheduling import CpuLatencyRequest\n'
          'print(CpuLatencyRequest().hold(), flush=True)\ntime.sleep(60)'],
         stdout=subprocess.PIPE, text=True)
     try:

@@ -1,12 +1,17 @@
 # SPDX-License-Identifier: Apache-2.0
-"""A node's Health: the endpoint check runs in the process's slack, a topic per job."""
+"""
+A node's Health: the diagnostic_updater shape; the endpoint check runs in the slack.
+
+The shape of ``diagnostic_updater.Updater`` (tasks, the status wrapper, ``summary``) so
+the stand-in can be swapped for it; the endpoint check, a topic per job of the slack.
+"""
 
 from types import SimpleNamespace
 
 from std_msgs.msg import Float64
 
 from fiber_align.control.cycle import Slack
-from fiber_align.nodes.ros.diagnostics import Health, WARN
+from fiber_align.nodes.ros.diagnostics import ERROR, Health, OK, StatusWrapper, WARN
 
 
 class FakeNode:
@@ -147,3 +152,56 @@ def test_with_a_sender_the_listing_is_the_processs_not_a_query_on_the_control_th
     health.publish()
     assert '/t3: /outsider publishes std_msgs/msg/String' in \
         node.published[-1].status[0].message
+
+
+def test_a_task_fills_a_status_of_its_own_named_as_the_updater_names_it():
+    node = FakeNode([], [], {})
+    health = Health(node)
+    health.summary(OK, 'running')
+
+    def temperature(stat):
+        stat.summary(WARN, 'warm')
+        stat.add('temperature_k', 330.0)
+    health.add('temperature', temperature)
+    health.force_update()
+    own, task = node.published[-1].status
+    assert own.name == '/compensator' and own.message == 'running'
+    assert own.level == bytes([OK])
+    assert task.name == '/compensator: temperature' and task.message == 'warm'
+    assert task.level == bytes([WARN])
+    assert [(v.key, v.value) for v in task.values] == [('temperature_k', '330.0')]
+
+
+def test_a_task_object_and_a_failing_task():
+    node = FakeNode([], [], {})
+    health = Health(node)
+
+    class Task:
+        name = 'broken'
+
+        def run(self, stat):
+            raise RuntimeError('no sensor')
+    health.add(Task())
+    health.force_update()
+    task = node.published[-1].status[1]
+    assert task.name == '/compensator: broken' and task.level == bytes([ERROR])
+    assert 'RuntimeError: no sensor' in task.message
+
+
+def test_status_is_the_old_name_of_summary():
+    node = FakeNode([], [], {})
+    health = Health(node)
+    health.status(WARN, 'limits off')
+    health.publish()
+    st = node.published[-1].status
+    assert len(st) == 1 and st[0].level == bytes([WARN]) and st[0].message == 'limits off'
+
+
+def test_merge_summary_keeps_the_worse_and_joins_equals():
+    stat = StatusWrapper('x')
+    stat.merge_summary(WARN, 'a')
+    stat.merge_summary(OK, 'fine')
+    stat.merge_summary(WARN, 'b')
+    assert (stat.level, stat.message) == (WARN, 'a; b')
+    stat.merge_summary(ERROR, 'c')
+    assert (stat.level, stat.message) == (ERROR, 'c')

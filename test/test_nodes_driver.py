@@ -21,12 +21,12 @@ import pytest
 from std_msgs.msg import Float64
 
 from fiber_align.nodes.actuator_driver import ActuatorDriverNode
-from test_nodes_parameters import ctx, make  # noqa: F401 (ctx: a fixture)
+from test_nodes_parameters import make
 
 pytestmark = pytest.mark.ros
 
 
-def test_pairs_before_activate_are_driven_at_activate_in_order(ctx):  # noqa: F811
+def test_pairs_before_activate_are_driven_at_activate_in_order(ctx):
     """ff/fb of samples 0 and 1 arrive while inactive: two drives at activate, in order."""
     drv = make(ctx, ActuatorDriverNode, 'sync_mode:=lockstep')
     drv.trigger_configure()
@@ -44,7 +44,7 @@ def test_pairs_before_activate_are_driven_at_activate_in_order(ctx):  # noqa: F8
     assert sent == [11.0, 11.5, 13.25]  # active: each pair at once
 
 
-def test_a_reactivated_driver_does_not_trip_on_its_inactive_time(ctx):  # noqa: F811
+def test_a_reactivated_driver_does_not_trip_on_its_inactive_time(ctx):
     """Deactivate, wait beyond the watchdog timeout, activate: the first tick is no trip."""
     drv = make(ctx, ActuatorDriverNode)
     assert drv.get_parameter('sync_mode').value == 'realtime'

@@ -48,7 +48,7 @@ def test_multi_process_graph_is_one_process_per_node():
     assert (g.sync_mode, g.controller, g.scenario, g.record) == (
         'realtime', 'composite', 'none', '')
     assert g.managed_nodes == ('actuator_driver',)
-    assert g.node_params('lifecycle_manager')['managed_nodes'] == ['actuator_driver']
+    assert g.node_params('lifecycle_manager')['node_names'] == ['actuator_driver']
     # every executable of this layout is a console script ros2 run can find
     assert set(p.executable for p in g.processes) <= set(setup_py_nodes())
 

@@ -40,7 +40,7 @@ def test_composed_rig_is_one_process_hosting_both_axes_and_the_rig_nodes():
         'x/rig_actuator', 'x/hysteresis_compensator', 'x/fuzzy_pid_controller',
         'x/actuator_driver'] and hosted[-2:] == ['simulated_optics_2d',
                                                  'alignment_sequencer_2d']
-    assert g.node_params('lifecycle_manager')['managed_nodes'] == [
+    assert g.node_params('lifecycle_manager')['node_names'] == [
         'x/actuator_driver', 'y/actuator_driver']
 
 

@@ -197,7 +197,7 @@ def test_a_parent_gone_before_the_watch_is_seen_at_once(tmp_path):
 NODES = {
     'control_graph': ([], 'scheduling:'),
     # waits for a driver that is not there: a service wait is under way at the SIGINTs
-    'lifecycle_manager': (['--ros-args', '-p', 'managed_nodes:=[actuator_driver]'],
+    'lifecycle_manager': (['--ros-args', '-p', 'node_names:=[actuator_driver]'],
                           'waiting for actuator_driver'),
 }
 #: s: the period of the SIGINTs after the first, until the process is gone.

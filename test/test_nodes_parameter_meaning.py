@@ -29,18 +29,6 @@ pytestmark = pytest.mark.ros
 NAMESPACE = 'parameter_meaning_test'
 
 
-@pytest.fixture
-def ctx():
-    """Yield ``(context, nodes)``: a private rclpy context, its nodes destroyed after."""
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    nodes = []
-    yield context, nodes
-    for n in nodes:
-        n.destroy_node()
-    rclpy.shutdown(context=context)
-
-
 def make(ctx, cls, *overrides):
     """Build node ``cls`` in :data:`NAMESPACE` with ``-p`` ``overrides``."""
     context, nodes = ctx

@@ -42,18 +42,6 @@ WARN_LEVEL = b'\x01'
 NAMESPACE = 'parameters_test'
 
 
-@pytest.fixture
-def ctx():
-    """Yield a private rclpy context, shut down after the test (no global state left)."""
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    nodes = []
-    yield context, nodes
-    for n in nodes:
-        n.destroy_node()
-    rclpy.shutdown(context=context)
-
-
 def make(ctx, cls, *overrides, params_file=None):
     """Build node ``cls`` with ``-p`` ``overrides`` (``name:=value``) and a params file."""
     context, nodes = ctx
@@ -160,7 +148,7 @@ def test_scenario_runner_builds_from_its_parameters(ctx, tmp_path):
 
 
 def test_lifecycle_manager_and_recorder_build_from_their_parameters(ctx, tmp_path):
-    node = make(ctx, LifecycleManager, 'managed_nodes:=[a, b]', 'autostart:=false')
+    node = make(ctx, LifecycleManager, 'node_names:=[a, b]', 'autostart:=false')
     assert node.managed == ['a', 'b']
     bag = tmp_path / 'bag'
     pf = params_file(tmp_path, {'bag_recorder': {'output': str(bag), 'queue_depth': 123}})
@@ -169,6 +157,17 @@ def test_lifecycle_manager_and_recorder_build_from_their_parameters(ctx, tmp_pat
     rec.close()
     with pytest.raises(REFUSED):
         make(ctx, BagRecorder, 'queue_depth:=0', 'output:=%s' % (tmp_path / 'bag2'))
+
+
+def test_lifecycle_manager_takes_the_old_name_managed_nodes_with_one_warn(ctx, capfd):
+    node = make(ctx, LifecycleManager, 'autostart:=false')
+    assert node.managed == ['actuator_driver'], 'node_names from config/'
+    assert 'deprecated' not in capfd.readouterr().err
+    node = make(ctx, LifecycleManager, 'managed_nodes:=[c]', 'node_names:=[a, b]',
+                'autostart:=false')
+    assert node.managed == ['c'], 'the old name, set, wins'
+    err = capfd.readouterr().err
+    assert err.count('managed_nodes is deprecated: use node_names') == 1, err
 
 
 @pytest.mark.parametrize('cls,override,why', [

@@ -205,17 +205,46 @@ class Client:
         """Return the positions (m) received after ``t0`` (monotonic s)."""
         return [y for t, y in self.ys if t > t0]
 
-    def tripped_since(self, t0):
-        """Return True when the driver tripped (ERROR, or drive_held true) after ``t0``."""
+    def trips_since(self, t0):
+        """Return the receive times (s) of the driver's trips (ERROR, drive_held) after ``t0``."""
         self.spin_for(0.3)      # let late reports of a trip arrive
-        return any(t > t0 and n.endswith('actuator_driver') and lv == ERROR
-                   for t, n, lv, m in self.diags) or any(
-                       t > t0 and h for t, h in self.held)
+        return sorted([t for t, n, lv, m in self.diags
+                       if t > t0 and n.endswith('actuator_driver') and lv == ERROR]
+                      + [t for t, h in self.held if t > t0 and h])
 
-    def in_band_share(self, since):
-        """Return the share of the samples after ``since`` within TOL_M of the target."""
-        ys = self.ys_since(since)
-        return sum(abs(y - TARGET_M) < TOL_M for y in ys) / max(1, len(ys))
+    def steady_share(self, since, before_s=0.3, after_s=2.0):
+        """
+        Return the share of the samples after ``since`` within TOL_M, and the trips.
+
+        A trip (a stalled node on this loaded machine) holds the drive or ramps it to the
+        safe voltage: the samples from ``before_s`` before its report (the report comes
+        after the drive was held) to ``after_s`` after it (the 2 s a setpoint settles in,
+        :func:`test_outside_client_setpoint_settles`) are the trip's, not counted. The
+        share is ``None`` when every sample is a trip's.
+        """
+        trips = self.trips_since(since)
+        ys = [y for t, y in self.ys if t > since
+              and not any(tt - before_s <= t <= tt + after_s for tt in trips)]
+        share = sum(abs(y - TARGET_M) < TOL_M for y in ys) / len(ys) if ys else None
+        return share, trips
+
+    def check_steady(self, since, least=0.5):
+        """
+        Assert the loop stayed at the target after ``since``: no limit cycle.
+
+        At least ``least`` of the samples no trip explains are within TOL_M (100 % when the
+        machine is quiet; a node stalled short of a trip disturbs some), and after a trip
+        the loop settles again.
+        """
+        share, trips = self.steady_share(since)
+        print('steady: %s of the samples within 0.5 um, %d trip report(s)'
+              % ('-' if share is None else '%.1f %%' % (100 * share), len(trips)))
+        assert share is not None or trips
+        if share is not None:
+            assert share >= least, (share, trips)
+        if trips:
+            assert self.spin_for(5.0, lambda: self.settled(trips[-1])), (
+                'not settled again after the trip at %.3f s' % trips[-1])
 
     def settled(self, since, n=100, least=20):
         """
@@ -283,9 +312,7 @@ def test_outside_client_setpoint_settles(graph):
     t1 = time.monotonic()
     cl.spin_for(0.5)
     assert len(cl.ys_since(t1)) > 50
-    share = cl.in_band_share(t1)
-    print('after settling: %.1f %% of the samples within 0.5 um' % (100 * share))
-    assert share >= 0.5 or cl.tripped_since(t1)
+    cl.check_steady(t1)
 
 
 def test_a_reader_that_joins_sees_the_present_not_a_replay(graph):
@@ -347,7 +374,7 @@ def test_bad_setpoints_rejected_actuator_stays(graph):
         for node in nodes + ('fuzzy_pid_controller',))), cl.values
     assert not any(n.endswith('fuzzy_pid_controller') for n, m in warns())
     assert len(cl.ys_since(t0)) > 50
-    assert cl.in_band_share(t0) >= 0.5 or cl.tripped_since(t0)     # it stayed
+    cl.check_steady(t0)         # it stayed
     assert cl.spin_for(5.0, lambda: cl.settled(t0))
 
 
@@ -437,7 +464,7 @@ def test_live_gain_update_accepted_and_rejected(graph):
     ki = [s[3] for s in cl.state[n0:]]
     assert len(ki) > 10      # the client keeps up with only part of the 1 kHz stream
     assert abs(ki[-1] - new_ki[0]) < 0.1 * old_ki[0]
-    assert cl.in_band_share(t0) >= 0.5 or cl.tripped_since(t0)     # bumpless
+    cl.check_steady(t0)         # bumpless
     assert cl.spin_for(5.0, lambda: cl.settled(t0))
 
     res = set_ki0([-1.0, old_ki[1]])

@@ -57,7 +57,8 @@ def test_the_harness_reproduces_the_deadlock_of_an_event():
 #: with its exit code and a line that names the stall.
 HANGING = textwrap.dedent('''
     import signal, sys, threading, time
-    from fiber_align.nodes.ros.runtime import finish, StopFlag
+    from fiber_align.nodes.ros.runtime import StopFlag
+    from fiber_align.nodes.ros.teardown import finish
 
     class Node:
         context = None
@@ -97,7 +98,8 @@ def test_a_teardown_that_hangs_ends_the_process_with_its_code(how, code):
 #: report and the teardown guard's line meet a broken pipe.
 READER_GONE = textwrap.dedent('''
     import signal, sys, threading
-    from fiber_align.nodes.ros.runtime import StopFlag, finish
+    from fiber_align.nodes.ros.runtime import StopFlag
+    from fiber_align.nodes.ros.teardown import finish
 
     class Node:
         context = None
@@ -188,7 +190,7 @@ BUSY_AT_STOP = textwrap.dedent('''
     import threading, time
     from rclpy.callback_groups import ReentrantCallbackGroup
     from rclpy.node import Node
-    from fiber_align.nodes.ros import runtime
+    from fiber_align.nodes.ros import runtime, teardown
     stop = runtime.init([])
     node = Node('busy_at_stop')
     group = ReentrantCallbackGroup()        # more ready than threads: a queue in the pool
@@ -196,7 +198,7 @@ BUSY_AT_STOP = textwrap.dedent('''
         node.create_timer(0.02, lambda: time.sleep(0.1), callback_group=group)
     threading.Timer(0.5, stop.set).start()
     runtime.spin(node, stop=stop, threads=2)
-    runtime.finish([node], stop)
+    teardown.finish([node], stop)
     print('stopped')
 ''')
 

@@ -121,10 +121,10 @@ def test_without_the_thread_the_same_wait_holds_up_the_loop(node):
     """The baseline of the test above: the same publish on the loop's thread, same wait."""
     from std_msgs.msg import Float64
 
-    from fiber_align.nodes.ros.sender import _Rcl, MessageType
+    from fiber_align.nodes.ros.rcl_ctypes import MessageType, Rcl
     from fiber_align.nodes.ros.qos import sample_pub_qos
     pub = node.create_publisher(Float64, 'a', sample_pub_qos(False))
-    rcl = _Rcl()
+    rcl = Rcl()
     _slow_publish(rcl, 0.3)
     ctype = MessageType(Float64)
     msg = ctype.to_c(Float64(data=1.0))

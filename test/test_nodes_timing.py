@@ -104,19 +104,27 @@ def sample_stamp(k):
 def run_realtime_step(target_m=50e-6, n=200, missed_share=0.0, setpoint_one_old=True,
                       seed=1):
     """
-    Simulate the realtime graph for a step to ``target_m`` (m); return y (m) per sample.
+    Run the realtime graph's rules for a step to ``target_m`` (m); return x (m) per sample.
 
-    Each period: the compensator's and the controller's step rules
-    (:mod:`fiber_align.control.realtime`) answer the sample (the controller's feeds the
-    setpoint one sample old; ``setpoint_one_old`` False: the law gets the latest
-    instead), the driver sums and limits; the plant advances with the drive latched at
-    the previous tick, then latches the new one, except in a missed cycle (probability
-    ``missed_share``), where it holds the old one.
+    The nodes' own pure parts, called as the nodes call them, one sample at a time: the
+    compensator's and the controller's step rules (:mod:`fiber_align.control.realtime`;
+    the controller's feeds the setpoint one sample old; ``setpoint_one_old`` False: the
+    law gets the latest instead), the driver's input rule
+    (:class:`~fiber_align.control.realtime.DriverStep`) and core, and the plant's sample
+    clock (:class:`~fiber_align.plant.dac.DacClock`: at each tick the plant advances with
+    the drive latched at the previous one, then latches the newest written). A missed
+    cycle (probability ``missed_share``) is a drive that reaches the plant after its
+    tick: not written before it, so the clock holds the old one.
     """
+    from fiber_align.control.realtime import DriverStep
+    from fiber_align.plant.dac import DacClock
     rng = np.random.default_rng(seed)
     plant, ff_step, fb_step, drv = loop()
+    driver = DriverStep(drv, T)
+    dac = DacClock(plant, T, max_catch_up=50, depth=100)
     y = plant.reset()
-    latched, out = 0.0, []
+    dac.tick(0, 0.0, 0.0, 0, fresh=True)        # sample 0: the plant at rest
+    out, missed = [], 0
     for k in range(n):
         r = target_m if k >= 5 else 0.0
         now = k * T
@@ -127,11 +135,17 @@ def run_realtime_step(target_m=50e-6, n=200, missed_share=0.0, setpoint_one_old=
             fb = fb_step.sample(sample_stamp(k), y, r)[0]
         else:
             fb = fb_step.step(r, y)[0]
-        v = drv.command(ff, fb, now)
+        assert driver.feedforward(ff, now, True) is None    # the feedback is fresh
+        cmd = driver.feedback(fb, now, True)
+        v = drv.command(cmd[0], cmd[1], now, cmd[2])
         out.append(plant.x)
-        y = plant.step(latched)
         if rng.random() >= missed_share:
-            latched = v
+            dac.write(v)
+        elif dac.n_drive:
+            missed += 1
+        assert dac.tick(k, now + T, now + T, 0, fresh=False) == 1
+        y = plant.y_meas
+    assert dac.missed == missed, 'the clock counts the cycles the plant held its drive'
     return np.array(out)
 
 

@@ -234,7 +234,7 @@ def test_without_ros2_the_tests_skip_with_the_hint_and_fail_in_ci(monkeypatch, t
 
 def test_lifecycle_manager_reports_a_missing_node_and_keeps_running(ros2_env, tmp_path):
     proc = spawn(ros2_env, ['ros2', 'run', 'fiber_align', 'lifecycle_manager', '--ros-args',
-                            '-p', 'managed_nodes:=[nobody]', '-p', 'service_timeout_s:=1.0',
+                            '-p', 'node_names:=[nobody]', '-p', 'service_timeout_s:=1.0',
                             '-p', 'autostart:=false'],
                  tmp_path / 'manager.log')
     try:

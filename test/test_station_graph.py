@@ -34,7 +34,7 @@ def test_composed_station_is_one_process_hosting_four_axes_the_optics_and_the_se
         'simulated_station_optics', 'station_sequencer')
     assert st.hosted('station')[0] == ('simulated_actuator', '/station/in/x')
     assert st.hosted('station')[-1] == ('station_sequencer', '/station')
-    assert g.node_params('lifecycle_manager')['managed_nodes'] == [
+    assert g.node_params('lifecycle_manager')['node_names'] == [
         '%s/actuator_driver' % a for a in gs.AXES]
     assert {p.executable for p in gs.build_station(composed=False).processes} <= set(
         setup_py_nodes())

@@ -282,7 +282,7 @@ def beyond_floor(missed_share, floor):
 
     :param missed_share: the plant's missed share (1) or ``None``.
     :param floor: the machine-floor probe's figures of the same seconds
-        (:mod:`fiber_align.bringup.floor`: ``lost_share``) or ``None``.
+        (:meth:`fiber_align.control.cycle.DeadlineGrid.figures`: ``lost_share``) or ``None``.
     :returns: ``max(0, missed_share - lost_share)``; ``None`` without both figures.
     """
     fl = _num((floor or {}).get('lost_share'))

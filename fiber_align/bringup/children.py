@@ -20,7 +20,8 @@ import sys
 import threading
 import time
 
-from fiber_align.nodes.ros.runtime import SENT_PREFIX, STACKS_SIGNAL
+from fiber_align.nodes.ros.runtime import STACKS_SIGNAL
+from fiber_align.nodes.ros.teardown import SENT_PREFIX
 
 #: lines of a child's output kept for the report of a stop that overran
 TAIL_LINES = 60

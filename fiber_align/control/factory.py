@@ -21,7 +21,11 @@ from fiber_align.control.feedforward import Feedforward
 from fiber_align.control.fuzzy_pid import FuzzyPid, make_pid, PlainPid
 from fiber_align.control.shaping import design, Lead, ReferenceModel, Shaper, shaper_delay_s
 
+#: The control laws (``fiber-align simulate --controller``, the graph's ``controller``): the
+#: one list, imported wherever they are offered or checked.
 CONTROLLERS = ('open-loop', 'feedforward', 'pid', 'fuzzy', 'composite', 'composite-pid')
+#: The controllers without a feedback law (the compensator drives alone).
+FEEDFORWARD_ONLY = ('open-loop', 'feedforward')
 # The controllers whose compensator inverts a PI model (the others need no model).
 MODEL_CONTROLLERS = ('feedforward', 'composite', 'composite-pid')
 
@@ -122,7 +126,7 @@ def build_controller(controller, params, comp, design_dynamics, rate_hz, surface
         ``params``.
     """
     check_controller(controller)
-    if controller in ('open-loop', 'feedforward'):
+    if controller in FEEDFORWARD_ONLY:
         return None
     refm = None
     if controller.startswith('composite') and \

@@ -20,7 +20,9 @@ from fiber_align.graph.hardware import build_hardware
 from fiber_align.graph.hardware_rig import build_hardware_rig
 from fiber_align.graph.live import check_endpoint, live_settings, with_live
 from fiber_align.graph.params import GraphError, PLANT
-from fiber_align.graph.registry import CONTROLLERS, DEFAULT_COMPOSED, SCENARIOS, SYNC_MODES
+from fiber_align.control.factory import CONTROLLERS
+from fiber_align.graph.params import SYNC_MODES
+from fiber_align.graph.registry import DEFAULT_COMPOSED, SCENARIOS
 from fiber_align.graph.rig import build_rig, check_seed, RIG_NAMESPACE
 from fiber_align.graph.station import build_station, STATION_NAMESPACE
 

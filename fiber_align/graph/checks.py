@@ -23,7 +23,7 @@ import math
 import os
 
 from fiber_align.config import config_dir, ConfigError
-from fiber_align.control.factory import check_param
+from fiber_align.control.factory import check_param, FEEDFORWARD_ONLY
 from fiber_align.control.pid import ANTI_WINDUP
 from fiber_align.hysteresis.pi import NotInvertibleError, PIModel
 
@@ -67,7 +67,7 @@ def feedback_limits(u_min, u_max, controller, setpoint_min_m, setpoint_max_m,
                     '%s drives alone: setpoint_min_m %.1f um; allowed: u_min <= %.1f V)'
                     % (u_min, need_lo, controller, setpoint_min_m * 1e6, need_lo))
         return None
-    if controller in ('open-loop', 'feedforward'):
+    if controller in FEEDFORWARD_ONLY:
         return None                     # no feedback law: the limits are unused
     if not u_max > 0.0:
         return ('u_max=%g V leaves the feedback no push towards a higher setpoint (the '

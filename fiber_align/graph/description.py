@@ -46,12 +46,13 @@ import re
 from typing import Dict, Optional, Tuple
 
 from fiber_align.config import config_dir, config_path, dump_params
+from fiber_align.control.factory import CONTROLLERS
 from fiber_align.graph.params import (
     check_user, COMPENSATOR, CONTROLLER, DRIVER, effective, GraphError, LIFECYCLE_MANAGER,
-    merge_params, PLANT, RECORDER, SCENARIO_RUNNER, SEQUENCER)
+    merge_params, PLANT, RECORDER, SCENARIO_RUNNER, SEQUENCER, SYNC_MODES)
 from fiber_align.graph.registry import (
-    AREA_FILES, COMPOSED_EXECUTABLE, CONTROLLERS, DEFAULT_COMPOSED, GRAPH_FILE, NODES,
-    OPTIONAL_FILES, provided_topics, REMAPPINGS, SCENARIOS, SYNC_MODES)
+    AREA_FILES, COMPOSED_EXECUTABLE, DEFAULT_COMPOSED, GRAPH_FILE, NODES, OPTIONAL_FILES,
+    provided_topics, REMAPPINGS, SCENARIOS)
 from fiber_align.plant.actuator import PARAM_KEYS, SimulatedActuator
 
 
@@ -388,7 +389,7 @@ def build(namespace='', composed=None, sync_mode='', controller='', params_file=
     if record:
         procs.append(Process(RECORDER, RECORDER, (RECORDER,), node_name=RECORDER))
     managed = tuple(n for n in nodes if NODES[n].lifecycle)
-    over[LIFECYCLE_MANAGER] = {'managed_nodes': list(managed)}
+    over[LIFECYCLE_MANAGER] = {'node_names': list(managed)}
     return Graph(namespace=ns, composed=composed, sync_mode=sync, controller=law,
                  scenario=scen, record=record, processes=tuple(procs),
                  params_files=tuple(files), overrides=over, remappings=REMAPPINGS,

@@ -13,7 +13,7 @@ No ``fuzzy_pid_controller`` (no measurement to feed back) and no ``simulated_act
 Parameters: the graph's files (:func:`fiber_align.graph.description.build`), then
 :data:`HARDWARE_FILES` (``config/hardware.yaml``: ``/**`` sensorless at 100 Hz, the device
 settings; ``config/sequencer_hardware.yaml``), then the user's ``params_file``, then
-``port`` and ``visa_resource``. Used by ``launch/fiber_align_hardware.launch.py`` and
+``port`` and ``visa_resource``. Used by ``launch/fiber_align.launch.py`` (``hardware:=true``) and
 ``bringup --hardware``. Pure Python (no rclpy)::
 
     g = build_hardware(port='/dev/serial/by-id/usb-FTDI_...',
@@ -67,7 +67,7 @@ def build_hardware(port='', visa_resource='', namespace='', composed=None, param
         over[DRIVER] = {'port': str(port)}
     if visa_resource:
         over[POWER_METER] = {'resource': str(visa_resource)}
-    over[LIFECYCLE_MANAGER] = {'managed_nodes': [DRIVER]}
+    over[LIFECYCLE_MANAGER] = {'node_names': [DRIVER]}
     over = gr.add_overrides(over, overrides)
     merged = merge_params(files, over, base.namespace)
     wide = effective(merged, DRIVER, base.namespace)

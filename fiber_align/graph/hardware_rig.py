@@ -32,13 +32,12 @@ import os
 from fiber_align.config import config_dir
 from fiber_align.graph import description as g
 from fiber_align.graph.hardware import POWER_METER
-from fiber_align.graph.params import (check_user, COMPENSATOR, effective, GraphError,
-                                      LIFECYCLE_MANAGER, merge, merge_params,
+from fiber_align.graph.params import (AMPLIFIER, check_user, COMPENSATOR, effective,
+                                      GraphError, LIFECYCLE_MANAGER, merge, merge_params,
                                       wildcard_first)
 from fiber_align.graph.rig import (_axis_ns, AXES, RIG_FILES, RIG_NAMESPACE, RigGraph,
                                    SEQUENCER_2D)
 
-AMPLIFIER = 'mdt693b_driver'
 #: Params files of the hardware rig, merged after the rig's own (names in ``config/``).
 HARDWARE_RIG_FILES = ('hardware.yaml', 'hardware_rig.yaml', 'sequencer2d_hardware.yaml')
 #: Nodes at the rig namespace (not per axis): name -> executable.
@@ -138,7 +137,7 @@ def build_hardware_rig(port='', visa_resource='', namespace=RIG_NAMESPACE, compo
         over[AMPLIFIER] = {'port': str(port)}
     if visa_resource:
         over[POWER_METER] = {'resource': str(visa_resource)}
-    over[LIFECYCLE_MANAGER] = {'managed_nodes': [AMPLIFIER]}
+    over[LIFECYCLE_MANAGER] = {'node_names': [AMPLIFIER]}
     over = g.add_overrides(over, overrides)
     merged = merge_params(files, over)
     amp = effective(merged, AMPLIFIER)

@@ -7,7 +7,7 @@ the hardware bench) and returns it with one more process, ``live_view`` (executa
 ``live_view``, in the graph's namespace, its own process: never inside
 ``control_graph``), reading ``config/live_view.yaml`` then the graph's own values: the
 topics the graph's nodes publish and read (:func:`graph_topics`, from the node registry
-:data:`fiber_align.graph.description.NODES`), the port and host, and on the rig the
+:data:`fiber_align.graph.registry.NODES`), the port and host, and on the rig the
 power map over the 2-D sequencer's range. Used by the launch file (``live:=true
 live_port:=8765 live_host:=127.0.0.1``) and ``bringup --live``.
 """
@@ -17,12 +17,11 @@ import socket
 
 from fiber_align.config import config_path
 from fiber_align.graph import description as gd
-from fiber_align.graph.params import GraphError, LIVE_VIEW
+from fiber_align.graph.params import GraphError, LIVE_VIEW, SEQUENCER_2D
 
 #: The view's params file (in ``config/``).
 LIVE_FILE = 'live_view.yaml'
-#: The 2-D sequencer's node and the keys of its range (the power map's extent).
-SEQUENCER_2D = 'alignment_sequencer_2d'
+#: The keys of the 2-D sequencer's range (the power map's extent).
 RANGE_KEYS = ('range_x_min_m', 'range_x_max_m', 'range_y_min_m', 'range_y_max_m')
 
 

@@ -139,9 +139,6 @@ OPTIONAL_FILES = ()
 #: Graph-wide params file, merged after the per-area files.
 GRAPH_FILE = 'fiber_align.yaml'
 
-SYNC_MODES = ('realtime', 'lockstep')
-#: Control laws, as in ``fiber-align simulate --controller``.
-CONTROLLERS = ('composite', 'composite-pid', 'fuzzy', 'pid', 'feedforward', 'open-loop')
 SCENARIOS = ('none', 'step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment',
              'align')
 

@@ -2,8 +2,8 @@
 """
 The two-axis rig of the fiber_align graph, described once (pure Python: no rclpy).
 
-Built on :mod:`fiber_align.graph.description` (its :class:`~graph.Process`, params merge and
-checks) and used by the launch file (``rig:=true``) and ``bringup --rig``. Under one rig
+Built on :mod:`fiber_align.graph.description` (its :class:`~.description.Process`, params
+merge and checks) and used by the launch file (``rig:=true``) and ``bringup --rig``. Under one rig
 namespace (``rig`` unless told):
 
 - ``/rig/x/...`` and ``/rig/y/...``: two actuator graphs, each the control nodes of the
@@ -40,16 +40,14 @@ from typing import Callable, Dict, Tuple
 from fiber_align.config import config_dir
 from fiber_align.graph import description as g
 from fiber_align.graph.params import (check_user, DRIVER, effective, GraphError, LIFECYCLE_MANAGER,
-                                      LIVE_VIEW, merge, merge_params, PLANT, RECORDER,
-                                      wildcard_first)
+                                      LIVE_VIEW, merge, merge_params, OPTICS_2D as OPTICS,
+                                      PLANT, RECORDER, SEQUENCER_2D, wildcard_first)
 from fiber_align.graph.registry import NODES
 from fiber_align.simulation import seeds2d
 
 RIG_NAMESPACE = 'rig'
 AXES = ('x', 'y')
-OPTICS = 'simulated_optics_2d'
-SEQUENCER_2D = 'alignment_sequencer_2d'
-#: The rig's own nodes: name -> executable (from the registry, :data:`~graph.NODES`).
+#: The rig's own nodes: name -> executable (from the registry, :data:`~.registry.NODES`).
 RIG_NODES = {NODES[n].node: NODES[n].executable for n in (OPTICS, SEQUENCER_2D)}
 #: Each axis's nodes, in start order (the 1-D graph without a setpoint source).
 AXIS_NODES = g.control_nodes('none')
@@ -63,7 +61,7 @@ RIG_FILES = tuple(f for n in RIG_NODES for f in NODES[n].configs)
 @dataclass(frozen=True)
 class RigGraph(g.Graph):
     """
-    The rig (a :class:`~graph.Graph` whose processes carry their own namespaces).
+    The rig (a :class:`~.description.Graph` whose processes carry their own namespaces).
 
     Node names relative to the rig namespace: ``x/simulated_actuator``, ...,
     ``simulated_optics_2d``. ``overrides`` keys: ``/**``, a bare node name (both axes'
@@ -204,7 +202,7 @@ def build_axes(m, namespace='', composed=None, sync_mode='', controller='', para
         over['%s/%s' % (a, PLANT)] = {'seed': s, 'publish_clock': i == 0}
     over.update(m.seeded(seed))
     managed = tuple('%s/%s' % (a, DRIVER) for a in m.axes)
-    over[LIFECYCLE_MANAGER] = {'managed_nodes': list(managed)}
+    over[LIFECYCLE_MANAGER] = {'node_names': list(managed)}
     if record:
         record = g.check_record(record)
         over[RECORDER] = {'output': record, 'topics': list(m.recorded)}

@@ -31,14 +31,13 @@ sample k, so the four plants and the optics advance in step; the in/x plant publ
 ``/clock``.
 """
 
+from fiber_align.graph.params import STATION_OPTICS as OPTICS, STATION_SEQUENCER as SEQUENCER
 from fiber_align.graph.registry import NODES, STATION_AXES
 from fiber_align.graph.rig import build_axes, Machine
 from fiber_align.simulation import station_scenarios as sc
 
 STATION_NAMESPACE = 'station'
 AXES = STATION_AXES
-OPTICS = 'simulated_station_optics'
-SEQUENCER = 'station_sequencer'
 #: The station's own nodes: name -> executable.
 OWN_NODES = {n: NODES[n].executable for n in (OPTICS, SEQUENCER)}
 #: Topics the recorder records (relative to the station's namespace): per axis what a

@@ -28,6 +28,7 @@ from fiber_align.config import ConfigError
 from fiber_align.control.cycle import CycleStats
 from fiber_align.control.driver import check_field_limits, DriverCore
 from fiber_align.control.realtime import DriverStep
+from fiber_align.graph.registry import NODES
 from fiber_align.nodes._driver_device import DeviceBackend
 from fiber_align.nodes._driver_loop import DriverLoop
 from fiber_align.nodes._driver_params import declare_all, DriverParameters
@@ -39,10 +40,8 @@ from fiber_align.nodes.ros.params import node_defaults
 from fiber_align.nodes.ros.qos import LATCHED_QOS, sample_pub_qos, sample_qos
 from fiber_align.nodes.ros.runtime import run_node
 
-NODE_NAME = 'actuator_driver'
-#: Topics this node publishes (relative names; see ``ros.bus.LocalBus``).
-PUBLISHES = ('drive_voltage', 'drive_held', 'drive_voltage_readback')
-AREA_FILES = ('driver.yaml',)
+#: the registry's entry of this node: its name and params files
+SPEC = NODES['actuator_driver']
 
 
 class ActuatorDriverNode(DriverParameters, DeviceBackend, DriverLoop, LifecycleNode):
@@ -55,10 +54,10 @@ class ActuatorDriverNode(DriverParameters, DeviceBackend, DriverLoop, LifecycleN
         :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
             process, or ``None``.
         """
-        super().__init__(NODE_NAME, **kwargs)
+        super().__init__(SPEC.node, **kwargs)
         self.bus = bus
         self.slack = slack_of(bus)
-        d = node_defaults(NODE_NAME, AREA_FILES)
+        d = node_defaults(SPEC.node, SPEC.configs)
         declare_all(self, d)
         self.backend = self.get_parameter('backend').value
         self.sensorless = bool(self.get_parameter('sensorless').value)
@@ -213,7 +212,7 @@ class ActuatorDriverNode(DriverParameters, DeviceBackend, DriverLoop, LifecycleN
 
 def main(args=None):
     """Run the node (bad parameters: one line, exit 2)."""
-    return run_node(ActuatorDriverNode, NODE_NAME, args)
+    return run_node(ActuatorDriverNode, SPEC.node, args)
 
 
 if __name__ == '__main__':

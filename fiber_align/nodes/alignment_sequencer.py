@@ -46,6 +46,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from fiber_align.alignment import sequencer as sq
+from fiber_align.graph.registry import NODES
 from fiber_align.nodes._sequencer_node import SequencerNode
 from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, stamp_to_s, subscription
 from fiber_align.nodes.ros.diagnostics import Health
@@ -54,13 +55,11 @@ from fiber_align.nodes.ros.qos import (REALTIME_QOS, REFERENCE_LATCHED_QOS, samp
                                        sample_qos)
 from fiber_align.nodes.ros.runtime import run_node
 
-NODE_NAME = 'alignment_sequencer'
-AREA_FILES = ('sequencer.yaml',)
+#: the registry's entry of this node: its name and params files
+SPEC = NODES['alignment_sequencer']
 POWER_QUEUE_LIMIT = 5
 #: Sensorless: the most control periods one reading advances the sequencer's clock by.
 MAX_GAP_PERIODS = 1.5
-#: Topics this node publishes (relative names; see ``ros.bus.LocalBus``).
-PUBLISHES = ('setpoint',)
 
 
 class AlignmentSequencerNode(SequencerNode, Node):
@@ -73,8 +72,8 @@ class AlignmentSequencerNode(SequencerNode, Node):
         :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
             process, or ``None``.
         """
-        super().__init__(NODE_NAME, **kwargs)
-        d = node_defaults(NODE_NAME, AREA_FILES)
+        super().__init__(SPEC.node, **kwargs)
+        d = node_defaults(SPEC.node, SPEC.configs)
         g = declare_graph_values(self, d, 'sync_mode', 'diagnostics_period_s', 'sensorless',
                                  'rate_hz', *PRIORITY)
         self.lockstep, diag = g['sync_mode'] == 'lockstep', g['diagnostics_period_s']
@@ -170,7 +169,7 @@ class AlignmentSequencerNode(SequencerNode, Node):
 
 def main(args=None):
     """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
-    return run_node(AlignmentSequencerNode, NODE_NAME, args,
+    return run_node(AlignmentSequencerNode, SPEC.node, args,
                     realtime=lambda node: not node.lockstep)
 
 

@@ -53,6 +53,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from fiber_align.alignment import sequencer2d as s2d
+from fiber_align.graph.registry import NODES
 from fiber_align.graph.hardware_rig import AMPLIFIER
 from fiber_align.nodes._sequencer_node import SequencerNode
 from fiber_align.nodes.alignment_sequencer import MAX_GAP_PERIODS, POWER_QUEUE_LIMIT
@@ -63,11 +64,9 @@ from fiber_align.nodes.ros.qos import (REALTIME_QOS, REFERENCE_LATCHED_QOS, samp
                                        sample_qos)
 from fiber_align.nodes.ros.runtime import run_node
 
-NODE_NAME = s2d.CONFIG_NODE         # alignment_sequencer_2d
-AREA_FILES = (s2d.CONFIG_FILE,)
+#: the registry's entry of this node: its name and params files
+SPEC = NODES['alignment_sequencer_2d']
 AXES = ('x', 'y')
-#: Topics this node publishes (relative names; see ``ros.bus.LocalBus``).
-PUBLISHES = ('x/setpoint', 'y/setpoint')
 
 
 class AlignmentSequencer2DNode(SequencerNode, Node):
@@ -79,8 +78,8 @@ class AlignmentSequencer2DNode(SequencerNode, Node):
 
         :param bus: the ``LocalBus`` of the rig's composed process, or ``None``.
         """
-        super().__init__(NODE_NAME, **kwargs)
-        d = node_defaults(NODE_NAME, AREA_FILES)
+        super().__init__(SPEC.node, **kwargs)
+        d = node_defaults(SPEC.node, SPEC.configs)
         g = declare_graph_values(self, d, 'sync_mode', 'diagnostics_period_s', 'rate_hz',
                                  'sensorless', 'realtime_setpoint_rate_m_per_s', *PRIORITY)
         self.lockstep, diag = g['sync_mode'] == 'lockstep', g['diagnostics_period_s']
@@ -197,7 +196,7 @@ class AlignmentSequencer2DNode(SequencerNode, Node):
 
 def main(args=None):
     """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
-    return run_node(AlignmentSequencer2DNode, NODE_NAME, args)
+    return run_node(AlignmentSequencer2DNode, SPEC.node, args)
 
 
 if __name__ == '__main__':

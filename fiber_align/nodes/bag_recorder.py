@@ -40,6 +40,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from fiber_align import lifeline
 from fiber_align.analysis import bag as bagio
 from fiber_align.config import ConfigError
+from fiber_align.graph.registry import NODES
 from fiber_align.nodes._msgtypes import message_class
 from fiber_align.graph.endpoints import type_name
 from fiber_align.nodes.ros.bus import LocalSub, sender_of, slack_of
@@ -48,8 +49,8 @@ from fiber_align.nodes.ros.diagnostics import Health, OK, WARN
 from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults, PRIORITY
 from fiber_align.nodes.ros.runtime import run_node
 
-NODE_NAME = 'bag_recorder'
-AREA_FILES = ('recorder.yaml',)
+#: the registry's entry of this node: its name and params files
+SPEC = NODES['bag_recorder']
 
 
 def _default_output():
@@ -66,8 +67,8 @@ class BagRecorder(Node):
         :param bus: the process's :class:`~fiber_align.nodes.ros.bus.LocalBus`
             (composed): the topics its nodes publish are recorded in-process.
         """
-        super().__init__(NODE_NAME, **kwargs)
-        d = node_defaults(NODE_NAME, AREA_FILES)
+        super().__init__(SPEC.node, **kwargs)
+        d = node_defaults(SPEC.node, SPEC.configs)
         ro = True
         self.output = declare(self, d, 'output', 'bag directory to create (must not '
                               'exist); empty: fiber_align_<date_time>', read_only=ro) \
@@ -326,7 +327,7 @@ def main(args=None):
     within 2 s, while the graph may publish until its own exit: the drain then ends
     sooner (asked on every turn).
     """
-    return run_node(BagRecorder, NODE_NAME, args, realtime=lambda node: True,
+    return run_node(BagRecorder, SPEC.node, args, realtime=lambda node: True,
                     then=lambda ex, node: _drain(ex, node, lifeline.parent_gone))
 
 

@@ -30,7 +30,9 @@ from rclpy.utilities import remove_ros_args
 from fiber_align.graph import registry
 from fiber_align.nodes.ros import runtime as c
 from fiber_align.nodes.ros.bus import LocalBus
+from fiber_align.nodes.ros.scheduling import node_priority
 from fiber_align.nodes.ros.sender import Sender
+from fiber_align.nodes.ros.teardown import finish
 
 #: Nodes a composed process can host: ``--nodes`` name -> (module, class), in build
 #: order (the order of in-process delivery): the graph description's registry.
@@ -162,7 +164,7 @@ def main(args=None):
             else:
                 nodes[0].get_logger().warn('DDS publishes stay on the control thread: %s'
                                            % bus.sender.error)
-        c.spin(nodes, realtime=realtime, priority=c.node_priority(nodes), stop=stop)
+        c.spin(nodes, realtime=realtime, priority=node_priority(nodes), stop=stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except c.NODE_ERRORS as exc:
@@ -171,7 +173,7 @@ def main(args=None):
         left = bus.sender.stop()
         if left and nodes:
             nodes[0].get_logger().error('%d messages not handed to DDS at exit' % left)
-        c.finish(nodes, stop)
+        finish(nodes, stop)
     return c.exit_code(stop)
 
 

@@ -33,6 +33,7 @@ from fiber_align.control.fuzzy_pid import carry_state
 from fiber_align.control.realtime import ControllerStep, extend_lead
 from fiber_align.control.trajectory import Setpoint, stamp_ns
 from fiber_align.graph import checks
+from fiber_align.graph.registry import NODES
 from fiber_align.graph.params import SHARED
 from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import Health, OK
@@ -42,16 +43,14 @@ from fiber_align.nodes.ros.qos import LATCHED_QOS, LOCKSTEP_QOS, REALTIME_QOS
 from fiber_align.nodes.ros.qos import REFERENCE_LATCHED_QOS, sample_pub_qos, sample_qos
 from fiber_align.nodes.ros.runtime import run_node
 
-NODE_NAME = 'fuzzy_pid_controller'
-AREA_FILES = ('controller.yaml',)
+#: the registry's entry of this node: its name and params files
+SPEC = NODES['fuzzy_pid_controller']
 STATE_LABELS = ('error_m', 'error_rate_m_per_s', 'kp_v_per_m', 'ki_v_per_m_s',
                 'kd_v_s_per_m', 'output_v')
 #: The graph-wide values this node reads (read-only).
 GRAPH = ('controller', 'rate_hz', 'sync_mode', 'diagnostics_period_s', 'setpoint_min_m',
          'setpoint_max_m', 'realtime_setpoint_rate_m_per_s',
          'realtime_setpoint_accel_m_per_s2') + PRIORITY
-#: Topics this node publishes (relative names, delivered in-process on a LocalBus).
-PUBLISHES = ('feedback_voltage', 'controller_state')
 
 
 class FuzzyPidControllerNode(Node):
@@ -64,8 +63,8 @@ class FuzzyPidControllerNode(Node):
         :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
             process, or ``None``.
         """
-        super().__init__(NODE_NAME, **kwargs)
-        d = node_defaults(NODE_NAME, AREA_FILES)
+        super().__init__(SPEC.node, **kwargs)
+        d = node_defaults(SPEC.node, SPEC.configs)
         g = declare_graph_values(self, d, *GRAPH)
         self.mode, self.rate_hz = g['controller'], g['rate_hz']
         self.lockstep = g['sync_mode'] == 'lockstep'
@@ -257,7 +256,7 @@ class FuzzyPidControllerNode(Node):
 
 def main(args=None):
     """Run the node (bad parameters: one line, exit 2)."""
-    return run_node(FuzzyPidControllerNode, NODE_NAME, args)
+    return run_node(FuzzyPidControllerNode, SPEC.node, args)
 
 
 if __name__ == '__main__':

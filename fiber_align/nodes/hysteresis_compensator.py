@@ -58,6 +58,7 @@ from fiber_align.control.factory import build_feedforward
 from fiber_align.control.realtime import CompensatorStep, extend_lead
 from fiber_align.control.trajectory import Setpoint, stamp_ns
 from fiber_align.graph import checks
+from fiber_align.graph.registry import NODES
 from fiber_align.hysteresis.pi import PIModel
 from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import Health, OK
@@ -67,10 +68,8 @@ from fiber_align.nodes.ros.qos import CONTROL_QOS, LATCHED_QOS, LOCKSTEP_QOS, RE
 from fiber_align.nodes.ros.qos import sample_pub_qos, SETPOINT_QOS
 from fiber_align.nodes.ros.runtime import run_node
 
-NODE_NAME = 'hysteresis_compensator'
-AREA_FILES = ('compensator.yaml', 'models/compensator_model.yaml')
-#: Topics this node publishes (relative names, delivered in-process on a LocalBus).
-PUBLISHES = ('feedforward_voltage', 'reference')
+#: the registry's entry of this node: its name and params files
+SPEC = NODES['hysteresis_compensator']
 #: The graph-wide values this node reads (read-only).
 GRAPH = ('rate_hz', 'sync_mode', 'sensorless', 'diagnostics_period_s', 'setpoint_min_m',
          'setpoint_max_m', 'controller', 'realtime_setpoint_rate_m_per_s',
@@ -92,8 +91,8 @@ class HysteresisCompensatorNode(Node):
         :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
             process, or ``None``.
         """
-        super().__init__(NODE_NAME, **kwargs)
-        d = node_defaults(NODE_NAME, AREA_FILES)
+        super().__init__(SPEC.node, **kwargs)
+        d = node_defaults(SPEC.node, SPEC.configs)
         g = declare_graph_values(self, d, *GRAPH)
         self.rate_hz = g['rate_hz']
         self.lockstep = g['sync_mode'] == 'lockstep'
@@ -276,7 +275,7 @@ class HysteresisCompensatorNode(Node):
 
 def main(args=None):
     """Run the node (bad parameters: one line, exit 2)."""
-    return run_node(HysteresisCompensatorNode, NODE_NAME, args)
+    return run_node(HysteresisCompensatorNode, SPEC.node, args)
 
 
 if __name__ == '__main__':

@@ -2,13 +2,13 @@
 """
 ``lifecycle_manager``: bring the graph's managed (lifecycle) nodes to active, in order.
 
-Stands in for nav2's ``lifecycle_manager``, which a pip install of ROS 2 lacks; it works
-whatever process hosts the managed nodes (one per node or the composed ``control_graph``).
-
-Parameters (defaults in ``config/lifecycle_manager.yaml``; ``managed_nodes`` from
-:mod:`fiber_align.graph.description`): ``managed_nodes`` (activated in this order,
-deactivated in the reverse), ``autostart``, ``service_timeout_s`` (s: the bound on each
-wait for a node's lifecycle services and on each call), ``diagnostics_period_s``.
+The stand-in for nav2's ``lifecycle_manager``, which a pip install of ROS 2 lacks, with
+its parameter names (swap it for nav2's where that is installed); any process may host
+the managed nodes. Parameters (defaults in ``config/lifecycle_manager.yaml``; the graph
+descriptions set ``node_names``): ``node_names`` and ``autostart`` as nav2's (activated in
+this order, deactivated in the reverse), ``service_timeout_s`` (s: the bound on each
+wait for services and on each call), ``diagnostics_period_s``. ``managed_nodes``, the
+old name of ``node_names``, still works: set, it wins, with one deprecation WARN.
 
 Services (std_srvs/Trigger): ``~/startup`` (configure what is unconfigured, activate
 what is inactive) and ``~/shutdown`` (deactivate, clean up: the nodes end
@@ -23,14 +23,20 @@ import time
 
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
+from fiber_align.graph.registry import NODES
 from fiber_align.nodes.ros.diagnostics import ERROR, Health, OK
-from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults
+from fiber_align.nodes.ros.lifecycle import call_bounded
+from fiber_align.nodes.ros.params import (
+    declare, declare_graph_values, descriptor, node_defaults)
 from fiber_align.nodes.ros.runtime import run_node
 
-NODE_NAME = 'lifecycle_manager'
-AREA_FILES = ('lifecycle_manager.yaml',)
+#: the registry's entry of this node: its name and params files
+SPEC = NODES['lifecycle_manager']
+#: The alias of ``node_names`` this node took before (deprecated: one WARN when set).
+DEPRECATED_NAMES = 'managed_nodes'
 #: lifecycle_msgs State ids and Transition ids used here (lifecycle_msgs/msg/*).
 UNCONFIGURED, INACTIVE, ACTIVE, FINALIZED = 1, 2, 3, 4
 CONFIGURE, CLEANUP, ACTIVATE, DEACTIVATE = 1, 2, 3, 4
@@ -43,22 +49,22 @@ class LifecycleManager(Node):
 
     def __init__(self, **kwargs):
         """Declare the parameters (defaults from config/), create the services."""
-        super().__init__(NODE_NAME, **kwargs)
-        d = node_defaults(NODE_NAME, AREA_FILES)
-        d = dict({'managed_nodes': [], 'autostart': True}, **d)
-        declare(self, d, 'managed_nodes', 'lifecycle nodes to configure and activate, in '
-                'order (relative or absolute names)', read_only=True)
+        super().__init__(SPEC.node, **kwargs)
+        d = node_defaults(SPEC.node, SPEC.configs)
+        declare(self, d, 'node_names', 'lifecycle nodes to configure and activate, in '
+                'order (relative or absolute names; as nav2_lifecycle_manager)',
+                read_only=True)
         declare(self, d, 'autostart', 'run the start-up sequence at once', read_only=True)
         declare(self, d, 'service_timeout_s', 'bound on each wait for lifecycle services '
                 'and on each call (s)', 0.1, 3600.0)
         declare_graph_values(self, d, 'diagnostics_period_s')
-        self.managed = [str(n) for n in self.get_parameter('managed_nodes').value]
+        self.managed = self._node_names()
         self.states = {n: 'unknown' for n in self.managed}
         self._busy = threading.Lock()
         self._lc_group = ReentrantCallbackGroup()
         self._lc_clients = {}
         self.health = Health(self, self.get_parameter('diagnostics_period_s').value)
-        self.health.status(OK, 'waiting: %s' % (', '.join(self.managed) or 'no nodes'))
+        self.health.summary(OK, 'waiting: %s' % (', '.join(self.managed) or 'no nodes'))
         self._update_values()
         group = MutuallyExclusiveCallbackGroup()
         self.create_service(Trigger, '~/startup', self._on_startup, callback_group=group)
@@ -66,6 +72,19 @@ class LifecycleManager(Node):
         if self.get_parameter('autostart').value:
             self._autostart_timer = self.create_timer(
                 0.01, self._autostart, callback_group=MutuallyExclusiveCallbackGroup())
+
+    def _node_names(self):
+        """Return ``node_names``, or the deprecated alias (no default) when it is set."""
+        self.declare_parameter(
+            DEPRECATED_NAMES, Parameter.Type.STRING_ARRAY, descriptor(
+                'deprecated: use node_names (same meaning)', read_only=True))
+        old = self.get_parameter_or(DEPRECATED_NAMES, None)
+        if old is not None and old.type_ == Parameter.Type.STRING_ARRAY:
+            self.get_logger().warning(
+                'parameter %s is deprecated: use node_names (as nav2_lifecycle_manager); '
+                'using %s=%s' % (DEPRECATED_NAMES, DEPRECATED_NAMES, list(old.value)))
+            return [str(n) for n in old.value]
+        return [str(n) for n in self.get_parameter('node_names').value]
 
     # -- services -------------------------------------------------------------------
     def _autostart(self):
@@ -99,20 +118,20 @@ class LifecycleManager(Node):
                 if why:
                     msg = '%s failed at %s: %s' % (what, name, why)
                     self.get_logger().error(msg)
-                    self.health.status(ERROR, msg)
+                    self.health.summary(ERROR, msg)
                     self.health.error(msg)
                     return False, msg
             final = 'active' if what == 'startup' else 'unconfigured'
             msg = '%s done in %.2f s: %s %s' % (what, time.monotonic() - t0,
                                                 ', '.join(nodes) or 'no nodes', final)
             self.get_logger().info(msg)
-            self.health.status(OK, msg)
+            self.health.summary(OK, msg)
             self.health.publish()
             return True, msg
         except Exception as exc:  # noqa: BLE001 - the manager never dies of a node
             msg = '%s failed: %s: %s' % (what, type(exc).__name__, exc)
             self.get_logger().error(msg)
-            self.health.status(ERROR, msg)
+            self.health.summary(ERROR, msg)
             return False, msg
         finally:
             self._busy.release()
@@ -146,7 +165,7 @@ class LifecycleManager(Node):
                 time.sleep(0.05)
                 continue
             tid = steps[sid]
-            self.health.status(OK, '%s: %s (%s)' % (name, labels[tid], label))
+            self.health.summary(OK, '%s: %s (%s)' % (name, labels[tid], label))
             self.get_logger().info('%s: %s' % (name, labels[tid]))
             ok = self._change_state(name, tid)
             if isinstance(ok, str):
@@ -185,40 +204,13 @@ class LifecycleManager(Node):
                         srv, timeout, self.resolve_service_name(cl.srv_name))
                 if tries % 5 == 0:
                     self.get_logger().info('waiting for %s/%s' % (name, srv))
-                    self.health.status(OK, 'waiting for %s/%s' % (name, srv))
+                    self.health.summary(OK, 'waiting for %s/%s' % (name, srv))
         return None
 
     def _call(self, name, srv, request, resend_s=None):
-        """
-        Call a service with a bounded wait; return the response or the reason (str).
-
-        :param resend_s: for a query (``get_state``): send the request again when no
-            answer came within this many seconds (a server may drop its response while
-            the discovery of this client is still under way).
-        """
-        cl = self._client(name, srv)
-        done = threading.Event()
-        end = time.monotonic() + self._timeout()
-        futs, sent = [], 0.0
-        while not futs or not done.wait(WAIT_SLICE_S):
-            now = time.monotonic()
-            if futs and (now >= end or not self.context.ok()):
-                for f in futs:
-                    cl.remove_pending_request(f)
-                return 'no answer from %s within %g s' % (cl.srv_name, self._timeout())
-            if not futs or (resend_s is not None and now - sent >= resend_s):
-                fut = cl.call_async(request)
-                fut.add_done_callback(lambda f: done.set())
-                futs.append(fut)
-                sent = now
-        fut = next(f for f in futs if f.done())     # the first answer of any request
-        for f in futs:
-            if f is not fut and not f.done():
-                cl.remove_pending_request(f)
-        exc = fut.exception()
-        if exc is not None:
-            return '%s failed: %s' % (cl.srv_name, exc)
-        return fut.result()
+        """Call a service (bounded, :func:`call_bounded`); the response or why (str)."""
+        return call_bounded(self._client(name, srv), request, self._timeout(),
+                            self.context.ok, resend_s, WAIT_SLICE_S)
 
     def _get_state(self, name):
         from lifecycle_msgs.srv import GetState
@@ -242,7 +234,7 @@ class LifecycleManager(Node):
 
 def main(args=None):
     """Run the node (bad parameters: one line, exit 2)."""
-    return run_node(LifecycleManager, NODE_NAME, args, realtime=lambda node: False,
+    return run_node(LifecycleManager, SPEC.node, args, realtime=lambda node: False,
                     threads=3)
 
 

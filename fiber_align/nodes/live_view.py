@@ -49,13 +49,15 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from fiber_align.analysis import liveview as lv
+from fiber_align.analysis import powermap
 from fiber_align.config import ConfigError, load_params
+from fiber_align.graph.registry import NODES
 from fiber_align.nodes._msgtypes import message_class
 from fiber_align.nodes.ros.params import declare, node_defaults
 from fiber_align.nodes.ros.runtime import run_node
 
-NODE_NAME = 'live_view'
-AREA_FILES = ('live_view.yaml',)
+#: the registry's entry of this node: its name and params files
+SPEC = NODES['live_view']
 #: The map's range: the 2-D sequencer's reachable square (its params file and node).
 RANGE_FILE, RANGE_NODE = 'sequencer2d.yaml', 'alignment_sequencer_2d'
 RANGE_KEYS = ('range_x_min_m', 'range_x_max_m', 'range_y_min_m', 'range_y_max_m')
@@ -157,8 +159,8 @@ class LiveViewNode(Node):
 
     def __init__(self, **kwargs):
         """Declare the parameters, start the server (or refuse: one line), start looking."""
-        super().__init__(NODE_NAME, **kwargs)
-        d = node_defaults(NODE_NAME, AREA_FILES)
+        super().__init__(SPEC.node, **kwargs)
+        d = node_defaults(SPEC.node, SPEC.configs)
         rng = load_params(RANGE_FILE, RANGE_NODE)
         d.update({k: float(rng[k]) for k in RANGE_KEYS if k not in d})
         p = {name: declare(self, d, name, text, lo, hi, True)
@@ -184,7 +186,7 @@ class LiveViewNode(Node):
         self.url = 'ws://%s:%d' % (p['host'], self.server.port)
         # the taps live on a node no executor spins: DDS keeps the newest messages and
         # the timer below takes them, ui_rate_hz times a second
-        self.taps_node = Node(NODE_NAME + '_taps', namespace=self.get_namespace(),
+        self.taps_node = Node(SPEC.node + '_taps', namespace=self.get_namespace(),
                               context=self.context, start_parameter_services=False,
                               use_global_arguments=False, enable_rosout=False)
         names = list(p['topics']) + [t for t in p['extra_topics'] if t not in p['topics']]
@@ -205,12 +207,12 @@ class LiveViewNode(Node):
         self.last_align = None
         self.map = self.pairer = self.ch_map = None
         if p['power_map']:
-            self.map = lv.PowerMap(p['range_x_min_m'], p['range_x_max_m'],
-                                   p['range_y_min_m'], p['range_y_max_m'],
-                                   p['power_map_cell_m'])
-            self.pairer = lv.SamplePairer()
+            self.map = powermap.PowerMap(p['range_x_min_m'], p['range_x_max_m'],
+                                         p['range_y_min_m'], p['range_y_max_m'],
+                                         p['power_map_cell_m'])
+            self.pairer = powermap.SamplePairer()
             self.ch_map = self._json_channel(
-                own + '/power_map', lv.GRID_SCHEMA, 'every %g s: the brightest reading per '
+                own + '/power_map', powermap.GRID_SCHEMA, 'every %g s: the brightest reading per '
                 '%g m cell since the search began' % (p['power_map_period_s'],
                                                       p['power_map_cell_m']))
             self.map_state = None
@@ -362,7 +364,7 @@ class LiveViewNode(Node):
 
 def main(args=None):
     """Run the view (a port in use, a bad host, bad parameters: one line, exit 2)."""
-    return run_node(LiveViewNode, NODE_NAME, args, realtime=lambda node: False)
+    return run_node(LiveViewNode, SPEC.node, args, realtime=lambda node: False)
 
 
 if __name__ == '__main__':

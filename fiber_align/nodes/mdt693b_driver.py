@@ -66,7 +66,6 @@ AXIS_KEYS = ('channel', 'v_min', 'v_max', 'safe_voltage_v')
 SHARED_CORE = tuple(k for k in CORE_KEYS if k not in AXIS_KEYS)
 DEVICE = ('port', 'baud', 'device_limit_v', 'device_timeout_s', 'ramp_rate_v_per_s',
           'ramp_step_s', 'readback_period_s')
-PUBLISHES = ()       # per-axis topics, built from the axes parameter
 
 
 def defaults():

@@ -22,15 +22,15 @@ import sys
 
 from sensor_msgs.msg import JointState
 
+from fiber_align.graph.registry import NODES
 from fiber_align.nodes.ros.bus import Pub
 from fiber_align.nodes.ros.params import declare, node_defaults
 from fiber_align.nodes.ros.qos import sample_pub_qos
 from fiber_align.nodes.ros.runtime import run_node
-from fiber_align.nodes.simulated_actuator import JOINT_NAME, NODE_NAME, SimulatedActuatorNode
+from fiber_align.nodes.simulated_actuator import JOINT_NAME, SimulatedActuatorNode
 
-AREA_FILES = ('plant.yaml', 'optics.yaml')
-#: Topics this node publishes (relative names; see ``ros.bus.LocalBus``).
-PUBLISHES = ('displacement', 'optical_power', 'tip_position')
+#: the registry's entry of this node: its name and params files
+SPEC = NODES['rig_actuator']
 
 
 class RigActuatorNode(SimulatedActuatorNode):
@@ -39,7 +39,7 @@ class RigActuatorNode(SimulatedActuatorNode):
     def __init__(self, bus=None, **kwargs):
         """Build the 1-D plant node, then the rig's parameters and publisher."""
         super().__init__(bus=bus, **kwargs)
-        d = node_defaults(NODE_NAME, AREA_FILES)
+        d = node_defaults(SPEC.node, SPEC.configs)
         self.tip_every = declare(self, d, 'tip_position_every', 'publish tip_position '
                                  '(true tip position, m) every N samples; 0: off', 0,
                                  1000000, True)
@@ -70,7 +70,7 @@ class RigActuatorNode(SimulatedActuatorNode):
 
 def main(args=None):
     """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
-    return run_node(RigActuatorNode, NODE_NAME, args)
+    return run_node(RigActuatorNode, SPEC.node, args)
 
 
 if __name__ == '__main__':

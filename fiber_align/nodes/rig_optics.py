@@ -30,6 +30,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
+from fiber_align.graph.registry import NODES
 from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, stamp_to_s, subscription
 from fiber_align.nodes.ros.diagnostics import Health, OK
 from fiber_align.nodes.ros.params import declare, declare_graph_values, flatten_defaults
@@ -38,10 +39,8 @@ from fiber_align.nodes.ros.qos import sample_pub_qos, sample_qos
 from fiber_align.nodes.ros.runtime import run_node
 from fiber_align.plant import optics as op, optics2d as o2
 
-NODE_NAME = o2.CONFIG_NODE          # simulated_optics_2d
-AREA_FILES = (o2.CONFIG_FILE,)
-#: Topics this node publishes (relative names; see ``ros.bus.LocalBus``).
-PUBLISHES = ('optical_power',)
+#: the registry's entry of this node: its name and params files
+SPEC = NODES['simulated_optics_2d']
 OPTICS_KEYS = o2.LINK_KEYS + o2.DETECTOR_KEYS
 
 
@@ -96,8 +95,8 @@ class RigOpticsNode(OpticsReadings, Node):
 
     def __init__(self, bus=None, **kwargs):
         """Declare the parameters (defaults from config/), build the link, wire topics."""
-        super().__init__(NODE_NAME, **kwargs)
-        d = node_defaults(NODE_NAME, AREA_FILES)
+        super().__init__(SPEC.node, **kwargs)
+        d = node_defaults(SPEC.node, SPEC.configs)
         d.update(optics_defaults())
         g = declare_graph_values(self, d, 'sync_mode', 'diagnostics_period_s', 'rate_hz',
                                  *PRIORITY)
@@ -155,7 +154,7 @@ class RigOpticsNode(OpticsReadings, Node):
 
 def main(args=None):
     """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
-    return run_node(RigOpticsNode, NODE_NAME, args)
+    return run_node(RigOpticsNode, SPEC.node, args)
 
 
 if __name__ == '__main__':

@@ -41,6 +41,7 @@ from std_msgs.msg import Float64, String
 
 from fiber_align.config import ConfigError
 from fiber_align.control.trajectory import stamp_ns
+from fiber_align.graph.registry import NODES
 from fiber_align.nodes._recording import diag_entry, recorder_missing, recorder_short
 from fiber_align.nodes.ros.bus import Pub, subscription
 from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults
@@ -48,13 +49,11 @@ from fiber_align.nodes.ros.qos import DIAG_QOS, LATCHED_QOS, sample_pub_qos, sam
 from fiber_align.nodes.ros.runtime import run_node
 from fiber_align.simulation.setpoints import setpoint_range, Source
 
-NODE_NAME = 'scenario_runner'
-AREA_FILES = ('scenario.yaml',)
+#: the registry's entry of this node: its name and params files
+SPEC = NODES['scenario_runner']
 SCENARIOS = ('step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment')
-#: Accepted as a parameter value; ``none`` starts no runner (graph.py, bringup).
+#: Accepted as a parameter value; ``none`` starts no runner (graph/description.py, bringup).
 CHOICES = ('none',) + SCENARIOS
-#: Topics this node publishes (relative names; see ``ros.bus.LocalBus``).
-PUBLISHES = ('setpoint', 'feedforward_voltage', 'feedback_voltage')
 
 
 class ScenarioRunnerNode(Node):
@@ -67,8 +66,8 @@ class ScenarioRunnerNode(Node):
         :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
             process, or ``None``.
         """
-        super().__init__(NODE_NAME, **kwargs)
-        d = node_defaults(NODE_NAME, AREA_FILES)
+        super().__init__(SPEC.node, **kwargs)
+        d = node_defaults(SPEC.node, SPEC.configs)
         self.name_ = declare(self, d, 'scenario', 'scenario to run', read_only=True,
                              choices=SCENARIOS if d.get('scenario') != 'none' else CHOICES)
         if self.name_ == 'none':
@@ -185,7 +184,7 @@ class ScenarioRunnerNode(Node):
 
 def main(args=None):
     """Run the node (bad parameters: one line, exit 2)."""
-    return run_node(ScenarioRunnerNode, NODE_NAME, args)
+    return run_node(ScenarioRunnerNode, SPEC.node, args)
 
 
 if __name__ == '__main__':

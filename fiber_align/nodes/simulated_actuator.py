@@ -53,6 +53,7 @@ from std_srvs.srv import SetBool
 
 from fiber_align.control.cycle import cycle_warning, CycleStats, LatencyHistogram
 from fiber_align.control.trajectory import MAX_CATCH_UP
+from fiber_align.graph.registry import NODES
 from fiber_align.nodes._plant_clock import PlantClock
 from fiber_align.nodes.ros.bus import Pub, sample_timer, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import Health
@@ -65,11 +66,9 @@ from fiber_align.plant.actuator import KINDS, SimulatedActuator
 from fiber_align.plant.dac import DacClock
 from fiber_align.plant.optics import OpticalLink
 
-NODE_NAME = 'simulated_actuator'
-AREA_FILES = ('plant.yaml', 'optics.yaml')
+#: the registry's entry of this node: its name and params files
+SPEC = NODES['simulated_actuator']
 JOINT_NAME = 'bimorph_tip'
-#: Topics this node publishes (relative names; see ``ros.bus.LocalBus``).
-PUBLISHES = ('displacement', 'optical_power')
 PLANT_KEYS = ('rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min', 'v_max',
               'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m', 'seed')
 
@@ -84,8 +83,8 @@ class SimulatedActuatorNode(PlantClock, Node):
         :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
             process (``control_graph``), or ``None``.
         """
-        super().__init__(NODE_NAME, **kwargs)
-        d = node_defaults(NODE_NAME, AREA_FILES)
+        super().__init__(SPEC.node, **kwargs)
+        d = node_defaults(SPEC.node, SPEC.configs)
         ro = True
         g = declare_graph_values(self, d, 'rate_hz', 'sync_mode', 'diagnostics_period_s',
                                  *PRIORITY)
@@ -253,7 +252,7 @@ class SimulatedActuatorNode(PlantClock, Node):
 
 def main(args=None):
     """Run the node (bad parameters: one line, exit 2)."""
-    return run_node(SimulatedActuatorNode, NODE_NAME, args)
+    return run_node(SimulatedActuatorNode, SPEC.node, args)
 
 
 if __name__ == '__main__':

@@ -30,7 +30,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
-from fiber_align.graph.registry import STATION_AXES
+from fiber_align.graph.registry import NODES, STATION_AXES
 from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, stamp_to_s, subscription
 from fiber_align.nodes.ros.diagnostics import Health, OK
 from fiber_align.nodes.rig_optics import declare_optics, OpticsReadings, optics_defaults
@@ -40,12 +40,10 @@ from fiber_align.nodes.ros.qos import sample_pub_qos, sample_qos
 from fiber_align.nodes.ros.runtime import run_node
 from fiber_align.plant import station_optics as so
 
-NODE_NAME = so.CONFIG_NODE          # simulated_station_optics
-AREA_FILES = (so.CONFIG_FILE,)
+#: the registry's entry of this node: its name and params files
+SPEC = NODES['simulated_station_optics']
 #: The station's axes (namespaces below the station's), in the order of the positions.
 AXES = STATION_AXES
-#: Topics this node publishes (relative names; see ``ros.bus.LocalBus``).
-PUBLISHES = ('optical_power',)
 OPTICS_KEYS = so.SOURCE_KEYS + so.DETECTOR_KEYS
 
 
@@ -54,8 +52,8 @@ class StationOpticsNode(OpticsReadings, Node):
 
     def __init__(self, bus=None, **kwargs):
         """Declare the parameters (defaults from config/), build the link, wire topics."""
-        super().__init__(NODE_NAME, **kwargs)
-        d = node_defaults(NODE_NAME, AREA_FILES)
+        super().__init__(SPEC.node, **kwargs)
+        d = node_defaults(SPEC.node, SPEC.configs)
         d.update(optics_defaults(OPTICS_KEYS))
         g = declare_graph_values(self, d, 'sync_mode', 'diagnostics_period_s', 'rate_hz',
                                  *PRIORITY)
@@ -102,7 +100,7 @@ class StationOpticsNode(OpticsReadings, Node):
 
 def main(args=None):
     """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
-    return run_node(StationOpticsNode, NODE_NAME, args)
+    return run_node(StationOpticsNode, SPEC.node, args)
 
 
 if __name__ == '__main__':

@@ -42,6 +42,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from fiber_align.alignment import station as st
+from fiber_align.graph.registry import NODES
 from fiber_align.nodes._sequencer_node import SequencerNode
 from fiber_align.nodes.alignment_sequencer import POWER_QUEUE_LIMIT
 from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, stamp_to_s, subscription
@@ -51,10 +52,8 @@ from fiber_align.nodes.ros.qos import sample_pub_qos, sample_qos
 from fiber_align.nodes.ros.runtime import run_node
 from fiber_align.nodes.station_optics import AXES
 
-NODE_NAME = st.CONFIG_NODE          # station_sequencer
-AREA_FILES = (st.CONFIG_FILE,)
-#: Topics this node publishes (relative names; see ``ros.bus.LocalBus``).
-PUBLISHES = tuple(a + '/setpoint' for a in AXES)
+#: the registry's entry of this node: its name and params files
+SPEC = NODES['station_sequencer']
 
 
 class StationSequencerNode(SequencerNode, Node):
@@ -66,8 +65,8 @@ class StationSequencerNode(SequencerNode, Node):
 
         :param bus: the ``LocalBus`` of the station's composed process, or ``None``.
         """
-        super().__init__(NODE_NAME, **kwargs)
-        d = node_defaults(NODE_NAME, AREA_FILES)
+        super().__init__(SPEC.node, **kwargs)
+        d = node_defaults(SPEC.node, SPEC.configs)
         g = declare_graph_values(self, d, 'sync_mode', 'diagnostics_period_s', 'rate_hz',
                                  'realtime_setpoint_rate_m_per_s', *PRIORITY)
         self.lockstep, diag = g['sync_mode'] == 'lockstep', g['diagnostics_period_s']
@@ -147,7 +146,7 @@ class StationSequencerNode(SequencerNode, Node):
 
 def main(args=None):
     """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
-    return run_node(StationSequencerNode, NODE_NAME, args)
+    return run_node(StationSequencerNode, SPEC.node, args)
 
 
 if __name__ == '__main__':

@@ -1,5 +1,15 @@
 # SPDX-License-Identifier: Apache-2.0
-"""A node's health on ``/diagnostics`` (diagnostic_msgs), with the status levels."""
+"""
+A node's health on ``/diagnostics`` (diagnostic_msgs), with the status levels.
+
+:class:`Health` is the stand-in for ``diagnostic_updater.Updater`` (diagnostic_updater is
+not in a pip install of ROS 2), with its shape: tasks added by ``add(name, fn)``, each
+``fn(stat)`` filling a :class:`StatusWrapper` (the stand-in for
+``diagnostic_updater.DiagnosticStatusWrapper``: ``summary(level, message)``,
+``add(key, value)``), and ``force_update()``; its own status is set by
+``summary(level, message)`` too. Code written against that shape moves to the real
+updater when it is available.
+"""
 
 import time
 
@@ -59,11 +69,50 @@ def _refused(node, health, parameters, reason):
     health.warn(text)
 
 
+class StatusWrapper:
+    """
+    The status a diagnostic task fills: the stand-in for ``DiagnosticStatusWrapper``.
+
+    ``summary(level, message)`` sets the level (``OK``, ``WARN``, ``ERROR``: int) and
+    text, ``add(key, value)`` a key/value pair (the unit in the key's name);
+    ``merge_summary`` keeps the more severe of two summaries, joining the texts of equal
+    ones, as the real wrapper's ``mergeSummary`` does.
+    """
+
+    def __init__(self, name=''):
+        """Start OK with no message and no values; ``name``: the status's name."""
+        self.name = name
+        self.level = OK
+        self.message = ''
+        self.values = {}
+
+    def summary(self, level, message):
+        """Set the level (int) and the message (str)."""
+        self.level, self.message = int(level), str(message)
+
+    def merge_summary(self, level, message):
+        """Raise the level to ``level`` with its message; an equal one adds its text."""
+        level = int(level)
+        if level > self.level:
+            self.level, self.message = level, str(message)
+        elif level == self.level and message:
+            self.message = '; '.join(m for m in (self.message, str(message)) if m)
+
+    def add(self, key, value):
+        """Add the key/value pair ``key`` (str, its unit in the name) = ``value``."""
+        self.values[str(key)] = value
+
+
 class Health:
     """
-    Publish the node's health on ``/diagnostics`` (diagnostic_msgs/DiagnosticArray).
+    Publish the node's health on ``/diagnostics``: the stand-in for ``diagnostic_updater``.
 
-    One DiagnosticStatus named after the node's fully qualified name. ``warn``/``error``
+    The shape of ``diagnostic_updater.Updater``: :meth:`add` (``add(name, fn)``, a task
+    ``fn(stat)`` filling a :class:`StatusWrapper`), :meth:`summary` (the node's own
+    level and message), :meth:`force_update`; swap it for the real updater when that is
+    installed. Each report is one DiagnosticArray: the node's own DiagnosticStatus,
+    named after the node's fully qualified name, then one per task, named
+    ``<node>: <task>`` as the updater names them. ``warn``/``error``
     latch their level for ``hold_s`` seconds (wall time) so a short event is seen by
     every subscriber; ``condition`` sets a standing WARN (a protection turned off) that
     lasts until cleared; ``set_values`` adds key/value pairs (units in the key names).
@@ -106,6 +155,7 @@ class Health:
         self.values = {}
         self._conditions = {}
         self._update = update
+        self._tasks = []
         self.sent = 0
         #: a :class:`~fiber_align.control.cycle.CycleStats` whose window is reported with
         #: every publish (per-sample nodes set it), or ``None``
@@ -120,9 +170,9 @@ class Health:
             # the listing of the check, off the control thread
             sender.watch_graph(node, float(period_s) * self.ENDPOINT_EVERY)
 
-    def status(self, level, message):
+    def summary(self, level, message):
         """
-        Set the steady level (``OK``, ``WARN``, ``ERROR``: int) and message.
+        Set the node's steady level (``OK``, ``WARN``, ``ERROR``: int) and message.
 
         A status at least as severe as a latched event replaces it: the newer news wins
         (a device lost right after a refused configure reported the refusal for 2 s).
@@ -130,6 +180,26 @@ class Health:
         self._base_level, self._base_message = level, message
         if level >= self._level:
             self._until = 0.0
+
+    #: the name the nodes used before :meth:`summary` (the same call)
+    status = summary
+
+    def add(self, name, fn=None):
+        """
+        Add a diagnostic task, as ``diagnostic_updater.Updater.add``.
+
+        :param name: the task's name (its status is ``<node>: <name>``), or a task
+            object with ``name`` and ``run(stat)`` (a ``DiagnosticTask``).
+        :param fn: ``fn(stat)`` fills a :class:`StatusWrapper` on every report; an
+            exception it raises is reported as that task's ERROR.
+        """
+        if fn is None:
+            name, fn = name.name, name.run
+        self._tasks.append((str(name), fn))
+
+    def force_update(self):
+        """Publish the node's status and run every task now, as the updater's call."""
+        self.publish()
 
     def resolve(self):
         """
@@ -291,16 +361,28 @@ class Health:
             level = max(level, WARN)
             message = '; '.join([message] + list(self._conditions.values()))
         name = self._name or self._node.get_fully_qualified_name()
-        st = DiagnosticStatus(level=bytes([level]), name=name,
-                              message=message, hardware_id=self._hw)
-        st.values = [KeyValue(key=str(k), value=_fmt(v)) for k, v in self.values.items()]
-        arr = DiagnosticArray(status=[st])
+        statuses = [self._message_of(name, level, message, self.values)]
+        for task, fn in self._tasks:
+            stat = StatusWrapper('%s: %s' % (name, task))
+            try:
+                fn(stat)
+            except Exception as exc:  # noqa: BLE001 - a task's failure is its status
+                stat.summary(ERROR, 'task failed: %s: %s' % (type(exc).__name__, exc))
+            statuses.append(self._message_of(stat.name, stat.level, stat.message,
+                                             stat.values))
+        arr = DiagnosticArray(status=statuses)
         arr.header.stamp = self._node.get_clock().now().to_msg()
         try:
             self._out.publish(arr)
             self.sent += 1
         except Exception:  # noqa: BLE001 - context already shut down at exit
             pass
+
+    def _message_of(self, name, level, message, values):
+        st = DiagnosticStatus(level=bytes([level]), name=name, message=message,
+                              hardware_id=self._hw)
+        st.values = [KeyValue(key=str(k), value=_fmt(v)) for k, v in values.items()]
+        return st
 
 
 def endpoint_node_name(info):

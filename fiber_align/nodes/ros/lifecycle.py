@@ -1,5 +1,13 @@
 # SPDX-License-Identifier: Apache-2.0
-"""The lifecycle ``~/change_state`` guard of the managed (lifecycle) nodes."""
+"""
+The lifecycle services of the managed nodes, on both sides.
+
+Their ``~/change_state`` guard (:func:`guard_change_state`) and the manager's bounded
+call of their services (:func:`call_bounded`).
+"""
+
+import threading
+import time
 
 
 def guard_change_state(node):
@@ -42,3 +50,38 @@ def guard_change_state(node):
         return response
 
     srv.callback = change_state
+
+
+def call_bounded(client, request, timeout_s, alive, resend_s=None, slice_s=0.1):
+    """
+    Call a service with a bounded wait; return the response or the reason (str).
+
+    :param client: the rclpy service client; :param timeout_s: the bound (s).
+    :param alive: ``() -> bool``, False once the context shuts down (the wait ends).
+    :param resend_s: for a query (``get_state``): send the request again when no answer
+        came within this many seconds (a server may drop its response while the
+        discovery of this client is still under way); the first answer of any counts.
+    :param slice_s: the wait's slice (s).
+    """
+    done = threading.Event()
+    end = time.monotonic() + float(timeout_s)
+    futs, sent = [], 0.0
+    while not futs or not done.wait(slice_s):
+        now = time.monotonic()
+        if futs and (now >= end or not alive()):
+            for f in futs:
+                client.remove_pending_request(f)
+            return 'no answer from %s within %g s' % (client.srv_name, timeout_s)
+        if not futs or (resend_s is not None and now - sent >= resend_s):
+            fut = client.call_async(request)
+            fut.add_done_callback(lambda f: done.set())
+            futs.append(fut)
+            sent = now
+    fut = next(f for f in futs if f.done())
+    for f in futs:
+        if f is not fut and not f.done():
+            client.remove_pending_request(f)
+    exc = fut.exception()
+    if exc is not None:
+        return '%s failed: %s' % (client.srv_name, exc)
+    return fut.result()

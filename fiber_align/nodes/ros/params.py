@@ -16,12 +16,11 @@ from rcl_interfaces.msg import SetParametersResult
 
 from fiber_align.config import config_path, ConfigError, flatten
 from fiber_align.control.factory import CONTROLLERS
+from fiber_align.control.shaping import KINDS as SHAPING_KINDS
 from fiber_align.control.trajectory import REALTIME_SETPOINT_RATE_M_PER_S
 from fiber_align.design import design_dynamics, load_actuator
 from fiber_align.graph.description import AREA_FILES, GRAPH_FILE
-from fiber_align.graph.params import effective, merge_params, normalize
-
-SYNC_MODES = ('realtime', 'lockstep')
+from fiber_align.graph.params import effective, merge_params, normalize, SYNC_MODES
 
 
 #: The graph-wide values: name -> (description, low, high, choices, fallback). Every
@@ -173,22 +172,18 @@ def check_parameters(params, ranges, choices=None):
     return SetParametersResult(successful=True)
 
 
-#: Reference shaping laws (``shaping`` parameter).
-SHAPING = ('none', 'zv', 'zvd')
-
-
 def declare_shaping(node, defaults):
     """
     Declare the reference shaping and design-model parameters (read-only); return them.
 
     The compensator's shaper and the controller's reference model are built from these
-    values; the graph keeps them one value for both (:data:`graph.SHARED`).
+    values; the graph keeps them one value for both (:data:`fiber_align.graph.params.SHARED`).
 
-    :returns: ``{name: value}`` of :data:`graph.SHAPING_KEYS` (SI units).
+    :returns: ``{name: value}`` of :data:`fiber_align.graph.params.SHAPING_KEYS` (SI units).
     """
     out = {'shaping': declare(node, defaults, 'shaping',
                               'resonance suppression of the reference', read_only=True,
-                              choices=SHAPING)}
+                              choices=SHAPING_KINDS)}
     for name, text, lo, hi in (
             ('shaping_omega_n_rad_s', 'mode to suppress (rad/s); <= 0: the design model',
              -1.0, 1e6),
