@@ -35,10 +35,10 @@ def _js(*position):
 @pytest.fixture()
 def rig():
     """Both rig nodes and a harness on one executor; torn down after the test."""
-    from fiber_align.nodes.alignment_sequencer2d import AlignmentSequencer2DNode
+    from fiber_align.nodes.alignment_sequencer import RigSequencerNode
     from fiber_align.nodes.rig_optics import RigOpticsNode
     with nodes_on_executor(lambda: RigOpticsNode(parameter_overrides=LOCKSTEP),
-                           lambda: AlignmentSequencer2DNode(parameter_overrides=LOCKSTEP),
+                           lambda: RigSequencerNode(parameter_overrides=LOCKSTEP),
                            lambda: Node('harness')) as (ex, nodes):
         yield ex, nodes
 

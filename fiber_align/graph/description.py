@@ -110,8 +110,8 @@ NODES = {
                                     ('optics2d.yaml',), area=False,
                                     publishes=('optical_power',),
                                     subscribes=('x/tip_position', 'y/tip_position')),
-    'alignment_sequencer_2d': NodeSpec('alignment_sequencer_2d', 'alignment_sequencer2d',
-                                       'AlignmentSequencer2DNode', ('sequencer2d.yaml',),
+    'alignment_sequencer_2d': NodeSpec('alignment_sequencer_2d', 'alignment_sequencer',
+                                       'RigSequencerNode', ('sequencer2d.yaml',),
                                        area=False, publishes=('x/setpoint', 'y/setpoint'),
                                        subscribes=('optical_power',)),
     # the coupled station (graph/station.py): four axes in/x .. out/y
@@ -120,7 +120,7 @@ NODES = {
         area=False, publishes=('optical_power',),
         subscribes=tuple('%s/tip_position' % a for a in STATION_AXES)),
     'station_sequencer': NodeSpec(
-        'station_sequencer', 'station_sequencer', 'StationSequencerNode', ('station.yaml',),
+        'station_sequencer', 'alignment_sequencer', 'StationSequencerNode', ('station.yaml',),
         area=False, publishes=tuple('%s/setpoint' % a for a in STATION_AXES),
         subscribes=('optical_power',)),
     COMPENSATOR: NodeSpec(COMPENSATOR, COMPENSATOR, 'HysteresisCompensatorNode',
@@ -252,6 +252,8 @@ class Process:
         namespace = namespace if self.namespace is None else self.namespace
         if namespace:
             out += ['-r', '__ns:=/' + namespace]
+        if self.node_name and self.node_name != self.executable:   # one executable, roles
+            out += ['-r', '__node:=' + self.node_name]
         for a, b in remappings:
             out += ['-r', '%s:=%s' % (a, b)]
         return out
