@@ -46,7 +46,7 @@ class Machine:
     amplifier: str = ''
 
     def driver(self, axis):
-        """Return the core's name of ``axis``'s driver (its node, relative to the graph's)."""
+        """Return the core's name of the driver of ``axis`` (relative to the graph's)."""
         return (axis + '/' if axis else '') + 'actuator_driver'
 
 
