@@ -36,8 +36,8 @@ def _js(*position):
 def rig():
     """Both rig nodes and a harness on one executor; torn down after the test."""
     from fiber_align.nodes.alignment_sequencer import RigSequencerNode
-    from fiber_align.nodes.rig_optics import RigOpticsNode
-    with nodes_on_executor(lambda: RigOpticsNode(parameter_overrides=LOCKSTEP),
+    from fiber_align.nodes.simulated_optics import SimulatedOpticsNode
+    with nodes_on_executor(lambda: SimulatedOpticsNode(parameter_overrides=LOCKSTEP),
                            lambda: RigSequencerNode(parameter_overrides=LOCKSTEP),
                            lambda: Node('harness')) as (ex, nodes):
         yield ex, nodes

@@ -39,7 +39,7 @@ def _js(*position):
 @pytest.fixture()
 def station():
     """Both station nodes and a harness on one executor; torn down after the test."""
-    from fiber_align.nodes.station_optics import StationOpticsNode
+    from fiber_align.nodes.simulated_optics import StationOpticsNode
     from fiber_align.nodes.alignment_sequencer import StationSequencerNode
     with nodes_on_executor(lambda: StationOpticsNode(parameter_overrides=LOCKSTEP),
                            lambda: StationSequencerNode(parameter_overrides=LOCKSTEP),

@@ -106,7 +106,8 @@ NODES = {
     SEQUENCER: NodeSpec(SEQUENCER, SEQUENCER, 'AlignmentSequencerNode', ('sequencer.yaml',),
                         publishes=('setpoint', 'alignment_state'),
                         subscribes=('displacement', 'optical_power')),
-    'simulated_optics_2d': NodeSpec('simulated_optics_2d', 'rig_optics', 'RigOpticsNode',
+    'simulated_optics_2d': NodeSpec('simulated_optics_2d', 'simulated_optics',
+                                    'SimulatedOpticsNode',
                                     ('optics2d.yaml',), area=False,
                                     publishes=('optical_power',),
                                     subscribes=('x/tip_position', 'y/tip_position')),
@@ -116,7 +117,8 @@ NODES = {
                                        subscribes=('optical_power',)),
     # the coupled station (graph/station.py): four axes in/x .. out/y
     'simulated_station_optics': NodeSpec(
-        'simulated_station_optics', 'station_optics', 'StationOpticsNode', ('station.yaml',),
+        'simulated_station_optics', 'simulated_optics', 'StationOpticsNode',
+        ('station.yaml',),
         area=False, publishes=('optical_power',),
         subscribes=tuple('%s/tip_position' % a for a in STATION_AXES)),
     'station_sequencer': NodeSpec(
