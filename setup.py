@@ -22,7 +22,6 @@ NODES = [
     'fuzzy_pid_controller',
     'alignment_sequencer',
     'simulated_optics',
-    'rig_actuator',
     'bag_recorder',
     'bringup',
     'control_graph',

@@ -97,7 +97,7 @@ NODES = {
     PLANT: NodeSpec(PLANT, PLANT, 'SimulatedActuatorNode', ('plant.yaml', 'optics.yaml'),
                     publishes=('displacement', 'optical_power'), subscribes=('drive_voltage',)),
     # the rig's plant (graph/rig.py): the 1-D plant node publishing its tip position too
-    'rig_actuator': NodeSpec(PLANT, 'rig_actuator', 'RigActuatorNode', area=False,
+    'rig_actuator': NodeSpec(PLANT, PLANT, 'SimulatedActuatorNode', area=False,
                              publishes=('displacement', 'optical_power', 'tip_position'),
                              subscribes=('drive_voltage',)),
     SCENARIO_RUNNER: NodeSpec(SCENARIO_RUNNER, SCENARIO_RUNNER, 'ScenarioRunnerNode',

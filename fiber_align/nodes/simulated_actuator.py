@@ -3,42 +3,29 @@
 ``simulated_actuator``: the plant and sensor of the control core as a ROS 2 node.
 
 Wraps :class:`fiber_align.plant.actuator.SimulatedActuator` (one ``step(v)`` = one control
-period). Topics (relative names, SI units):
+period); the same executable is each axis's plant of the rig and the station. Topics
+(relative names, SI units):
 
-- sub ``drive_voltage`` (std_msgs/Float64, V): the amplifier input, held for one period
-  (QoS: reliable in lockstep, best effort in realtime; deep in both).
+- sub ``drive_voltage`` (std_msgs/Float64, V): the amplifier input, held for one period.
 - pub ``displacement`` (sensor_msgs/JointState, joint ``bimorph_tip``): position = the
-  sensor reading (m), velocity = the model's tip velocity (m/s); header stamp = the sample
-  time t_k (sim time in lockstep, wall time in realtime).
-- pub ``optical_power`` (std_msgs/Float64, W): coupled power at the detector, when the
-  optics model (:mod:`fiber_align.plant.optics`) is installed.
-- pub ``/clock`` (rosgraph_msgs/Clock) in lockstep mode.
-- srv ``~/run`` (std_srvs/SetBool): start (true) or hold (false) the sample clock; a held
-  plant is frozen (realtime: the clock restarts on the next run).
+  sensor reading (m), velocity = the tip velocity (m/s); stamp = the sample time t_k.
+- pub ``optical_power`` (std_msgs/Float64, W): the 1-D optics model's detector reading,
+  every ``optical_power_every`` samples (0: off; the multi-axis graphs: their optics node).
+- pub ``tip_position`` (sensor_msgs/JointState: the true tip position, m, and velocity,
+  m/s, the stamp of ``displacement``) every ``tip_position_every`` samples (0: off, no
+  publisher; the rig and the station set 1 for their optics node).
+- pub ``/clock`` (rosgraph_msgs/Clock) in lockstep when ``publish_clock`` (a multi-axis
+  graph leaves it to its first axis's plant).
+- srv ``~/run`` (std_srvs/SetBool): start (true) or hold (false) the sample clock.
 
-Modes (parameter ``sync_mode``):
-
-- ``lockstep`` publishes sample k with ``/clock`` = k T and advances to k + 1 only when
-  the drive for sample k has arrived; if it does not arrive within ``lockstep_timeout_s``
-  (wall time) it warns and keeps holding. The drive computed from y_k is applied over
-  [t_k, t_k+1]: exactly the offline loop of docs/CONTRACTS.md.
-- ``realtime`` runs a sample clock on the steady wall clock at ``rate_hz``, like a DAC and
-  an ADC clocked by one sample clock. At tick k (time t_k) the node
-
-  1. advances the plant over [t_k-1, t_k] with the drive latched at tick k-1 and
-     publishes the measurement y_k (stamp: the nominal time t_k = t_0 + k T on the
-     system clock, so stamps count sample periods exactly);
-  2. latches the newest drive received since then; it is held over [t_k, t_k+1].
-
-  The command computed from y_k is latched at t_k+1 and first shows in y_k+2: the
-  realtime loop has exactly **one period more delay than lockstep**, whatever the
-  message latency is, as long as it is below one period (the controller accounts for
-  it). Missed cycles, late ticks and the replay of the drives a stall wrote:
-  :class:`fiber_align.plant.dac.DacClock`.
-
-Realtime: the sample-to-drive latency (publishing y_k to the first drive after it) and
-the missed cycles, per run (:meth:`SimulatedActuatorNode.latency_stats`, ``latency_*``)
-and per diagnostics window (``cycle.*``, :mod:`fiber_align.control.cycle`).
+``lockstep`` publishes sample k with ``/clock`` = k T and advances to k + 1 once the drive
+for sample k arrived (a WARN after ``lockstep_timeout_s`` without): exactly the offline
+loop of docs/CONTRACTS.md. ``realtime`` runs a sample clock on the steady wall clock at
+``rate_hz`` (:class:`fiber_align.plant.dac.DacClock`): at tick k it advances the plant
+with the drive latched at tick k-1, publishes y_k (stamp t_0 + k T) and latches the
+newest drive, one period more delay than lockstep. The sample clock:
+:mod:`fiber_align.nodes._plant_clock`; the realtime latency and missed cycles:
+:meth:`SimulatedActuatorNode.latency_stats` and ``cycle.*`` on ``/diagnostics``.
 """
 
 import sys
@@ -69,7 +56,7 @@ NODE_NAME = 'simulated_actuator'
 AREA_FILES = ('plant.yaml', 'optics.yaml')
 JOINT_NAME = 'bimorph_tip'
 #: Topics this node publishes (relative names; see ``ros.bus.LocalBus``).
-PUBLISHES = ('displacement', 'optical_power')
+PUBLISHES = ('displacement', 'optical_power', 'tip_position')
 PLANT_KEYS = ('rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min', 'v_max',
               'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m', 'seed')
 
@@ -78,12 +65,7 @@ class SimulatedActuatorNode(PlantClock, Node):
     """Transport, parameters and health around :class:`SimulatedActuator`."""
 
     def __init__(self, bus=None, **kwargs):
-        """
-        Declare the parameters (defaults from config/), build the plant, wire topics.
-
-        :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
-            process (``control_graph``), or ``None``.
-        """
+        """Declare the parameters, build the plant, wire topics (``bus``: a LocalBus)."""
         super().__init__(NODE_NAME, **kwargs)
         d = node_defaults(NODE_NAME, AREA_FILES)
         ro = True
@@ -134,16 +116,21 @@ class SimulatedActuatorNode(PlantClock, Node):
         self.optics = OpticalLink.from_params(optics_params, seed=int(params['seed']),
                                               sample_period_s=self.period_s) \
             if optics_params else None
-
         self.slack = slack_of(bus)
         pub_qos = sample_pub_qos(self.sync_mode == 'lockstep')
         self.pub_disp = Pub(self, JointState, 'displacement', pub_qos, bus,
                             slack=self.slack)
         self.pub_power = Pub(self, Float64, 'optical_power', pub_qos, bus)
-        self.pub_clock = None
-        if self.sync_mode == 'lockstep':
-            self.pub_clock = self.create_publisher(ClockMsg, '/clock', CLOCK_QOS)
+        clock = declare(self, d, 'publish_clock', 'lockstep: publish /clock (a multi-axis '
+                        'graph: its first plant only)', read_only=ro)
+        self.pub_clock = self.create_publisher(ClockMsg, '/clock', CLOCK_QOS) \
+            if clock and self.sync_mode == 'lockstep' else None
+        self.tip_every = declare(self, d, 'tip_position_every', 'publish tip_position (true '
+                                 'tip position, m) every N samples; 0: off', 0, 1000000, ro)
+        self.pub_tip = Pub(self, JointState, 'tip_position', pub_qos, bus) \
+            if self.tip_every else None
         self._js = JointState(name=[JOINT_NAME], position=[0.0], velocity=[0.0])
+        self._tip = JointState(name=[JOINT_NAME], position=[0.0], velocity=[0.0])
         self._power = Float64()
         subscription(self, Float64, 'drive_voltage', self._on_drive,
                      LOCKSTEP_QOS if self.sync_mode == 'lockstep' else DAC_QOS, bus)
@@ -151,24 +138,18 @@ class SimulatedActuatorNode(PlantClock, Node):
         self.health = Health(self, diag_period, slack=self.slack, sender=sender_of(bus))
         if self.sync_mode == 'realtime':
             self.health.cycle = CycleStats(self.rate_hz)
-
-        self.running = False
-        self.started = False
+        self.running = self.started = False
         self.k = 0                      # index of the last published sample
-        self.n_disp = 0
-        self.n_power = 0
-        self.n_clock = 0
+        self.n_disp = self.n_power = self.n_clock = self.n_tip = 0
         self.pending = []               # lockstep: drives not yet applied
         self._advancing = False         # lockstep: _advance is on the stack (local bus)
         # lockstep only: the EventsExecutor of a realtime process has no guard conditions
         self._next = self.create_guard_condition(self._advance) \
             if self.sync_mode == 'lockstep' else None
-        self.wait_since = None
-        self.holds = 0
+        self.wait_since, self.holds = None, 0
         # realtime: the sample clock (DacClock) and the latency (perf_counter s)
         self.dac = DacClock(self.plant, self.period_s, MAX_CATCH_UP, SAMPLE_DEPTH)
-        self.t_pub = None
-        self.drive_seen = True
+        self.t_pub, self.drive_seen = None, True
         self.lat = LatencyHistogram()   # realtime: sample-to-drive latencies (s)
         self.reset_stats()
         steady = Clock(clock_type=ClockType.STEADY_TIME)
@@ -231,6 +212,13 @@ class SimulatedActuatorNode(PlantClock, Node):
                                                  self.period_s))
             self.pub_power.publish(msg)
             self.n_power += 1
+        if self.tip_every and self.k % self.tip_every == 0:
+            tip = self._tip
+            tip.header.stamp = stamp
+            tip.position[0] = float(plant.position_m)
+            tip.velocity[0] = float(plant.velocity_m_per_s)
+            self.pub_tip.publish(tip)
+            self.n_tip += 1
 
     def _update_values(self):
         vals = {'sample': self.k, 'sim_time_s': self.k * self.period_s,
@@ -247,8 +235,9 @@ class SimulatedActuatorNode(PlantClock, Node):
 
     def sent_counts(self):
         """Return published message counts per topic."""
-        return {'displacement': self.n_disp, 'optical_power': self.n_power,
-                '/clock': self.n_clock}
+        out = {'displacement': self.n_disp, 'optical_power': self.n_power,
+               '/clock': self.n_clock}
+        return dict(out, tip_position=self.n_tip) if self.tip_every else out
 
 
 def main(args=None):
