@@ -47,46 +47,15 @@ from fiber_align.nodes.ros.params import declare, declare_graph_values, node_def
 from fiber_align.nodes.ros.qos import DIAG_QOS, LATCHED_QOS, sample_pub_qos, sample_qos
 from fiber_align.nodes.ros.runtime import run_node
 from fiber_align.simulation import scenarios
+from fiber_align.simulation.scenario_source import setpoint_range, Source
 
 NODE_NAME = 'scenario_runner'
 AREA_FILES = ('scenario.yaml',)
-SCENARIOS = ('step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment')
+SCENARIOS = scenarios.NAMES
 #: Accepted as a parameter value; ``none`` starts no runner (graph.py, bringup).
 CHOICES = ('none',) + SCENARIOS
 #: Topics this node publishes (relative names; see ``ros.bus.LocalBus``).
 PUBLISHES = ('setpoint', 'feedforward_voltage', 'feedback_voltage')
-
-
-class Source:
-    """
-    A scenario's values at sample times (pure; shared with ``bringup``'s trace).
-
-    :param name: a name in :data:`SCENARIOS`.
-    :param lo: lowest setpoint (m).
-    :param hi: highest setpoint (m).
-    """
-
-    def __init__(self, name, lo=0.0, hi=float('inf')):
-        """Build the scenario of :mod:`fiber_align.simulation.scenarios`."""
-        self.sc = scenarios.make(name)
-        self.lo, self.hi = max(0.0, float(lo)), float(hi)
-
-    @property
-    def open_loop(self):
-        """Return True for an open-loop drive (V) instead of a setpoint (m)."""
-        return self.sc.open_loop
-
-    def value(self, t):
-        """Return the setpoint (m) or, open loop, the drive (V) at sample time ``t`` (s)."""
-        if self.sc.open_loop:
-            return self.sc.drive(t)
-        return min(max(self.sc.reference(t), self.lo), self.hi)
-
-
-def setpoint_range(lo, hi, reach_m):
-    """Return the clamp range (m) of the setpoints: ``[max(0, lo), min(hi, reach)]``."""
-    return max(0.0, float(lo)), (min(float(hi), float(reach_m)) if reach_m > 0
-                                 else float(hi))
 
 
 class ScenarioRunnerNode(Node):

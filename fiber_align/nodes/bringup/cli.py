@@ -19,7 +19,7 @@ from fiber_align.graph import description as gd, rig as gr, station as gs
 from fiber_align.graph.description import NODES
 from fiber_align.graph.live import check_endpoint, live_settings, with_live
 from fiber_align.graph.params import GraphError, PLANT, RECORDER, SCENARIO_RUNNER
-from fiber_align.nodes.scenario_runner import setpoint_range, Source
+from fiber_align.simulation.scenario_source import setpoint_range, Source
 
 TRACKING_SCENARIOS = ('step', 'sine', 'triangle', 'staircase')
 #: bringup options of the 1-D graph only: (attribute, option); refused with ``--rig``.
@@ -161,7 +161,7 @@ def describe(a):
     arguments of the options; with a scenario the harness holds the plant until the
     graph is connected (``autostart`` false) and ends the run itself (the runner's
     ``exit_when_done`` false, ``duration_s`` set). ``source``: the scenario runner's
-    setpoints (:class:`~fiber_align.nodes.scenario_runner.Source`) or ``None``.
+    setpoints (:class:`~fiber_align.simulation.scenario_source.Source`) or ``None``.
 
     :raises GraphError: a bad option, params file or ``-p`` (exit code 2).
     """

@@ -8,7 +8,7 @@ source is the graph's own node (``scenario_runner`` or a sequencer) and
 the streams it is given (reliable, deep, transient local: every sample), the
 ``alignment_state`` changes and, through its own thread, ``/diagnostics``. With a
 ``clock`` stream (the 1-D ``displacement``) it keeps the sample times and the scenario's
-reference at each (:class:`~fiber_align.nodes.scenario_runner.Source`). Service clients
+reference at each (:class:`~fiber_align.simulation.scenario_source.Source`). Service clients
 live on a second node that only the calling thread spins, so a call never waits on the
 executor thread. Its rclpy context is its own.
 """

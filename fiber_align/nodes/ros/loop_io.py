@@ -86,7 +86,7 @@ class LoopIO:
         return why
 
     def latency(self, ns):
-        """Record the latency (s) from the sample stamped ``ns`` (ns) to now, if counted."""
+        """Record the time (s) from the sample stamped ``ns`` (ns) to now, if counted."""
         cyc = self.health.cycle
         if cyc is not None:
             cyc.record((time.time_ns() - ns) * 1e-9, cyc.index(ns))
