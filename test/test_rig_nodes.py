@@ -2,7 +2,7 @@
 """
 The rig's own nodes in one process: bad input is refused, never a crash; pairing holds.
 
-``simulated_optics_2d`` (``rig_optics``) and ``alignment_sequencer_2d`` in lockstep, fed by
+``simulated_optics_2d`` (``simulated_optics``) and ``alignment_sequencer_2d`` in lockstep, fed by
 a harness: a NaN or empty tip position gives a NaN reading (the detector's averaging is
 not poisoned: the next reading equals the offline link's), and the sequencer answers
 every sample, also one with an empty displacement and a NaN power.

@@ -2,7 +2,7 @@
 """
 The station's own nodes in one process: bad input is refused, never a crash; pairing holds.
 
-``simulated_station_optics`` (``station_optics``) and ``station_sequencer`` in lockstep,
+``simulated_station_optics`` (``simulated_optics``) and ``station_sequencer`` in lockstep,
 fed by a harness: a NaN or empty tip position gives a NaN reading (the detector's
 averaging is not poisoned: the next reading equals the offline link's), the sequencer
 answers every sample, also one with an empty displacement and a NaN or negative power,
