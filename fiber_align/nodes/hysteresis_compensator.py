@@ -68,12 +68,7 @@ class HysteresisCompensatorNode(Node):
     """Transport, parameters and the reload service around :class:`Feedforward`."""
 
     def __init__(self, bus=None, **kwargs):
-        """
-        Declare parameters (defaults from config/), load the model, wire topics.
-
-        :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
-            process, or ``None``.
-        """
+        """Load the model of the parameters (config/ defaults), wire topics (``bus``: LocalBus)."""
         super().__init__(NODE_NAME, **kwargs)
         d = node_defaults(NODE_NAME, AREA_FILES)
         io = self.io = LoopIO(self, d, bus, 'sensorless')    # graph values, shaping, ...
