@@ -24,12 +24,11 @@ loop of docs/CONTRACTS.md. ``realtime`` runs a sample clock on the steady wall c
 ``rate_hz`` (:class:`fiber_align.plant.dac.DacClock`): at tick k it advances the plant
 with the drive latched at tick k-1, publishes y_k (stamp t_0 + k T) and latches the
 newest drive, one period more delay than lockstep. The sample clock:
-:mod:`fiber_align.nodes._plant_clock`; the realtime latency and missed cycles:
-:meth:`SimulatedActuatorNode.latency_stats` and ``cycle.*`` on ``/diagnostics``.
+:class:`fiber_align.nodes._plant_clock.PlantClock` (composed); the realtime latency and
+missed cycles: its ``latency_stats()`` and ``cycle.*`` on ``/diagnostics``.
 """
 
 import sys
-import time
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -38,18 +37,16 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
 
-from fiber_align.control.cycle import cycle_warning, CycleStats, LatencyHistogram
-from fiber_align.control.trajectory import MAX_CATCH_UP
+from fiber_align.control.cycle import cycle_warning, CycleStats
 from fiber_align.nodes._plant_clock import PlantClock
-from fiber_align.nodes.ros.bus import Pub, sample_timer, sender_of, slack_of, subscription
+from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import Health
 from fiber_align.nodes.ros.params import check_parameters, declare, declare_graph_values
 from fiber_align.nodes.ros.params import flatten_defaults, node_defaults, PRIORITY
-from fiber_align.nodes.ros.qos import CLOCK_QOS, DAC_QOS, LOCKSTEP_QOS, SAMPLE_DEPTH
+from fiber_align.nodes.ros.qos import CLOCK_QOS, DAC_QOS, LOCKSTEP_QOS
 from fiber_align.nodes.ros.qos import sample_pub_qos
 from fiber_align.nodes.ros.runtime import run_node
 from fiber_align.plant.actuator import KINDS, SimulatedActuator
-from fiber_align.plant.dac import DacClock
 from fiber_align.plant.optics import OpticalLink
 
 NODE_NAME = 'simulated_actuator'
@@ -61,7 +58,7 @@ PLANT_KEYS = ('rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min'
               'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m', 'seed')
 
 
-class SimulatedActuatorNode(PlantClock, Node):
+class SimulatedActuatorNode(Node):
     """Transport, parameters and health around :class:`SimulatedActuator`."""
 
     def __init__(self, bus=None, **kwargs):
@@ -91,15 +88,14 @@ class SimulatedActuatorNode(PlantClock, Node):
         self.timeout_s = declare(self, d, 'lockstep_timeout_s',
                                  'lockstep: warn when no drive within this time (s)',
                                  0.001, 3600.0)
-        self.autostart = declare(self, d, 'autostart', 'start the clock without ~/run',
-                                 read_only=ro)
-        self.start_reader = declare(self, d, 'start_after_reader', 'realtime: start the '
-                                    'clock once this node subscribes to displacement and '
-                                    'drive_voltage (a name in this namespace or a full '
-                                    'one, /ns/name; "" = none)', read_only=ro)
-        self.start_wait_s = declare(self, d, 'start_wait_s', 'bound of that wait (s, wall)',
-                                    0.0, 3600.0, ro)
-        self.created = time.monotonic()
+        start = {'autostart': declare(self, d, 'autostart', 'start the clock without ~/run',
+                                      read_only=ro),
+                 'start_after_reader': declare(
+                     self, d, 'start_after_reader', 'realtime: start the clock once this '
+                     'node subscribes to displacement and drive_voltage (a name in this '
+                     'namespace or a full one, /ns/name; "" = none)', read_only=ro),
+                 'start_wait_s': declare(self, d, 'start_wait_s', 'bound of that wait (s, '
+                                         'wall)', 0.0, 3600.0, ro)}
         diag_period = g['diagnostics_period_s']
         self.power_every = declare(self, d, 'optical_power_every',
                                    'publish optical_power every N samples (1); 0: off '
@@ -132,36 +128,22 @@ class SimulatedActuatorNode(PlantClock, Node):
         self._js = JointState(name=[JOINT_NAME], position=[0.0], velocity=[0.0])
         self._tip = JointState(name=[JOINT_NAME], position=[0.0], velocity=[0.0])
         self._power = Float64()
-        subscription(self, Float64, 'drive_voltage', self._on_drive,
-                     LOCKSTEP_QOS if self.sync_mode == 'lockstep' else DAC_QOS, bus)
-        self.create_service(SetBool, '~/run', self._on_run)
         self.health = Health(self, diag_period, slack=self.slack, sender=sender_of(bus))
         if self.sync_mode == 'realtime':
             self.health.cycle = CycleStats(self.rate_hz)
-        self.running = self.started = False
-        self.k = 0                      # index of the last published sample
         self.n_disp = self.n_power = self.n_clock = self.n_tip = 0
-        self.pending = []               # lockstep: drives not yet applied
-        self._advancing = False         # lockstep: _advance is on the stack (local bus)
-        # lockstep only: the EventsExecutor of a realtime process has no guard conditions
-        self._next = self.create_guard_condition(self._advance) \
-            if self.sync_mode == 'lockstep' else None
-        self.wait_since, self.holds = None, 0
-        # realtime: the sample clock (DacClock) and the latency (perf_counter s)
-        self.dac = DacClock(self.plant, self.period_s, MAX_CATCH_UP, SAMPLE_DEPTH)
-        self.t_pub, self.drive_seen = None, True
-        self.lat = LatencyHistogram()   # realtime: sample-to-drive latencies (s)
-        self.reset_stats()
-        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        # the sample clock (its state, the drive, start and hold, its timers)
+        self.clock = PlantClock(self, self.plant, self._publish_sample, self.health, bus, dict(
+            start, sync_mode=self.sync_mode, lockstep_timeout_s=self.timeout_s,
+            topics=(self.pub_disp.topic_name, self.resolve_topic_name('drive_voltage'))),
+            self._update_values)
         if self.sync_mode == 'realtime':
-            self.timer = sample_timer(self, bus, self.period_s, self._on_tick, steady)
             self.create_timer(diag_period, lambda: self.slack.submit(self._update_values),
-                              clock=steady)
-        else:
-            self.timer = self.create_timer(min(0.1, self.timeout_s / 2), self._on_watch,
-                                           clock=steady)
-        self._autostart_timer = self.create_timer(0.05, self._maybe_autostart, clock=steady)
-        self.health.status(0, 'ready, waiting for run' if not self.autostart else 'ready')
+                              clock=Clock(clock_type=ClockType.STEADY_TIME))
+        subscription(self, Float64, 'drive_voltage', self.clock.on_drive,
+                     LOCKSTEP_QOS if self.sync_mode == 'lockstep' else DAC_QOS, bus)
+        self.create_service(SetBool, '~/run', self.clock.on_run)
+        self.health.status(0, 'ready' if start['autostart'] else 'ready, waiting for run')
         self.get_logger().info('plant ready: %s mode at %g Hz, optics %s'
                                % (self.sync_mode, self.rate_hz,
                                   'on' if self.optics else 'not installed'))
@@ -175,7 +157,7 @@ class SimulatedActuatorNode(PlantClock, Node):
         if res.successful:
             for p in params:
                 if p.name == 'lockstep_timeout_s':
-                    self.timeout_s = float(p.value)
+                    self.timeout_s = self.clock.timeout_s = float(p.value)
                 elif p.name == 'optical_power_every':
                     self.power_every = int(p.value)
                 elif p.name == 'cycle_goal_missed_share':
@@ -185,18 +167,18 @@ class SimulatedActuatorNode(PlantClock, Node):
     # -- publishing -----------------------------------------------------------------
     def _publish_sample(self, t_s):
         """
-        Publish /clock (lockstep), displacement and optical power for sample ``self.k``.
+        Publish /clock (lockstep), displacement, power and tip for the clock's sample k.
 
         :param t_s: lockstep sample time (s); realtime stamps with the nominal time of
             the tick on the system clock (the ROS clock of a realtime graph), so that the
             stamps of samples k and j differ by exactly (k - j) periods.
         """
-        js = self._js
+        js, k = self._js, self.clock.k
         stamp = js.header.stamp
         if self.sync_mode == 'lockstep':
             ns = int(round(t_s * 1e9))
         else:
-            ns = self.dac.wall0_ns + self.k * self.dac.period_ns
+            ns = self.clock.dac.wall0_ns + k * self.clock.dac.period_ns
         stamp.sec, stamp.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
         if self.pub_clock is not None:
             self.pub_clock.publish(ClockMsg(clock=stamp))
@@ -206,13 +188,13 @@ class SimulatedActuatorNode(PlantClock, Node):
         js.velocity[0] = float(plant.velocity_m_per_s)
         self.pub_disp.publish(js)
         self.n_disp += 1
-        if self.optics is not None and self.power_every and self.k % self.power_every == 0:
+        if self.optics is not None and self.power_every and k % self.power_every == 0:
             msg = self._power
-            msg.data = float(self.optics.measure(self.k * self.period_s, plant.position_m,
+            msg.data = float(self.optics.measure(k * self.period_s, plant.position_m,
                                                  self.period_s))
             self.pub_power.publish(msg)
             self.n_power += 1
-        if self.tip_every and self.k % self.tip_every == 0:
+        if self.tip_every and k % self.tip_every == 0:
             tip = self._tip
             tip.header.stamp = stamp
             tip.position[0] = float(plant.position_m)
@@ -221,11 +203,12 @@ class SimulatedActuatorNode(PlantClock, Node):
             self.n_tip += 1
 
     def _update_values(self):
-        vals = {'sample': self.k, 'sim_time_s': self.k * self.period_s,
+        c = self.clock
+        vals = {'sample': c.k, 'sim_time_s': c.k * self.period_s,
                 'position_m': self.plant.position_m, 'drive_v': self.plant.v_applied,
-                'lockstep_holds': self.holds}
+                'lockstep_holds': c.holds}
         if self.sync_mode == 'realtime':
-            stats = self.latency_stats()
+            stats = c.latency_stats()
             vals.update(stats)
             self.health.condition('cycles', cycle_warning(stats, self.cycle_goal),
                                   publish=False)
