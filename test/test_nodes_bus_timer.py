@@ -21,10 +21,10 @@ def test_a_composed_drivers_watchdog_ticks_on_the_plants_timer_after_the_plant()
         assert driver.trigger_configure() == Ret.SUCCESS
         (timer,) = bus.timers.values()          # one timer for the process's period
         assert isinstance(timer, SampleTimer) and driver._timer is timer
-        assert timer.callbacks == [plant._on_tick, driver._on_tick]    # the plant first
+        assert timer.callbacks == [plant.clock._on_tick, driver._on_tick]    # the plant first
         assert timer.watchdogs == {driver._on_tick}
         assert driver.trigger_cleanup() == Ret.SUCCESS
-        assert timer.callbacks == [plant._on_tick]
+        assert timer.callbacks == [plant.clock._on_tick]
     finally:
         for n in nodes:
             n.destroy_node()

@@ -49,7 +49,7 @@ def test_multi_process_rig_uses_console_scripts_and_a_namespace_per_axis():
     assert len(g.processes) == 2 * len(CONTROL) + 3
     assert set(p.executable for p in g.processes) <= set(setup_py_nodes())
     plants = [p for p in g.processes if p.node_name == 'simulated_actuator']
-    assert [p.executable for p in plants] == ['rig_actuator'] * 2
+    assert [p.executable for p in plants] == ['simulated_actuator'] * 2
     assert {p.namespace for p in g.processes} == {'bench1', 'bench1/x', 'bench1/y'}
     assert 'x/actuator_driver' in g.nodes and 'y/simulated_actuator' in g.nodes
 

@@ -2,7 +2,7 @@
 """
 The rig's own nodes in one process: bad input is refused, never a crash; pairing holds.
 
-``simulated_optics_2d`` (``rig_optics``) and ``alignment_sequencer_2d`` in lockstep, fed by
+``simulated_optics_2d`` (``simulated_optics``) and ``alignment_sequencer_2d`` in lockstep, fed by
 a harness: a NaN or empty tip position gives a NaN reading (the detector's averaging is
 not poisoned: the next reading equals the offline link's), and the sequencer answers
 every sample, also one with an empty displacement and a NaN power.
@@ -35,10 +35,10 @@ def _js(*position):
 @pytest.fixture()
 def rig():
     """Both rig nodes and a harness on one executor; torn down after the test."""
-    from fiber_align.nodes.alignment_sequencer2d import AlignmentSequencer2DNode
-    from fiber_align.nodes.rig_optics import RigOpticsNode
-    with nodes_on_executor(lambda: RigOpticsNode(parameter_overrides=LOCKSTEP),
-                           lambda: AlignmentSequencer2DNode(parameter_overrides=LOCKSTEP),
+    from fiber_align.nodes.alignment_sequencer import RigSequencerNode
+    from fiber_align.nodes.simulated_optics import SimulatedOpticsNode
+    with nodes_on_executor(lambda: SimulatedOpticsNode(parameter_overrides=LOCKSTEP),
+                           lambda: RigSequencerNode(parameter_overrides=LOCKSTEP),
                            lambda: Node('harness')) as (ex, nodes):
         yield ex, nodes
 

@@ -2,7 +2,7 @@
 """
 The station's own nodes in one process: bad input is refused, never a crash; pairing holds.
 
-``simulated_station_optics`` (``station_optics``) and ``station_sequencer`` in lockstep,
+``simulated_station_optics`` (``simulated_optics``) and ``station_sequencer`` in lockstep,
 fed by a harness: a NaN or empty tip position gives a NaN reading (the detector's
 averaging is not poisoned: the next reading equals the offline link's), the sequencer
 answers every sample, also one with an empty displacement and a NaN or negative power,
@@ -39,8 +39,8 @@ def _js(*position):
 @pytest.fixture()
 def station():
     """Both station nodes and a harness on one executor; torn down after the test."""
-    from fiber_align.nodes.station_optics import StationOpticsNode
-    from fiber_align.nodes.station_sequencer import StationSequencerNode
+    from fiber_align.nodes.simulated_optics import StationOpticsNode
+    from fiber_align.nodes.alignment_sequencer import StationSequencerNode
     with nodes_on_executor(lambda: StationOpticsNode(parameter_overrides=LOCKSTEP),
                            lambda: StationSequencerNode(parameter_overrides=LOCKSTEP),
                            lambda: Node('harness')) as (ex, nodes):

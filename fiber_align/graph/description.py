@@ -123,6 +123,8 @@ class Process:
         namespace = namespace if self.namespace is None else self.namespace
         if namespace:
             out += ['-r', '__ns:=/' + namespace]
+        if self.node_name and self.node_name != self.executable:   # one executable, roles
+            out += ['-r', '__node:=' + self.node_name]
         for a, b in remappings:
             out += ['-r', '%s:=%s' % (a, b)]
         return out

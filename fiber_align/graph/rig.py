@@ -9,11 +9,11 @@ namespace (``rig`` unless told):
 - ``/rig/x/...`` and ``/rig/y/...``: two actuator graphs, each the control nodes of the
   1-D graph (``simulated_actuator``, ``hysteresis_compensator``, ``fuzzy_pid_controller``,
   ``actuator_driver``) with its own plant, sensor-noise seed and params sections
-  (``/rig/x/simulated_actuator``, ...); the plant is the executable ``rig_actuator`` (the
-  1-D plant node publishing its true tip position too);
-- ``/rig/simulated_optics_2d`` (executable ``rig_optics``): reads both true tip
+  (``/rig/x/simulated_actuator``, ...); the plant (``control_graph`` name
+  ``rig_actuator``) is the 1-D plant's executable publishing its true tip position too;
+- ``/rig/simulated_optics_2d`` (executable ``simulated_optics``): reads both true tip
   positions (``x/tip_position``, ``y/tip_position``), publishes ``optical_power`` (W);
-- ``/rig/alignment_sequencer_2d`` (executable ``alignment_sequencer2d``): the 2-D
+- ``/rig/alignment_sequencer_2d`` (executable ``alignment_sequencer``): the 2-D
   sequencer, ``x/setpoint`` and ``y/setpoint``, services ``align``, ``release``,
   ``switch``;
 - ``/rig/lifecycle_manager``: activates ``x/actuator_driver`` and ``y/actuator_driver``.
@@ -51,7 +51,7 @@ AXES = ('x', 'y')
 RIG_NODES = {NODES[n].node: NODES[n].executable for n in (OPTICS, SEQUENCER_2D)}
 #: Each axis's nodes, in start order (the 1-D graph without a setpoint source).
 AXIS_NODES = g.control_nodes('none')
-#: Executables (``control_graph --nodes`` names) of the axis nodes that differ from the
+#: ``control_graph --nodes`` names (registry keys) of the axis nodes that differ from the
 #: node name: the rig's plant also publishes its true tip position (``rig_actuator``).
 AXIS_EXECUTABLES = {PLANT: 'rig_actuator'}
 #: Params files of the rig's nodes, merged after the 1-D graph's area files.
@@ -127,7 +127,8 @@ def rig_processes(ns, composed, axes=AXES, own=None, label='rig', record=False):
         procs = [g.Process(label, g.COMPOSED_EXECUTABLE, nodes, ('--nodes', ','.join(hosted)),
                            namespace=ns)]
     else:
-        procs = [g.Process('%s/%s' % (a, n), AXIS_EXECUTABLES.get(n, n), (n,), node_name=n,
+        procs = [g.Process('%s/%s' % (a, n), g.NODES[AXIS_EXECUTABLES.get(n, n)].executable,
+                           (n,), node_name=n,
                            namespace=_axis_ns(ns, a)) for a in axes for n in AXIS_NODES]
         procs += [g.Process(n, exe, (n,), node_name=n, namespace=ns)
                   for n, exe in own.items()]

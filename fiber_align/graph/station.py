@@ -8,11 +8,11 @@ unless told):
 
 - ``/station/in/x/...``, ``/station/in/y/...``, ``/station/out/x/...``,
   ``/station/out/y/...``: four actuator graphs, each the control nodes of the 1-D graph
-  with its own plant (``rig_actuator``: it publishes its true tip position too),
+  with its own plant (``simulated_actuator``, publishing its true tip position too),
   sensor-noise seed and params sections (``/station/in/x/simulated_actuator``, ...);
-- ``/station/simulated_station_optics`` (executable ``station_optics``): the four true
+- ``/station/simulated_station_optics`` (executable ``simulated_optics``): the four true
   tip positions in, ``optical_power`` (W) out;
-- ``/station/station_sequencer`` (executable ``station_sequencer``): the four setpoints,
+- ``/station/station_sequencer`` (executable ``alignment_sequencer``): the four setpoints,
   services ``align``, ``release``, ``switch``;
 - ``/station/lifecycle_manager``: activates the four drivers;
 - with ``record``: ``/station/bag_recorder``, recording :data:`RECORDED` (every message

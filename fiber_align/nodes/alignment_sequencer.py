@@ -2,174 +2,247 @@
 """
 ``alignment_sequencer``: the setpoint source that finds, peaks, tracks and switches light.
 
-Wraps :class:`fiber_align.alignment.sequencer.Sequencer` (one ``update`` per displacement
-sample). Topics and services (relative names, SI units):
+One executable for every machine, chosen by the read-only parameter ``machine`` (the
+params files set it per node: ``alignment_sequencer`` 1d, ``alignment_sequencer_2d`` rig,
+``station_sequencer`` station); the differences are data (:mod:`fiber_align.graph.
+machines`). Relative names, SI units, ``<a>/`` an axis's namespace (none in 1-D):
 
-- sub ``displacement`` (sensor_msgs/JointState, position[0] in m, stamp = t_k) and
-  ``optical_power`` (std_msgs/Float64, W).
-- pub ``setpoint`` (std_msgs/Float64, m): exactly one per displacement sample.
-- pub ``alignment_state`` (std_msgs/String, JSON: state, fault_reason,
-  aligned_position_m, threshold_w, peak_samples, hold_reason), latched, on every change.
-- ``/diagnostics``: OK while IDLE, SEARCHING, PEAKING, TRACKING, RELEASING; WARN with
-  the reason in HELD (the driver holds its output); ERROR with the reason in FAULT.
-- srv ``align``, ``release`` (std_srvs/Trigger); ``switch`` (std_srvs/SetBool: true goes
-  to the last aligned position and re-peaks, false parks at 0 m).
-- the driver's state (``_sequencer_node``): its latched ``drive_held`` (std_msgs/Bool),
-  ``actuator_driver/transition_event`` (lifecycle_msgs/TransitionEvent) and its status
-  on ``/diagnostics`` go to the core (:mod:`fiber_align.alignment.driver_state`): a
-  driver that stops driving (tripped, disabled, inactive, unconfigured, its device or
-  its process lost) puts an active state in HELD at once (the setpoint held, a WARN
-  on ``/diagnostics`` with the reason), which re-peaks once the driver drives again and
-  FAULTs after ``driver_down_timeout_s``; ``align`` and ``switch`` true are refused
-  (success false, the reason and what to do) while it is down.
+- sub ``<a>/displacement`` (sensor_msgs/JointState, m, stamp t_k), ``optical_power``
+  (std_msgs/Float64, W); pub ``<a>/setpoint`` (std_msgs/Float64, m), one each per update;
+- pub ``alignment_state`` (std_msgs/String, JSON status), latched, on every change of
+  state or fault; ``/diagnostics``: OK, WARN in HELD, ERROR in FAULT;
+- srv ``align``, ``release`` (std_srvs/Trigger), ``switch`` (std_srvs/SetBool);
+- the drivers' ``<a>/drive_held``, ``<a>/actuator_driver/transition_event`` and
+  ``/diagnostics`` go to the core (:mod:`fiber_align.alignment.driver_state`).
 
-``sensorless`` (graph-wide, the hardware graph: no ``displacement``): one ``update`` per
-``optical_power`` reading, against the commanded displacement: the newest ``reference``
-(std_msgs/Float64, m, the setpoint the compensator accepted and positions by its inverse
-PI feedforward alone), at the wall time since the first reading, each gap counted as at
-most :data:`MAX_GAP_PERIODS` control periods (a stalled period then moves the search by
-its usual step, not by a jump).
-
-Pairing: ``lockstep`` pairs the i-th displacement with the i-th optical power (the plant
-publishes both for every sample); if the plant publishes no power, a displacement waits
-at most ``power_queue_limit`` samples and is then processed without power (which the core
-reports as "sensor silent" once active). ``realtime`` uses the power readings received
-since the previous displacement (the latest one), or none.
+Pairing (``lockstep``: by index; ``realtime``: the latest; ``sensorless``: one step per
+power reading) and the rest: docs/ros_interface.md, docs/alignment2d.md, docs/station.md.
 """
 
+import json
 import math
 import sys
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray
+from lifecycle_msgs.msg import TransitionEvent
+from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64
+from std_msgs.msg import Bool, Float64, String
+from std_srvs.srv import SetBool, Trigger
 
-from fiber_align.alignment import sequencer as sq
-from fiber_align.graph.registry import NODES
-from fiber_align.nodes._sequencer_node import SequencerNode
+from fiber_align.alignment.states import FAULT, HELD
+from fiber_align.config import load_params
+from fiber_align.graph.machines import CONFIG_FILES, MACHINES
 from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, stamp_to_s, subscription
-from fiber_align.nodes.ros.diagnostics import Health
-from fiber_align.nodes.ros.params import declare_graph_values, declare_si, node_defaults, PRIORITY
-from fiber_align.nodes.ros.qos import (REALTIME_QOS, REFERENCE_LATCHED_QOS, sample_pub_qos,
-                                       sample_qos)
+from fiber_align.nodes.ros.diagnostics import ERROR, Health, OK, WARN
+from fiber_align.nodes.ros.params import declare, declare_graph_values, declare_si
+from fiber_align.nodes.ros.params import node_defaults, PRIORITY
+from fiber_align.nodes.ros.qos import (DIAG_QOS, LATCHED_QOS, REALTIME_QOS,
+                                       REFERENCE_LATCHED_QOS, sample_pub_qos, sample_qos,
+                                       STATE_QOS, TRANSITION_EVENT_QOS)
 from fiber_align.nodes.ros.runtime import run_node
 
-#: the registry's entry of this node: its name and params files
-SPEC = NODES['alignment_sequencer']
 POWER_QUEUE_LIMIT = 5
 #: Sensorless: the most control periods one reading advances the sequencer's clock by.
 MAX_GAP_PERIODS = 1.5
+#: s from a driver's last ``drive_held`` writer unmatched to "gone".
+GONE_GRACE_S = 0.05
 
 
-class AlignmentSequencerNode(SequencerNode, Node):
-    """Transport, services and health around the pure :class:`~sq.Sequencer`."""
+class AlignmentSequencerNode(Node):
+    """Transport, services, drivers' state and health around a machine's pure core."""
+
+    NAME = 'alignment_sequencer'
 
     def __init__(self, bus=None, **kwargs):
-        """
-        Declare the parameters (defaults from config/), build the core, wire topics.
-
-        :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
-            process, or ``None``.
-        """
-        super().__init__(SPEC.node, **kwargs)
-        d = node_defaults(SPEC.node, SPEC.configs)
+        """Declare the parameters, build the core, wire every axis (``bus``: a LocalBus)."""
+        super().__init__(self.NAME, **kwargs)
+        d = node_defaults(self.get_name(), CONFIG_FILES)
+        self.machine = declare(self, d, 'machine', 'the machine this sequencer aligns',
+                               read_only=True, choices=tuple(MACHINES))
+        m = self.m = MACHINES[self.machine]
         g = declare_graph_values(self, d, 'sync_mode', 'diagnostics_period_s', 'sensorless',
-                                 'rate_hz', *PRIORITY)
-        self.lockstep, diag = g['sync_mode'] == 'lockstep', g['diagnostics_period_s']
-        core = {}
-        for name in sq.KEYS:
-            if name in d:
-                core[name] = declare_si(self, d, name, 'sequencer')
-        self.seq = sq.Sequencer({k: v for k, v in core.items()})
-        self.pub_sp = Pub(self, Float64, 'setpoint', sample_pub_qos(self.lockstep), bus)
-        qos = sample_qos(self.lockstep)
-        self.sensorless = bool(g['sensorless'])
-        self.max_gap_s = MAX_GAP_PERIODS / float(g['rate_hz'])
-        self.y_ref = None               # sensorless: the newest reference (m)
-        self._t = self._wall = None     # sensorless: control clock (s) and its wall time
-        if self.sensorless:
-            subscription(self, Float64, 'reference', self._on_reference,
-                         REFERENCE_LATCHED_QOS, bus)
-            subscription(self, Float64, 'optical_power', self._on_reading,
-                         REALTIME_QOS, bus)
-        else:
-            subscription(self, JointState, 'displacement', self._on_disp, qos, bus)
-            subscription(self, Float64, 'optical_power', self._on_power, qos, bus)
-        self._serve()
-        self.health = Health(self, diag, slack=slack_of(bus), sender=sender_of(bus))
-        self.y_q = []
-        self.p_q = []
-        self.n_sp = 0
-        self.t_last = None              # sample time (s) of the last sample stepped
-        self._watch_drivers({'actuator_driver': ''}, bus)
+                                 'rate_hz', 'realtime_setpoint_rate_m_per_s', *PRIORITY)
+        self.lockstep, self.period_s = g['sync_mode'] == 'lockstep', 1.0 / g['rate_hz']
+        keys = load_params(m.module.CONFIG_FILE, m.module.CONFIG_NODE)
+        core = {k: declare_si(self, dict(keys, **d), k, 'sequencer') for k in keys}
+        # realtime: the search walks no faster than the loop's path follows a setpoint
+        self.seq = m.build(core, self.period_s, None if self.lockstep
+                           else g['realtime_setpoint_rate_m_per_s'])
+        pre = self.pre = [a + '/' if a else '' for a in m.axes]
+        self.pub_sp = [Pub(self, Float64, p + 'setpoint', sample_pub_qos(self.lockstep), bus)
+                       for p in pre]
+        # sensorless: the newest references (m), the control clock (s) and its wall time
+        self.ref, self._t, self._wall = [None] * len(pre), None, None
+        self.sensorless, qos = bool(g['sensorless']), sample_qos(self.lockstep)
+        for i, p in enumerate(pre):
+            if self.sensorless:
+                subscription(self, Float64, p + 'reference', lambda msg, i=i:
+                             self.ref.__setitem__(i, float(msg.data)),
+                             REFERENCE_LATCHED_QOS, bus)
+            else:
+                subscription(self, JointState, p + 'displacement',
+                             lambda msg, i=i: self._on_position(i, msg), qos, bus)
+        subscription(self, Float64, 'optical_power', self._on_reading if self.sensorless
+                     else self._on_power, REALTIME_QOS if self.sensorless else qos, bus)
+        self.pub_state, self.n_state, self._last = self.create_publisher(
+            String, 'alignment_state', STATE_QOS), 0, None
+        self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, DIAG_QOS)
+        self.create_service(Trigger, 'align', lambda q, r: self._answer(r, self.seq.align(), 1))
+        self.create_service(Trigger, 'release', lambda q, r: self._answer(r, self.seq.release()))
+        self.create_service(SetBool, 'switch', lambda q, r: self._answer(
+            r, self.seq.switch(bool(q.data))))
+        self.health = Health(self, g['diagnostics_period_s'], slack=slack_of(bus),
+                             sender=sender_of(bus))
+        self.q, self.q_p = [[] for _ in pre], []    # lockstep: (stamp s, m) and W not used
+        self.latest = [None] * len(pre)     # realtime: the newest reading of each axis (m)
+        self.n, self.align_sample, self.t_last = 0, None, None
+        self._watch_drivers(bus)
         self._publish_state()
-        self.get_logger().info('sequencer ready (%s pairing)'
-                               % ('index' if self.lockstep else 'latest power'))
+        self.get_logger().info('sequencer ready: machine %s, %s' % (self.machine, g['sync_mode']))
 
-    # -- inputs ---------------------------------------------------------------------
+    def _watch_drivers(self, bus):
+        ns, amp = self.get_namespace().rstrip('/'), self.m.amplifier if self.sensorless else ''
+        self._driver_diag = {}
+        for p, a in zip(self.pre, self.m.axes):
+            name, topic = self.m.driver(a), p + 'drive_held'
+            self._driver_diag['%s/%s' % (ns, name)] = name
+            if amp:     # the hardware rig: one amplifier reports each axis by name
+                self._driver_diag['%s/%s/%s' % (ns, amp, a)] = name
+
+            def held(msg, n=name):
+                self._driver_news(self.seq.driver_held(bool(msg.data), n))
+
+            def matched(info, n=name, t=topic):     # the last writer left: gone soon?
+                if info.current_count == 0 and info.current_count_change < 0:
+                    self._gone_later(n, self.resolve_topic_name(t))
+            if bus is not None and bus.local(self, topic):
+                subscription(self, Bool, topic, held, LATCHED_QOS, bus)   # same process
+            else:
+                self.create_subscription(Bool, topic, held, LATCHED_QOS, event_callbacks=(
+                    SubscriptionEventCallbacks(matched=matched)))
+            self.create_subscription(TransitionEvent, (amp or name) + '/transition_event',
+                                     lambda msg, n=name: self._driver_news(
+                                         self.seq.driver_lifecycle(msg.goal_state.label, n)),
+                                     TRANSITION_EVENT_QOS)
+
+    def _gone_later(self, name, topic):
+        """Call ``name`` gone after :data:`GONE_GRACE_S` if ``topic`` still has no writer."""
+        box = []
+
+        def fire():
+            self.destroy_timer(box[0])
+            if self.count_publishers(topic) == 0:
+                self._driver_news(self.seq.driver_gone(name))
+        box.append(self.create_timer(GONE_GRACE_S, fire,
+                                     clock=Clock(clock_type=ClockType.STEADY_TIME)))
+
+    def _driver_news(self, acted):
+        return acted and self._publish_state()
+
+    def _on_diag(self, msg):
+        for s in msg.status:
+            if s.name in self._driver_diag:
+                level = s.level[0] if isinstance(s.level, (bytes, bytearray)) else int(s.level)
+                self._driver_news(self.seq.driver_diagnostics(level < ERROR,
+                                                              self._driver_diag[s.name]))
+
+    def _answer(self, response, result, align=False):
+        if align and result[0]:     # the index of the update the command acted before
+            self.align_sample = self.n
+        response.success, response.message = bool(result[0]), str(result[1])
+        self._publish_state()
+        return response
+
+    def _on_position(self, i, msg):
+        x, t = msg.position[0] if len(msg.position) else math.nan, stamp_to_s(msg.header.stamp)
+        if self.lockstep:
+            self.q[i].append((t, x))
+            self._pair()
+            return
+        self.latest[i] = x
+        if i == 0:
+            p, self.q_p = (self.q_p or [None])[-1], []
+            self._step(t, list(self.latest), p)
+
     def _on_power(self, msg):
-        self.p_q.append(float(msg.data))
+        self.q_p.append(float(msg.data))
         if self.lockstep:
             self._pair()
         else:
-            del self.p_q[:-1]
-
-    def _on_disp(self, msg):
-        y = msg.position[0] if len(msg.position) else math.nan
-        t = stamp_to_s(msg.header.stamp)
-        if self.lockstep:
-            self.y_q.append((t, y))
-            self._pair()
-        else:
-            p = self.p_q.pop() if self.p_q else None
-            self.p_q = []
-            self._step(t, y, p)
-
-    def _on_reference(self, msg):
-        self.y_ref = float(msg.data)
+            del self.q_p[:-1]
 
     def _on_reading(self, msg):
-        """Sensorless: one step per reading (W) at the commanded displacement (m)."""
+        """Sensorless: one step per reading (W) at the commanded positions (m)."""
         w = time.monotonic()
-        gap = 0.0 if self._t is None else min(max(w - self._wall, 0.0), self.max_gap_s)
-        self._t = gap if self._t is None else self._t + gap
+        self._t = 0.0 if self._t is None else self._t + min(max(w - self._wall, 0.0),
+                                                            MAX_GAP_PERIODS * self.period_s)
         self._wall = w
-        y = self.y_ref if self.y_ref is not None else self.seq.status()['setpoint_m']
-        self._step(self._t, y, float(msg.data))
+        self._step(self._t, [s if r is None else r for r, s in
+                             zip(self.ref, self.m.setpoints(self.seq))], float(msg.data))
 
     def _pair(self):
-        while self.y_q and self.p_q:
-            t, y = self.y_q.pop(0)
-            self._step(t, y, self.p_q.pop(0))
-        while len(self.y_q) > POWER_QUEUE_LIMIT:
-            t, y = self.y_q.pop(0)
-            self._step(t, y, None)
+        q = self.q
+        while all(q) and (self.q_p or len(q[0]) > POWER_QUEUE_LIMIT):   # else no power
+            got = [a.pop(0) for a in q]
+            self._step(self.n * self.period_s if self.m.counted else got[0][0],
+                       [x for _, x in got], self.q_p.pop(0) if self.q_p else None)
 
-    # -- the step -------------------------------------------------------------------
-    def _step(self, t, y, p):
-        y = None if not math.isfinite(y) else y
-        self.t_last = t
-        r = self.seq.update(t, y, p)
-        self.pub_sp.publish(Float64(data=float(r)))
-        self.n_sp += 1
+    def _step(self, t, pos, p):
+        r = self.m.update(self.seq, t, [v if v is not None and math.isfinite(v) else None
+                                        for v in pos], p)
+        self.n, self.t_last = self.n + 1, t
+        for pub, v in zip(self.pub_sp, r):
+            pub.publish(Float64(data=float(v)))
         self._publish_state()
 
     def _publish_state(self):
+        """Publish the status when its state or fault changed; health and log too."""
         s = self.seq.status()
-        # the sample time (s, its stamp) of the last sample stepped: an observer lagging
-        # behind a lockstep graph indexes the state by it, not by its own count
+        # the time (s) of the last update: a lagging observer indexes the state by it
         s['sample_time_s'] = self.t_last
-        self._publish_status(s, aligned_position_m=s['aligned_position_m'])
+        values = {k: s[k] for k in self.m.values}
+        if self.m.counted:
+            s.update(sample=self.n, align_sample=self.align_sample)
+            values['sample'] = self.n
+        if (s['state'], s['fault_reason']) == self._last:
+            return
+        self._last = (s['state'], s['fault_reason'])
+        self.pub_state.publish(String(data=json.dumps(s)))
+        self.n_state += 1
+        log = self.get_logger()
+        level, text, say = (ERROR, 'FAULT: %s' % s['fault_reason'], log.error) \
+            if s['state'] == FAULT else (WARN, 'HELD: %s' % s.get('hold_reason', ''),
+                                         log.warning) if s['state'] == HELD else (
+            OK, s['state'], lambda text: log.info('state ' + text))
+        self.health.status(level, text)
+        say(text)
+        self.health.set_values(state=s['state'], fault_reason=s['fault_reason'],
+                               peak_samples=s['peak_samples'], **values)
 
     def sent_counts(self):
         """Return published message counts per topic."""
-        return {'setpoint': self.n_sp, 'alignment_state': self.n_state}
+        return dict({p + 'setpoint': self.n for p in self.pre}, alignment_state=self.n_state)
+
+
+class RigSequencerNode(AlignmentSequencerNode):
+    """The node ``alignment_sequencer_2d`` (``machine`` rig) as ``control_graph`` hosts it."""
+
+    NAME = 'alignment_sequencer_2d'
+
+
+class StationSequencerNode(AlignmentSequencerNode):
+    """The node ``station_sequencer`` (``machine`` station) as ``control_graph`` hosts it."""
+
+    NAME = 'station_sequencer'
 
 
 def main(args=None):
     """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
-    return run_node(AlignmentSequencerNode, SPEC.node, args,
+    return run_node(AlignmentSequencerNode, AlignmentSequencerNode.NAME, args,
                     realtime=lambda node: not node.lockstep)
 
 

@@ -18,39 +18,33 @@ read-only. The full behaviour: docs/ros_interface.md, section "fuzzy_pid_control
 
 import math
 import sys
-import time
 
 from rclpy.node import Node
 from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool, Float64, Float64MultiArray, MultiArrayDimension
+from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
 from std_srvs.srv import Trigger
 
 from fiber_align.config import ConfigError, flatten, unflatten
-from fiber_align.control.cycle import CycleStats
 from fiber_align.control.factory import build_controller, PARAM_RANGES
 from fiber_align.control.fuzzy_pid import carry_state
 from fiber_align.control.realtime import ControllerStep, extend_lead
-from fiber_align.control.trajectory import Setpoint, stamp_ns
+from fiber_align.control.trajectory import stamp_ns
 from fiber_align.graph import checks
-from fiber_align.graph.registry import NODES
 from fiber_align.graph.params import SHARED
-from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
-from fiber_align.nodes.ros.diagnostics import Health, OK
-from fiber_align.nodes.ros.params import declare, declare_graph_values, declare_shaping
-from fiber_align.nodes.ros.params import design_model, node_defaults, PRIORITY
-from fiber_align.nodes.ros.qos import LATCHED_QOS, LOCKSTEP_QOS, REALTIME_QOS
-from fiber_align.nodes.ros.qos import REFERENCE_LATCHED_QOS, sample_pub_qos, sample_qos
+from fiber_align.graph.registry import NODES
+from fiber_align.nodes.ros.bus import Pub, subscription
+from fiber_align.nodes.ros.diagnostics import OK
+from fiber_align.nodes.ros.loop_io import GRAPH, LoopIO
+from fiber_align.nodes.ros.params import declare, node_defaults
+from fiber_align.nodes.ros.qos import LOCKSTEP_QOS, REFERENCE_LATCHED_QOS
+from fiber_align.nodes.ros.qos import sample_pub_qos, sample_qos
 from fiber_align.nodes.ros.runtime import run_node
 
 #: the registry's entry of this node: its name and params files
 SPEC = NODES['fuzzy_pid_controller']
 STATE_LABELS = ('error_m', 'error_rate_m_per_s', 'kp_v_per_m', 'ki_v_per_m_s',
                 'kd_v_s_per_m', 'output_v')
-#: The graph-wide values this node reads (read-only).
-GRAPH = ('controller', 'rate_hz', 'sync_mode', 'diagnostics_period_s', 'setpoint_min_m',
-         'setpoint_max_m', 'realtime_setpoint_rate_m_per_s',
-         'realtime_setpoint_accel_m_per_s2') + PRIORITY
 
 
 class FuzzyPidControllerNode(Node):
@@ -65,14 +59,13 @@ class FuzzyPidControllerNode(Node):
         """
         super().__init__(SPEC.node, **kwargs)
         d = node_defaults(SPEC.node, SPEC.configs)
-        g = declare_graph_values(self, d, *GRAPH)
-        self.mode, self.rate_hz = g['controller'], g['rate_hz']
-        self.lockstep = g['sync_mode'] == 'lockstep'
-        self.sp = Setpoint(g['setpoint_min_m'], g['setpoint_max_m'])
+        io = self.io = LoopIO(self, d, bus)     # graph values, shaping, setpoint, health
+        g, self.shaping = io.g, io.shaping
+        self.mode, self.rate_hz, self.lockstep = g['controller'], io.rate_hz, io.lockstep
+        self.sp = io.sp
         self.state_every = declare(self, d, 'controller_state_every',
                                    'publish controller_state every N samples (1); 0: off',
                                    0, 1000000)
-        self.shaping = declare_shaping(self, d)   # the reference model's (SHARED)
         own = GRAPH + ('controller_state_every',)
         core = {k: v for k, v in d.items() if k not in own and k not in SHARED}
         self.core_names = []
@@ -83,21 +76,17 @@ class FuzzyPidControllerNode(Node):
                     'controller.yaml)', lo if scalar else None, hi if scalar else None)
             self.core_names.append(name)
         # what the limits must reach: the setpoint range at the design gain (m, m/V)
-        self.limits_for = (self.mode, g['setpoint_min_m'], g['setpoint_max_m'],
-                           design_model(self.shaping)[1])
+        self.limits_for = (self.mode, g['setpoint_min_m'], g['setpoint_max_m'], io.design[1])
         why = self._check({n: self.get_parameter(n).value for n in self.core_names},
                           self._core_params())
         if why:
             raise ConfigError('fuzzy_pid_controller: %s' % why)
-        self.step = ControllerStep(None, 1.0 / self.rate_hz,
-                                   g['realtime_setpoint_rate_m_per_s'],
-                                   g['realtime_setpoint_accel_m_per_s2'])
+        self.step = ControllerStep(None, *io.step_args())
         self.step.ctl = self._make(self._core_params())
         self.add_on_set_parameters_callback(self._on_set)
 
-        self.slack = slack_of(bus)
         pub_qos = sample_pub_qos(self.lockstep)
-        self.pub_fb = Pub(self, Float64, 'feedback_voltage', pub_qos, bus, slack=self.slack)
+        self.pub_fb = Pub(self, Float64, 'feedback_voltage', pub_qos, bus, slack=io.slack)
         self.pub_state = Pub(self, Float64MultiArray, 'controller_state', pub_qos, bus)
         self._fb_msg = Float64()
         self._state_msg = Float64MultiArray()
@@ -109,21 +98,14 @@ class FuzzyPidControllerNode(Node):
         # of ``setpoint``); realtime reads it latched, so a restarted controller has it
         subscription(self, Float64, 'reference', self._on_setpoint,
                      LOCKSTEP_QOS if self.lockstep else REFERENCE_LATCHED_QOS, bus)
-        if not self.lockstep:
-            subscription(self, Bool, 'drive_held', self._on_held, LATCHED_QOS, bus)
-            subscription(self, Float64, 'drive_voltage', self._on_drive, REALTIME_QOS,
-                         bus)
+        if not self.lockstep:   # realtime: parked while the driver holds its output
+            io.watch_driver(self.step.set_held, self.step.drive)
         self.create_service(Trigger, '~/reset', self._on_reset)
-        self.health = Health(self, g['diagnostics_period_s'], slack=self.slack,
-                             sender=sender_of(bus))
+        self.health = io.serve_health(cycle=not self.lockstep)
         self._stamp_ns = 0              # realtime: stamp (ns) of the sample being answered
         self.wired = self.lockstep      # realtime: the driver and compensator are heard
-        if not self.lockstep:
-            self.health.cycle = CycleStats(self.rate_hz)
-        self.sp_q = []
-        self.y_q = []
-        self.n_fb = 0
-        self.n_state = 0
+        self.sp_q, self.y_q = [], []
+        self.n_fb = self.n_state = 0
         self.health.status(OK, 'running (%s)' % self.mode if self.lockstep else
                            'waiting for a setpoint: feedback off (%s)' % self.mode)
         self.get_logger().info('controller ready: mode %s at %g Hz, %s pairing'
@@ -133,8 +115,8 @@ class FuzzyPidControllerNode(Node):
     # -- parameters -----------------------------------------------------------------
     def _make(self, params):
         """Build the feedback law; realtime: its reference model's lead covers one more T."""
-        ctl = build_controller(self.mode, params, self.shaping, design_model(self.shaping),
-                               self.rate_hz, getattr(self.step.ctl, 'surface', None))
+        ctl = build_controller(self.mode, params, self.shaping, self.io.design, self.rate_hz,
+                               getattr(self.step.ctl, 'surface', None))
         if ctl is not None and not self.lockstep:
             extend_lead(getattr(ctl, 'reference_filter', None), 1.0 / self.rate_hz)
         return ctl
@@ -181,25 +163,14 @@ class FuzzyPidControllerNode(Node):
         return response
 
     def _on_setpoint(self, msg):
-        why = self.sp.take(msg.data)
+        why = self.io.take(msg.data)
         if why:
-            self.get_logger().warn(why)
-            self.health.warn(why)
-            self.health.set_values(rejected_setpoints=self.sp.rejected,
-                                   setpoint_m=self.sp.value)
+            self.io.report()
         if self.lockstep:
             self.sp_q.append(self.sp.value)
             self._pair()
         elif not why and self.step.setpoint():  # the first: start parked where it is
             self.health.status(OK, 'running (%s)' % self.mode)
-
-    def _on_held(self, msg):
-        """Realtime: the driver holds (true) or passes (false) its output."""
-        self.step.set_held(msg.data)
-
-    def _on_drive(self, msg):
-        """Realtime: note that a drive command arrived (the loop is closed)."""
-        self.step.drive()
 
     def _on_disp(self, msg):
         y = msg.position[0] if len(msg.position) else math.nan
@@ -234,9 +205,7 @@ class FuzzyPidControllerNode(Node):
         msg.data = float(fb)
         self.pub_fb.publish(msg)
         self.n_fb += 1
-        cyc = self.health.cycle
-        if cyc is not None:             # realtime: sample-to-feedback latency
-            cyc.record((time.time_ns() - self._stamp_ns) * 1e-9, cyc.index(self._stamp_ns))
+        self.io.latency(self._stamp_ns)     # realtime: sample-to-feedback latency
         if self.state_every and self.n_fb % self.state_every == 0:
             st = self._state_msg
             st.data = [float(e), float(de), float(gains[0]), float(gains[1]),
@@ -244,10 +213,8 @@ class FuzzyPidControllerNode(Node):
             self.pub_state.publish(st)
             self.n_state += 1
         if self.n_fb % 500 == 0:
-            self.health.set_values(**{'sent.feedback_voltage': self.n_fb,
-                                      'sent.controller_state': self.n_state,
-                                      'rejected_setpoints': self.sp.rejected,
-                                      'setpoint_m': self.sp.value, 'mode': self.mode})
+            self.io.report(**{'sent.feedback_voltage': self.n_fb,
+                              'sent.controller_state': self.n_state, 'mode': self.mode})
 
     def sent_counts(self):
         """Return published message counts per topic."""

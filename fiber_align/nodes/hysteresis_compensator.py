@@ -3,77 +3,59 @@
 ``hysteresis_compensator``: the feedforward (inverse PI model) as a ROS 2 node.
 
 ``ff = Feedforward.step(r)`` (V from m) of :mod:`fiber_align.control.feedforward`, the
-exact inverse of the Prandtl-Ishlinskii model, after the optional resonance-suppression shaper
-(``shaping``: none | zv | zvd, :mod:`fiber_align.control.shaping`), built by
-:func:`fiber_align.control.factory.build_feedforward` for the graph's ``controller`` so
-that it is exactly the offline loop's feedforward (``fuzzy``/``pid``: 0 V; ``open-loop``: linear).
+exact inverse of the Prandtl-Ishlinskii model, after the optional resonance-suppression
+shaper (``shaping``: none | zv | zvd), built by :func:`fiber_align.control.factory.
+build_feedforward` for the graph's ``controller``, exactly the offline loop's feedforward.
 
-When it steps (shaper and inverse model advance once per step: once per period):
+It steps (shaper and inverse model advance once per period):
 
-- ``lockstep``: one ``feedforward_voltage`` (std_msgs/Float64, V) per ``setpoint``
-  (std_msgs/Float64, m), so index pairing holds (the setpoint source publishes one
-  setpoint per sample);
-- ``sensorless`` (graph-wide, the hardware graph): one per setpoint as in lockstep, no
-  ``displacement`` subscription;
+- ``lockstep`` and ``sensorless`` (the hardware graph): one ``feedforward_voltage``
+  (std_msgs/Float64, V) per ``setpoint`` (std_msgs/Float64, m), so index pairing holds;
 - ``realtime``: one ``feedforward_voltage`` per ``displacement`` sample (sensor_msgs/
-  JointState, newest only), towards the latest valid setpoint along the realtime
-  setpoint trajectory (rate limit ``realtime_setpoint_rate_m_per_s``); the step rules
-  (drive held, a stall, a stale drive) are :class:`fiber_align.control.realtime.
-  CompensatorStep`'s. A setpoint alone publishes nothing: it is followed over the next
-  samples. The delay compensation predicts one period further, the extra delay of the
-  realtime loop (``simulated_actuator``).
+  JointState, newest only), towards the latest valid setpoint along the realtime setpoint
+  trajectory; the step rules (drive held, a stall, a stale drive) are
+  :class:`fiber_align.control.realtime.CompensatorStep`'s, the delay compensation
+  predicts the realtime loop's one extra period. While the driver reports ``drive_held``
+  the compensator rests at the measured position (the drive returns through the shaper).
 
-Parameters: the model (``thresholds_v``, ``weights_m_per_v``) inline or in
-``model_file`` (a params file written by ``PIModel.save``), the shaping, and
-``controller`` (graph-wide, see above). A ``model_file`` that names no readable,
-invertible model file, or inline lists that make no invertible model, are refused at
-start-up and when set (:mod:`fiber_align.graph.checks`). Services (std_srvs/Trigger):
-``~/reload_model`` reads the model again (e.g. after ``fiber-align identify`` wrote a new
-file), keeping the old model when the new one cannot be loaded or inverted; ``~/reset``
-restarts the feedforward at rest at the present position (realtime: the latest
-measurement; lockstep: the held setpoint), so that it moves to the held setpoint through
-the shaper again.
-While the driver reports ``drive_held`` true (std_msgs/Bool, latched; realtime) the
-compensator rests at the measured position, so that the drive returns to the setpoint
-through the shaper instead of as a jump that rings the bending mode.
+An accepted setpoint is passed on as ``reference`` (std_msgs/Float64, m; realtime latched)
+for the controller, so the feedforward and the feedback follow the same reference. A NaN,
+infinite or out-of-range setpoint (outside ``[setpoint_min_m, setpoint_max_m]``) is
+refused with a logged reason and a WARN; the last valid one is used in its place.
 
-A NaN, infinite or out-of-range setpoint (outside ``[setpoint_min_m, setpoint_max_m]``)
-is rejected with a logged reason and a WARN on ``/diagnostics``; the last valid setpoint
-is used in its place (in lockstep exactly one output is still published per input, so
-pairing holds) and the actuator stays where it was.
+Parameters: the model (``thresholds_v``, ``weights_m_per_v``) inline or in ``model_file``
+(a params file of ``PIModel.save``; one that names no readable, invertible model is
+refused at start-up and when set, :mod:`fiber_align.graph.checks`), the shaping and
+``controller`` (graph-wide). Services (std_srvs/Trigger): ``~/reload_model`` reads the
+model again, keeping the old one when the new one fails; ``~/reset`` restarts the
+feedforward at rest at the present position. docs/ros_interface.md has the details.
 """
 
 import sys
-import time
 
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Bool, Float64
+from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from fiber_align.config import ConfigError
-from fiber_align.control.cycle import CycleStats
 from fiber_align.control.factory import build_feedforward
 from fiber_align.control.realtime import CompensatorStep, extend_lead
-from fiber_align.control.trajectory import Setpoint, stamp_ns
+from fiber_align.control.trajectory import stamp_ns
 from fiber_align.graph import checks
 from fiber_align.graph.registry import NODES
 from fiber_align.hysteresis.pi import PIModel
-from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
-from fiber_align.nodes.ros.diagnostics import Health, OK
-from fiber_align.nodes.ros.params import declare, declare_graph_values, declare_shaping
-from fiber_align.nodes.ros.params import design_model, node_defaults, PRIORITY
-from fiber_align.nodes.ros.qos import CONTROL_QOS, LATCHED_QOS, LOCKSTEP_QOS, REALTIME_QOS
+from fiber_align.nodes.ros.bus import Pub, subscription
+from fiber_align.nodes.ros.diagnostics import OK
+from fiber_align.nodes.ros.loop_io import LoopIO
+from fiber_align.nodes.ros.params import declare, node_defaults
+from fiber_align.nodes.ros.qos import CONTROL_QOS, LOCKSTEP_QOS, REALTIME_QOS
 from fiber_align.nodes.ros.qos import sample_pub_qos, SETPOINT_QOS
 from fiber_align.nodes.ros.runtime import run_node
 
 #: the registry's entry of this node: its name and params files
 SPEC = NODES['hysteresis_compensator']
-#: The graph-wide values this node reads (read-only).
-GRAPH = ('rate_hz', 'sync_mode', 'sensorless', 'diagnostics_period_s', 'setpoint_min_m',
-         'setpoint_max_m', 'controller', 'realtime_setpoint_rate_m_per_s',
-         'realtime_setpoint_accel_m_per_s2') + PRIORITY
 #: The node's own parameters: name -> description (read-only but the model's).
 OWN = {'model_file': 'PI model params file; empty: the inline model',
        'model_source': 'where the inline model comes from',
@@ -85,33 +67,25 @@ class HysteresisCompensatorNode(Node):
     """Transport, parameters and the reload service around :class:`Feedforward`."""
 
     def __init__(self, bus=None, **kwargs):
-        """
-        Declare parameters (defaults from config/), load the model, wire topics.
-
-        :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
-            process, or ``None``.
-        """
+        """Load the model of the parameters (config/ defaults), wire topics (``bus``: LocalBus)."""
         super().__init__(SPEC.node, **kwargs)
         d = node_defaults(SPEC.node, SPEC.configs)
-        g = declare_graph_values(self, d, *GRAPH)
-        self.rate_hz = g['rate_hz']
-        self.lockstep = g['sync_mode'] == 'lockstep'
+        io = self.io = LoopIO(self, d, bus, 'sensorless')    # graph values, shaping, ...
+        g, self.shaping, self.sp = io.g, io.shaping, io.sp
+        self.rate_hz, self.lockstep = io.rate_hz, io.lockstep
         # sensorless (the hardware graph): no displacement to clock it; one feedforward
         # per setpoint, as in lockstep (the sequencer steps once per power reading)
         self.per_setpoint = self.lockstep or bool(g['sensorless'])
-        self.sp = Setpoint(g['setpoint_min_m'], g['setpoint_max_m'])
         for name, text in OWN.items():
             declare(self, d, name, text)
         why = self._check_model({})
         if why:
             raise ConfigError('hysteresis_compensator: %s' % why)
         self.add_on_set_parameters_callback(self._on_set)
-        self.shaping = declare_shaping(self, d)
         self.open_loop_gain = declare(self, d, 'open_loop_gain_v_per_m',
                                       'linear feedforward gain (V/m)', 0.0, 1e9, True)
-        self.slack = slack_of(bus)
         self.pub = Pub(self, Float64, 'feedforward_voltage', sample_pub_qos(self.lockstep),
-                       bus, slack=self.slack)
+                       bus, slack=io.slack)
         # the accepted setpoint for the controller (one consumer of ``setpoint``); realtime
         # publishes it on change, transient local: a restarted controller gets the present
         self.pub_ref = Pub(self, Float64, 'reference', CONTROL_QOS, bus,
@@ -126,18 +100,14 @@ class HysteresisCompensatorNode(Node):
         if not self.per_setpoint:
             subscription(self, JointState, 'displacement', self._on_sample,
                          REALTIME_QOS, bus)
-            subscription(self, Bool, 'drive_held', self._on_held, LATCHED_QOS, bus)
-            subscription(self, Float64, 'drive_voltage', self._on_drive, REALTIME_QOS,
-                         bus)
+            # held: rest at the measured position; a drive: the loop is closed
+            io.watch_driver(lambda held: setattr(self.step, 'held', held),
+                            lambda: self.step.drive())
         self.create_service(Trigger, '~/reload_model', self._on_reload)
         self.create_service(Trigger, '~/reset', self._on_reset)
-        self.health = Health(self, g['diagnostics_period_s'], slack=self.slack,
-                             sender=sender_of(bus))
-        self.health.cycle = CycleStats(self.rate_hz)
+        self.health = io.serve_health(cycle=True)
         self.n_ff = 0
-        self.step = CompensatorStep(self.build(), 1.0 / self.rate_hz,
-                                    g['realtime_setpoint_rate_m_per_s'],
-                                    g['realtime_setpoint_accel_m_per_s2'])
+        self.step = CompensatorStep(self.build(), *io.step_args())
         self.health.status(OK, 'ready (%s)' % g['controller'])
         self.get_logger().info('compensator ready: %s, shaping %s, model %s' % (
             g['controller'], self.shaping['shaping'], self.model_name()))
@@ -183,7 +153,7 @@ class HysteresisCompensatorNode(Node):
         """Return a fresh :class:`Feedforward` (V from m) for the parameters."""
         comp = dict(self.shaping, open_loop_gain_v_per_m=self.open_loop_gain)
         ff = build_feedforward(self.get_parameter('controller').value, comp,
-                               self.load_model(), design_model(self.shaping), self.rate_hz)
+                               self.load_model(), self.io.design, self.rate_hz)
         if not self.per_setpoint:
             extend_lead(ff, 1.0 / self.rate_hz)    # the realtime loop's extra period
         return ff
@@ -214,10 +184,8 @@ class HysteresisCompensatorNode(Node):
         reaches the whole loop or none of it). Lockstep passes one ``reference`` per
         setpoint (the held one in place of a rejected one, so pairing holds).
         """
-        why = self.sp.take(msg.data)
+        why = self.io.take(msg.data)
         if why:
-            self.get_logger().warn(why)
-            self.health.warn(why)
             self._update_values()
             if not self.per_setpoint:
                 return
@@ -230,19 +198,10 @@ class HysteresisCompensatorNode(Node):
 
     def _on_sample(self, msg):
         """Realtime: step the feedforward (:class:`CompensatorStep`); count the latency."""
-        st, cyc = msg.header.stamp, self.health.cycle
+        st = msg.header.stamp
         self._publish(self.step.sample(st, msg.position[0] if len(msg.position) else None,
                                        self.sp.value))
-        ns = stamp_ns(st)
-        cyc.record((time.time_ns() - ns) * 1e-9, cyc.index(ns))
-
-    def _on_held(self, msg):
-        """Realtime: the driver holds (true) or passes (false) its output."""
-        self.step.held = bool(msg.data)
-
-    def _on_drive(self, msg):
-        """Realtime: note that a drive command arrived (the loop is closed)."""
-        self.step.drive()
+        self.io.latency(stamp_ns(st))
 
     def _on_reset(self, request, response):
         """Restart the feedforward at rest at the present position (m)."""
@@ -264,9 +223,7 @@ class HysteresisCompensatorNode(Node):
 
     def _update_values(self):
         """Report counts and the held setpoint (m) on ``/diagnostics``."""
-        self.health.set_values(**{'sent.feedforward_voltage': self.n_ff,
-                                  'rejected_setpoints': self.sp.rejected,
-                                  'setpoint_m': self.sp.value})
+        self.io.report(**{'sent.feedforward_voltage': self.n_ff})
 
     def sent_counts(self):
         """Return published message counts per topic."""

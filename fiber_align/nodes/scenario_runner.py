@@ -47,11 +47,12 @@ from fiber_align.nodes.ros.bus import Pub, subscription
 from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults
 from fiber_align.nodes.ros.qos import DIAG_QOS, LATCHED_QOS, sample_pub_qos, sample_qos
 from fiber_align.nodes.ros.runtime import run_node
+from fiber_align.simulation import scenarios
 from fiber_align.simulation.setpoints import setpoint_range, Source
 
 #: the registry's entry of this node: its name and params files
 SPEC = NODES['scenario_runner']
-SCENARIOS = ('step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment')
+SCENARIOS = scenarios.NAMES
 #: Accepted as a parameter value; ``none`` starts no runner (graph/description.py, bringup).
 CHOICES = ('none',) + SCENARIOS
 

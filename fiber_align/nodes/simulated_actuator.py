@@ -3,46 +3,32 @@
 ``simulated_actuator``: the plant and sensor of the control core as a ROS 2 node.
 
 Wraps :class:`fiber_align.plant.actuator.SimulatedActuator` (one ``step(v)`` = one control
-period). Topics (relative names, SI units):
+period); the same executable is each axis's plant of the rig and the station. Topics
+(relative names, SI units):
 
-- sub ``drive_voltage`` (std_msgs/Float64, V): the amplifier input, held for one period
-  (QoS: reliable in lockstep, best effort in realtime; deep in both).
+- sub ``drive_voltage`` (std_msgs/Float64, V): the amplifier input, held for one period.
 - pub ``displacement`` (sensor_msgs/JointState, joint ``bimorph_tip``): position = the
-  sensor reading (m), velocity = the model's tip velocity (m/s); header stamp = the sample
-  time t_k (sim time in lockstep, wall time in realtime).
-- pub ``optical_power`` (std_msgs/Float64, W): coupled power at the detector, when the
-  optics model (:mod:`fiber_align.plant.optics`) is installed.
-- pub ``/clock`` (rosgraph_msgs/Clock) in lockstep mode.
-- srv ``~/run`` (std_srvs/SetBool): start (true) or hold (false) the sample clock; a held
-  plant is frozen (realtime: the clock restarts on the next run).
+  sensor reading (m), velocity = the tip velocity (m/s); stamp = the sample time t_k.
+- pub ``optical_power`` (std_msgs/Float64, W): the 1-D optics model's detector reading,
+  every ``optical_power_every`` samples (0: off; the multi-axis graphs: their optics node).
+- pub ``tip_position`` (sensor_msgs/JointState: the true tip position, m, and velocity,
+  m/s, the stamp of ``displacement``) every ``tip_position_every`` samples (0: off, no
+  publisher; the rig and the station set 1 for their optics node).
+- pub ``/clock`` (rosgraph_msgs/Clock) in lockstep when ``publish_clock`` (a multi-axis
+  graph leaves it to its first axis's plant).
+- srv ``~/run`` (std_srvs/SetBool): start (true) or hold (false) the sample clock.
 
-Modes (parameter ``sync_mode``):
-
-- ``lockstep`` publishes sample k with ``/clock`` = k T and advances to k + 1 only when
-  the drive for sample k has arrived; if it does not arrive within ``lockstep_timeout_s``
-  (wall time) it warns and keeps holding. The drive computed from y_k is applied over
-  [t_k, t_k+1]: exactly the offline loop of docs/CONTRACTS.md.
-- ``realtime`` runs a sample clock on the steady wall clock at ``rate_hz``, like a DAC and
-  an ADC clocked by one sample clock. At tick k (time t_k) the node
-
-  1. advances the plant over [t_k-1, t_k] with the drive latched at tick k-1 and
-     publishes the measurement y_k (stamp: the nominal time t_k = t_0 + k T on the
-     system clock, so stamps count sample periods exactly);
-  2. latches the newest drive received since then; it is held over [t_k, t_k+1].
-
-  The command computed from y_k is latched at t_k+1 and first shows in y_k+2: the
-  realtime loop has exactly **one period more delay than lockstep**, whatever the
-  message latency is, as long as it is below one period (the controller accounts for
-  it). Missed cycles, late ticks and the replay of the drives a stall wrote:
-  :class:`fiber_align.plant.dac.DacClock`.
-
-Realtime: the sample-to-drive latency (publishing y_k to the first drive after it) and
-the missed cycles, per run (:meth:`SimulatedActuatorNode.latency_stats`, ``latency_*``)
-and per diagnostics window (``cycle.*``, :mod:`fiber_align.control.cycle`).
+``lockstep`` publishes sample k with ``/clock`` = k T and advances to k + 1 once the drive
+for sample k arrived (a WARN after ``lockstep_timeout_s`` without): exactly the offline
+loop of docs/CONTRACTS.md. ``realtime`` runs a sample clock on the steady wall clock at
+``rate_hz`` (:class:`fiber_align.plant.dac.DacClock`): at tick k it advances the plant
+with the drive latched at tick k-1, publishes y_k (stamp t_0 + k T) and latches the
+newest drive, one period more delay than lockstep. The sample clock:
+:class:`fiber_align.nodes._plant_clock.PlantClock` (composed); the realtime latency and
+missed cycles: its ``latency_stats()`` and ``cycle.*`` on ``/diagnostics``.
 """
 
 import sys
-import time
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -51,19 +37,17 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool
 
-from fiber_align.control.cycle import cycle_warning, CycleStats, LatencyHistogram
-from fiber_align.control.trajectory import MAX_CATCH_UP
+from fiber_align.control.cycle import cycle_warning, CycleStats
 from fiber_align.graph.registry import NODES
 from fiber_align.nodes._plant_clock import PlantClock
-from fiber_align.nodes.ros.bus import Pub, sample_timer, sender_of, slack_of, subscription
+from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import Health
 from fiber_align.nodes.ros.params import check_parameters, declare, declare_graph_values
 from fiber_align.nodes.ros.params import flatten_defaults, node_defaults, PRIORITY
-from fiber_align.nodes.ros.qos import CLOCK_QOS, DAC_QOS, LOCKSTEP_QOS, SAMPLE_DEPTH
+from fiber_align.nodes.ros.qos import CLOCK_QOS, DAC_QOS, LOCKSTEP_QOS
 from fiber_align.nodes.ros.qos import sample_pub_qos
 from fiber_align.nodes.ros.runtime import run_node
 from fiber_align.plant.actuator import KINDS, SimulatedActuator
-from fiber_align.plant.dac import DacClock
 from fiber_align.plant.optics import OpticalLink
 
 #: the registry's entry of this node: its name and params files
@@ -73,16 +57,11 @@ PLANT_KEYS = ('rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min'
               'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m', 'seed')
 
 
-class SimulatedActuatorNode(PlantClock, Node):
+class SimulatedActuatorNode(Node):
     """Transport, parameters and health around :class:`SimulatedActuator`."""
 
     def __init__(self, bus=None, **kwargs):
-        """
-        Declare the parameters (defaults from config/), build the plant, wire topics.
-
-        :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
-            process (``control_graph``), or ``None``.
-        """
+        """Declare the parameters, build the plant, wire topics (``bus``: a LocalBus)."""
         super().__init__(SPEC.node, **kwargs)
         d = node_defaults(SPEC.node, SPEC.configs)
         ro = True
@@ -108,15 +87,14 @@ class SimulatedActuatorNode(PlantClock, Node):
         self.timeout_s = declare(self, d, 'lockstep_timeout_s',
                                  'lockstep: warn when no drive within this time (s)',
                                  0.001, 3600.0)
-        self.autostart = declare(self, d, 'autostart', 'start the clock without ~/run',
-                                 read_only=ro)
-        self.start_reader = declare(self, d, 'start_after_reader', 'realtime: start the '
-                                    'clock once this node subscribes to displacement and '
-                                    'drive_voltage (a name in this namespace or a full '
-                                    'one, /ns/name; "" = none)', read_only=ro)
-        self.start_wait_s = declare(self, d, 'start_wait_s', 'bound of that wait (s, wall)',
-                                    0.0, 3600.0, ro)
-        self.created = time.monotonic()
+        start = {'autostart': declare(self, d, 'autostart', 'start the clock without ~/run',
+                                      read_only=ro),
+                 'start_after_reader': declare(
+                     self, d, 'start_after_reader', 'realtime: start the clock once this '
+                     'node subscribes to displacement and drive_voltage (a name in this '
+                     'namespace or a full one, /ns/name; "" = none)', read_only=ro),
+                 'start_wait_s': declare(self, d, 'start_wait_s', 'bound of that wait (s, '
+                                         'wall)', 0.0, 3600.0, ro)}
         diag_period = g['diagnostics_period_s']
         self.power_every = declare(self, d, 'optical_power_every',
                                    'publish optical_power every N samples (1); 0: off '
@@ -133,53 +111,38 @@ class SimulatedActuatorNode(PlantClock, Node):
         self.optics = OpticalLink.from_params(optics_params, seed=int(params['seed']),
                                               sample_period_s=self.period_s) \
             if optics_params else None
-
         self.slack = slack_of(bus)
         pub_qos = sample_pub_qos(self.sync_mode == 'lockstep')
         self.pub_disp = Pub(self, JointState, 'displacement', pub_qos, bus,
                             slack=self.slack)
         self.pub_power = Pub(self, Float64, 'optical_power', pub_qos, bus)
-        self.pub_clock = None
-        if self.sync_mode == 'lockstep':
-            self.pub_clock = self.create_publisher(ClockMsg, '/clock', CLOCK_QOS)
+        clock = declare(self, d, 'publish_clock', 'lockstep: publish /clock (a multi-axis '
+                        'graph: its first plant only)', read_only=ro)
+        self.pub_clock = self.create_publisher(ClockMsg, '/clock', CLOCK_QOS) \
+            if clock and self.sync_mode == 'lockstep' else None
+        self.tip_every = declare(self, d, 'tip_position_every', 'publish tip_position (true '
+                                 'tip position, m) every N samples; 0: off', 0, 1000000, ro)
+        self.pub_tip = Pub(self, JointState, 'tip_position', pub_qos, bus) \
+            if self.tip_every else None
         self._js = JointState(name=[JOINT_NAME], position=[0.0], velocity=[0.0])
+        self._tip = JointState(name=[JOINT_NAME], position=[0.0], velocity=[0.0])
         self._power = Float64()
-        subscription(self, Float64, 'drive_voltage', self._on_drive,
-                     LOCKSTEP_QOS if self.sync_mode == 'lockstep' else DAC_QOS, bus)
-        self.create_service(SetBool, '~/run', self._on_run)
         self.health = Health(self, diag_period, slack=self.slack, sender=sender_of(bus))
         if self.sync_mode == 'realtime':
             self.health.cycle = CycleStats(self.rate_hz)
-
-        self.running = False
-        self.started = False
-        self.k = 0                      # index of the last published sample
-        self.n_disp = 0
-        self.n_power = 0
-        self.n_clock = 0
-        self.pending = []               # lockstep: drives not yet applied
-        self._advancing = False         # lockstep: _advance is on the stack (local bus)
-        # lockstep only: the EventsExecutor of a realtime process has no guard conditions
-        self._next = self.create_guard_condition(self._advance) \
-            if self.sync_mode == 'lockstep' else None
-        self.wait_since = None
-        self.holds = 0
-        # realtime: the sample clock (DacClock) and the latency (perf_counter s)
-        self.dac = DacClock(self.plant, self.period_s, MAX_CATCH_UP, SAMPLE_DEPTH)
-        self.t_pub = None
-        self.drive_seen = True
-        self.lat = LatencyHistogram()   # realtime: sample-to-drive latencies (s)
-        self.reset_stats()
-        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.n_disp = self.n_power = self.n_clock = self.n_tip = 0
+        # the sample clock (its state, the drive, start and hold, its timers)
+        self.clock = PlantClock(self, self.plant, self._publish_sample, self.health, bus, dict(
+            start, sync_mode=self.sync_mode, lockstep_timeout_s=self.timeout_s,
+            topics=(self.pub_disp.topic_name, self.resolve_topic_name('drive_voltage'))),
+            self._update_values)
         if self.sync_mode == 'realtime':
-            self.timer = sample_timer(self, bus, self.period_s, self._on_tick, steady)
             self.create_timer(diag_period, lambda: self.slack.submit(self._update_values),
-                              clock=steady)
-        else:
-            self.timer = self.create_timer(min(0.1, self.timeout_s / 2), self._on_watch,
-                                           clock=steady)
-        self._autostart_timer = self.create_timer(0.05, self._maybe_autostart, clock=steady)
-        self.health.status(0, 'ready, waiting for run' if not self.autostart else 'ready')
+                              clock=Clock(clock_type=ClockType.STEADY_TIME))
+        subscription(self, Float64, 'drive_voltage', self.clock.on_drive,
+                     LOCKSTEP_QOS if self.sync_mode == 'lockstep' else DAC_QOS, bus)
+        self.create_service(SetBool, '~/run', self.clock.on_run)
+        self.health.status(0, 'ready' if start['autostart'] else 'ready, waiting for run')
         self.get_logger().info('plant ready: %s mode at %g Hz, optics %s'
                                % (self.sync_mode, self.rate_hz,
                                   'on' if self.optics else 'not installed'))
@@ -193,7 +156,7 @@ class SimulatedActuatorNode(PlantClock, Node):
         if res.successful:
             for p in params:
                 if p.name == 'lockstep_timeout_s':
-                    self.timeout_s = float(p.value)
+                    self.timeout_s = self.clock.timeout_s = float(p.value)
                 elif p.name == 'optical_power_every':
                     self.power_every = int(p.value)
                 elif p.name == 'cycle_goal_missed_share':
@@ -203,18 +166,18 @@ class SimulatedActuatorNode(PlantClock, Node):
     # -- publishing -----------------------------------------------------------------
     def _publish_sample(self, t_s):
         """
-        Publish /clock (lockstep), displacement and optical power for sample ``self.k``.
+        Publish /clock (lockstep), displacement, power and tip for the clock's sample k.
 
         :param t_s: lockstep sample time (s); realtime stamps with the nominal time of
             the tick on the system clock (the ROS clock of a realtime graph), so that the
             stamps of samples k and j differ by exactly (k - j) periods.
         """
-        js = self._js
+        js, k = self._js, self.clock.k
         stamp = js.header.stamp
         if self.sync_mode == 'lockstep':
             ns = int(round(t_s * 1e9))
         else:
-            ns = self.dac.wall0_ns + self.k * self.dac.period_ns
+            ns = self.clock.dac.wall0_ns + k * self.clock.dac.period_ns
         stamp.sec, stamp.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
         if self.pub_clock is not None:
             self.pub_clock.publish(ClockMsg(clock=stamp))
@@ -224,19 +187,27 @@ class SimulatedActuatorNode(PlantClock, Node):
         js.velocity[0] = float(plant.velocity_m_per_s)
         self.pub_disp.publish(js)
         self.n_disp += 1
-        if self.optics is not None and self.power_every and self.k % self.power_every == 0:
+        if self.optics is not None and self.power_every and k % self.power_every == 0:
             msg = self._power
-            msg.data = float(self.optics.measure(self.k * self.period_s, plant.position_m,
+            msg.data = float(self.optics.measure(k * self.period_s, plant.position_m,
                                                  self.period_s))
             self.pub_power.publish(msg)
             self.n_power += 1
+        if self.tip_every and k % self.tip_every == 0:
+            tip = self._tip
+            tip.header.stamp = stamp
+            tip.position[0] = float(plant.position_m)
+            tip.velocity[0] = float(plant.velocity_m_per_s)
+            self.pub_tip.publish(tip)
+            self.n_tip += 1
 
     def _update_values(self):
-        vals = {'sample': self.k, 'sim_time_s': self.k * self.period_s,
+        c = self.clock
+        vals = {'sample': c.k, 'sim_time_s': c.k * self.period_s,
                 'position_m': self.plant.position_m, 'drive_v': self.plant.v_applied,
-                'lockstep_holds': self.holds}
+                'lockstep_holds': c.holds}
         if self.sync_mode == 'realtime':
-            stats = self.latency_stats()
+            stats = c.latency_stats()
             vals.update(stats)
             self.health.condition('cycles', cycle_warning(stats, self.cycle_goal),
                                   publish=False)
@@ -246,8 +217,9 @@ class SimulatedActuatorNode(PlantClock, Node):
 
     def sent_counts(self):
         """Return published message counts per topic."""
-        return {'displacement': self.n_disp, 'optical_power': self.n_power,
-                '/clock': self.n_clock}
+        out = {'displacement': self.n_disp, 'optical_power': self.n_power,
+               '/clock': self.n_clock}
+        return dict(out, tip_position=self.n_tip) if self.tip_every else out
 
 
 def main(args=None):

@@ -1,0 +1,162 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+``simulated_optics``: the detector reading of a multi-axis machine's optical link.
+
+One executable for every link, chosen by the read-only parameter ``link`` (the params
+files set it per node: ``simulated_optics_2d`` rig, ``simulated_station_optics``
+station). The rig's link is :class:`fiber_align.plant.optics2d.OpticalLink2D` (the
+Gaussian overlap of an (x, y) offset, the moving target); the station's
+:class:`fiber_align.plant.station_optics.StationLink` (the input and output facets, the
+chip's loss, the cure's pull); both with the detector of the 1-D model. Runs in the
+machine's namespace (``/rig``, ``/station``); topics (relative names, SI units):
+
+- sub ``<a>/tip_position`` for each axis ``<a>`` (``x``, ``y``; ``in/x`` ... ``out/y``;
+  sensor_msgs/JointState, position[0] in m, stamp = t_k): the true tip positions the
+  plants publish (``tip_position_every`` 1).
+- pub ``optical_power`` (std_msgs/Float64, W): one detector reading per sample, per-sample
+  QoS; a position that is not a number gives a NaN reading (the detector's averaging is
+  not fed it) and a WARN.
+- ``/diagnostics``: OK, the sample count and the last reading.
+
+Pairing: ``lockstep`` takes the i-th position of every axis and reads the detector at
+``t_i = i / rate_hz`` (the offline bench's ``k T``, bit for bit); ``realtime`` reads on
+every sample of the first axis with the latest position of the others, at its stamp.
+
+Parameters (read-only): ``link``; ``seed`` (detector noise seed); ``optics.*`` (the
+source and detector constants of ``config/optics.yaml``, shared with the 1-D plant); the
+rig's ``target.*`` (``config/optics2d.yaml``) or the station's chip, facet and cure keys
+(``config/station.yaml``); the graph-wide ``sync_mode``, ``diagnostics_period_s``,
+``rate_hz``, ``realtime_priority``.
+"""
+
+import math
+import sys
+
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
+
+from fiber_align.graph.description import STATION_AXES
+from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, stamp_to_s, subscription
+from fiber_align.nodes.ros.diagnostics import Health, OK
+from fiber_align.nodes.ros.params import declare, declare_graph_values, flatten_defaults
+from fiber_align.nodes.ros.params import node_defaults, PRIORITY
+from fiber_align.nodes.ros.qos import sample_pub_qos, sample_qos
+from fiber_align.nodes.ros.runtime import run_node
+from fiber_align.plant import optics as op, optics2d as o2, station_optics as so
+
+#: Each link: its axes (namespaces below the node's, in the order of the positions),
+#: its params file and the ``optics.*`` keys of ``config/optics.yaml`` it reads.
+LINKS = {
+    'rig': (('x', 'y'), o2.CONFIG_FILE, o2.LINK_KEYS + o2.DETECTOR_KEYS),
+    'station': (STATION_AXES, so.CONFIG_FILE, so.SOURCE_KEYS + so.DETECTOR_KEYS),
+}
+
+
+class SimulatedOpticsNode(Node):
+    """Transport, parameters and health around a machine's optical link."""
+
+    NAME = 'simulated_optics_2d'
+
+    def __init__(self, bus=None, **kwargs):
+        """
+        Declare the parameters (defaults from config/), build the link, wire the axes.
+
+        :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
+            process, or ``None``.
+        """
+        super().__init__(self.NAME, **kwargs)
+        d = node_defaults(self.get_name(), tuple(f for _, f, _ in LINKS.values()))
+        self.link_name = declare(self, d, 'link', 'the optical link simulated',
+                                 read_only=True, choices=tuple(LINKS))
+        axes, _, keys = LINKS[self.link_name]
+        flat = flatten_defaults(node_defaults(op.CONFIG_NODE), op.CONFIG_KEY)
+        d.update({k: v for k, v in flat.items() if k.split('.', 1)[1] in keys})
+        g = declare_graph_values(self, d, 'sync_mode', 'diagnostics_period_s', 'rate_hz',
+                                 *PRIORITY)
+        self.lockstep, self.period_s = g['sync_mode'] == 'lockstep', 1.0 / g['rate_hz']
+        seed = int(declare(self, d, 'seed', 'detector noise seed', 0, 2 ** 31 - 1, True))
+        optics = {name: declare(self, d, name, 'optics constant (SI, see optics.yaml)',
+                                read_only=True)
+                  for name in sorted(k for k in d if k.startswith('optics.'))}
+        self.link = getattr(self, '_' + self.link_name)(d, seed, optics)
+        self.pub = Pub(self, Float64, 'optical_power', sample_pub_qos(self.lockstep), bus)
+        qos = sample_qos(self.lockstep)
+        self.q = [[] for _ in axes]             # lockstep: positions not yet read (m)
+        self.latest = [None] * len(axes)        # realtime: the newest position (m)
+        for i, a in enumerate(axes):
+            subscription(self, JointState, a + '/tip_position',
+                         lambda msg, i=i: self._on_position(i, msg), qos, bus)
+        self.health = Health(self, g['diagnostics_period_s'], slack=slack_of(bus),
+                             sender=sender_of(bus))
+        self.n = 0
+        self._msg = Float64()
+        self.health.status(OK, 'ready')
+        self.get_logger().info('%s optics ready (%s)' % (self.link_name, g['sync_mode']))
+
+    # -- the links ----------------------------------------------------------------------
+    def _rig(self, d, seed, optics):
+        """Return the rig's link: ``optics.*`` and the ``target.*`` motion (SI)."""
+        target = {name: declare(self, {name: value}, name, 'target (output core) motion '
+                                '(SI: m, m/s, Hz, rad; see optics2d.yaml)', read_only=True)
+                  for name, value in sorted(flatten_defaults(d, 'target').items())}
+        link = o2.OpticalLink2D.from_params(optics, target, seed=seed,
+                                            sample_period_s=self.period_s)
+        self.measure = lambda t, pos: link.measure(t, pos[0], pos[1], self.period_s)
+        return link
+
+    def _station(self, d, seed, optics):
+        """Return the station's link: ``optics.*`` and the chip, facet and cure keys (SI)."""
+        over = {k.split('.', 1)[1]: v for k, v in optics.items()}
+        over.update({name: declare(self, d, name, 'chip, facet or cure constant (SI: m, '
+                                   'rad, s, dB; see station.yaml)', read_only=True)
+                     for name in so.CHIP_KEYS}, sample_period_s=self.period_s)
+        link = so.StationLink.from_params(seed=seed, **over)
+        self.measure = lambda t, pos: link.measure(t, pos, self.period_s)
+        return link
+
+    # -- readings -----------------------------------------------------------------------
+    def _on_position(self, i, msg):
+        x = float(msg.position[0]) if len(msg.position) else math.nan
+        if self.lockstep:
+            self.q[i].append(x)
+            while all(self.q):
+                self._read(self.n * self.period_s, [q.pop(0) for q in self.q])
+            return
+        self.latest[i] = x
+        if i == 0 and all(v is not None for v in self.latest):
+            self._read(stamp_to_s(msg.header.stamp), list(self.latest))
+
+    def _read(self, t_s, pos):
+        """Publish one detector reading (W) with the fibers at ``pos`` (m) at ``t_s``."""
+        if not all(math.isfinite(v) for v in pos):
+            # refused, not read: a NaN would stay in the detector's averaging for good;
+            # a NaN reading still goes out so that the index pairing holds
+            why = 'tip positions %r m: not all numbers, no reading' % (tuple(pos),)
+            self.get_logger().warning(why)
+            self.health.warn(why)
+            self._msg.data = math.nan
+        else:
+            self._msg.data = float(self.measure(t_s, pos))
+        self.pub.publish(self._msg)
+        self.n += 1
+        self.health.set_values(samples=self.n, optical_power_w=self._msg.data)
+
+    def sent_counts(self):
+        """Return published message counts per topic."""
+        return {'optical_power': self.n}
+
+
+class StationOpticsNode(SimulatedOpticsNode):
+    """The node ``simulated_station_optics`` (``link`` station) as ``control_graph`` hosts it."""
+
+    NAME = 'simulated_station_optics'
+
+
+def main(args=None):
+    """Run the node (demo_nodes_py idiom; bad parameters: one line, exit 2)."""
+    return run_node(SimulatedOpticsNode, SimulatedOpticsNode.NAME, args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
