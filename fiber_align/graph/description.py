@@ -52,6 +52,7 @@ from fiber_align.graph.params import (
     check_user, COMPENSATOR, CONTROLLER, DRIVER, effective, GraphError, LIFECYCLE_MANAGER,
     LIVE_VIEW, merge_params, PLANT, RECORDER, SCENARIO_RUNNER, SEQUENCER)
 from fiber_align.plant.actuator import PARAM_KEYS, SimulatedActuator
+from fiber_align.simulation.scenarios import GRAPH as SCENARIOS
 
 PACKAGE = 'fiber_align'
 #: Layout when the launch argument ``composed`` (or bringup's option) is not given.
@@ -177,8 +178,6 @@ GRAPH_FILE = 'fiber_align.yaml'
 SYNC_MODES = ('realtime', 'lockstep')
 #: Control laws, as in ``fiber-align simulate --controller``.
 CONTROLLERS = ('composite', 'composite-pid', 'fuzzy', 'pid', 'feedforward', 'open-loop')
-SCENARIOS = ('none', 'step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment',
-             'align')
 
 #: Remappings applied to every process (``from``, ``to``); the nodes use the graph's
 #: relative names as they are, so there are none today.

@@ -50,7 +50,7 @@ from fiber_align.simulation import scenarios
 
 NODE_NAME = 'scenario_runner'
 AREA_FILES = ('scenario.yaml',)
-SCENARIOS = ('step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment')
+SCENARIOS = scenarios.NAMES
 #: Accepted as a parameter value; ``none`` starts no runner (graph.py, bringup).
 CHOICES = ('none',) + SCENARIOS
 #: Topics this node publishes (relative names; see ``ros.bus.LocalBus``).

@@ -20,8 +20,8 @@ from fiber_align.graph.description import NODES
 from fiber_align.graph.live import check_endpoint, live_settings, with_live
 from fiber_align.graph.params import GraphError, PLANT, RECORDER, SCENARIO_RUNNER
 from fiber_align.nodes.scenario_runner import setpoint_range, Source
+from fiber_align.simulation.scenarios import TRACKING as TRACKING_SCENARIOS  # noqa: F401
 
-TRACKING_SCENARIOS = ('step', 'sine', 'triangle', 'staircase')
 #: bringup options of the 1-D graph only: (attribute, option); refused with ``--rig``.
 ONE_AXIS_OPTIONS = (('scenario', '--scenario'), ('model', '--model'), ('rate', '--rate'),
                     ('no_noise', '--no-noise'), ('record', '--record'),
