@@ -33,6 +33,7 @@ import math
 
 import numpy as np
 
+from fiber_align.config import load_params
 from fiber_align.plant import optics as op
 
 DETECTOR_KEYS = ('noise_floor_w', 'rin_db', 'averaging_time_s', 'saturation_w',
@@ -200,6 +201,25 @@ class Link:
     def loss_db(self, t_s, positions):
         """Return the true loss (dB) against the (moving) joint peak."""
         return self.coupling.loss_at(t_s, positions)
+
+
+def sections(optics_params, params, config_file, config_node, key=None):
+    """
+    Return the ``optics`` mapping of ``optics.yaml`` and a machine's mapping (flat, SI).
+
+    :param optics_params: the ``optics`` mapping (None: load ``config/optics.yaml``).
+    :param params: the machine's node mapping (None: load ``config_file``, ``config_node``).
+    :param key: the machine's keys are nested under it (None: the node's own keys, but its
+        detector ``seed``, which is the link's ``seed`` argument).
+    """
+    if optics_params is None:
+        optics_params = load_params(op.CONFIG_FILE, op.CONFIG_NODE)
+    if params is None:
+        params = load_params(config_file, config_node)
+    if key is not None:
+        return op._section(optics_params, op.CONFIG_KEY), op._section(params, key)
+    return (op._section(optics_params, op.CONFIG_KEY),
+            {k: v for k, v in params.items() if k != 'seed'})
 
 
 def split_overrides(overrides, groups, what):

@@ -25,9 +25,7 @@ import math
 
 import numpy as np
 
-from fiber_align.config import load_params
 from fiber_align.plant import link as ln
-from fiber_align.plant import optics as op
 
 CONFIG_FILE = 'optics2d.yaml'
 CONFIG_NODE = 'simulated_optics_2d'
@@ -113,12 +111,7 @@ class OpticalLink2D(ln.Link):
             loads it).
         :param seed: detector noise seed.
         """
-        if optics_params is None:
-            optics_params = load_params(op.CONFIG_FILE, op.CONFIG_NODE)
-        if target_params is None:
-            target_params = load_params(CONFIG_FILE, CONFIG_NODE)
-        o = op._section(optics_params, op.CONFIG_KEY)
-        tg = op._section(target_params, 'target')
+        o, tg = ln.sections(optics_params, target_params, CONFIG_FILE, CONFIG_NODE, 'target')
         ln.split_overrides(overrides, ((TARGET_KEYS, tg), (LINK_KEYS + DETECTOR_KEYS, o)),
                            '2-D optics')
         unknown = sorted(set(tg) - set(TARGET_KEYS))

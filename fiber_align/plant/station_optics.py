@@ -30,9 +30,7 @@ cure in ``config/station.yaml`` (node ``simulated_station_optics``). SI units.
 
 import numpy as np
 
-from fiber_align.config import load_params
 from fiber_align.plant import link as ln
-from fiber_align.plant import optics as op
 from fiber_align.plant.link import CureDrift
 
 CONFIG_FILE = 'station.yaml'
@@ -118,13 +116,7 @@ class StationLink(ln.Link):
             (None: load).
         :param seed: detector noise seed.
         """
-        if optics_params is None:
-            optics_params = load_params(op.CONFIG_FILE, op.CONFIG_NODE)
-        if station_params is None:
-            station_params = load_params(CONFIG_FILE, CONFIG_NODE)
-        o = op._section(optics_params, op.CONFIG_KEY)
-        # the node's detector seed is the ``seed`` argument, not a chip key
-        c = {k: v for k, v in station_params.items() if k != 'seed'}
+        o, c = ln.sections(optics_params, station_params, CONFIG_FILE, CONFIG_NODE)
         ln.split_overrides(overrides, ((CHIP_KEYS, c), (SOURCE_KEYS + DETECTOR_KEYS, o)),
                            'station optics')
         missing = sorted(set(CHIP_KEYS) - set(c))

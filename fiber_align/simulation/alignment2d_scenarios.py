@@ -58,6 +58,7 @@ class Bench2D(hs.Bench):
     POSITION, MEASURED, SETPOINT, TARGET = ('x', 'y'), ('mx', 'my'), ('rx', 'ry'), ('tx', 'ty')
     GOAL = GOAL
     WHERE = ('target_x_m', 'target_y_m')
+    RIG, LINK = Rig2D, o2.OpticalLink2D
 
 
 def make_sequencer(method, **overrides):
@@ -81,15 +82,10 @@ def build(seed=0, method='sequencer', target=None, rig=None, record=False, seq_o
     seq = make_sequencer(method, **(seq_overrides or {}))
     if target is None:
         target = random_target(seed, seq)
-    ov = dict(optics_overrides)
-    ov['position_x_m'], ov['position_y_m'] = float(target[0]), float(target[1])
     seeds = run_seeds(seed)
-    if rig is None or isinstance(rig, str):
-        rig = Rig2D(rig or 'composite', seq.period_s, seeds['plant_x'])
-    rig.reset(seeds['plant_x'])
-    ov.setdefault('sample_period_s', rig.period_s)
-    link = o2.OpticalLink2D.from_params(None, None, seed=seeds['detector'], **ov)
-    return Bench2D(rig, link, seq, record)
+    return Bench2D.assemble(seq, rig, (seeds['plant_x'], seeds['detector']), record,
+                            **dict(optics_overrides, position_x_m=float(target[0]),
+                                   position_y_m=float(target[1])))
 
 
 def run_method(name, method, seed=0, rig=None, record=False, target=None, **kw):

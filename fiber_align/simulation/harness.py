@@ -98,6 +98,24 @@ class Bench:
     FIELDS = ('t', 'p')
     TRUTH = ('p_true', 'p_max')
 
+    #: the machine's rig, ``RIG(kind, period_s, seed)``, and link, ``LINK.from_params(...)``
+    RIG = LINK = None
+
+    @classmethod
+    def assemble(cls, seq, rig, seeds, record=False, **optics_overrides):
+        """
+        Return a bench of this machine: ``rig`` (reused, or a loop kind) reset, a fresh link.
+
+        :param seeds: ``(plant, detector)``: the rig's first noise seed, the detector's.
+        :param optics_overrides: keys of the machine's link (``LINK.from_params``).
+        """
+        if rig is None or isinstance(rig, str):
+            rig = cls.RIG(rig or 'composite', seq.period_s, seeds[0])
+        rig.reset(seeds[0])
+        optics_overrides.setdefault('sample_period_s', rig.period_s)
+        return cls(rig, cls.LINK.from_params(None, None, seed=seeds[1], **optics_overrides),
+                   seq, record)
+
     def __init_subclass__(cls, **kw):
         """Derive a machine's ``FIELDS`` and ``TRUTH`` from its column names."""
         super().__init_subclass__(**kw)

@@ -80,6 +80,7 @@ class StationBench(hs.Bench):
     JOINT = True
     GOAL = dict(loss_db=GOAL_LOSS_DB, time_s=None, samples=None)
     WHERE = 'facets_m'
+    RIG, LINK = StationRig, so.StationLink
 
     @property
     def ALIGN_MAX_S(self):  # noqa: N802 (the harness's name of the limit)
@@ -123,16 +124,10 @@ def build(seed=0, method='concurrent', facets=None, rig=None, seq_overrides=None
     seq = METHODS[method](**(seq_overrides or {}))
     facets = random_facets(seed, seq) if facets is None else facets
     ov = dict(optics_overrides)
-    for k, v in zip(('facet_in_x_m', 'facet_in_y_m', 'facet_out_x_m', 'facet_out_y_m'),
-                    facets):
-        ov[k] = float(v)
+    ov.update(('facet_%s_%s_m' % (s, a), float(v))
+              for (s, a), v in zip([(s, a) for s in so.SIDES for a in 'xy'], facets))
     seeds = run_seeds(seed)
-    if rig is None or isinstance(rig, str):
-        rig = StationRig(rig or 'composite', seq.period_s, seeds['plant'])
-    rig.reset(seeds['plant'])
-    ov.setdefault('sample_period_s', rig.period_s)
-    link = so.StationLink.from_params(None, None, seed=seeds['detector'], **ov)
-    return StationBench(rig, link, seq, record)
+    return StationBench.assemble(seq, rig, (seeds['plant'], seeds['detector']), record, **ov)
 
 
 def align_bench(bench, idle_s=0.02, loss_window_s=0.02):
