@@ -2,12 +2,13 @@
 """
 Offline station scenarios: the station sequencer (and its serial baseline) on four axes.
 
-The rig is two :class:`~fiber_align.simulation.alignment2d_scenarios.Rig2D` (input x-y and
-output x-y: four independent closed loops, each the control core's plant, composite
-controller, driver and sensor noise, its own seed), stepped at the control rate in the
-order of docs/CONTRACTS.md. One period ``k``: the four measured displacements and the
-output detector's reading ``P_k`` (W, of the true positions at ``t_k``) go to
-``seq.update(t_k, positions, P_k)``, whose four setpoints drive the loops for one period.
+The rig is four independent closed loops (:class:`StationRig`: input x-y and output x-y,
+each the control core's plant, composite controller, driver and sensor noise, its own seed),
+stepped at the control rate in the order of docs/CONTRACTS.md. One period ``k``: the four
+measured displacements and the output detector's reading ``P_k`` (W, of the true positions
+at ``t_k``) go to ``seq.update(t_k, positions, P_k)``, whose four setpoints drive the loops
+for one period (the steps of :mod:`fiber_align.simulation.harness`; this module holds the
+station's data, :class:`StationBench`, and its own step, :func:`cure_bench`).
 
 ``station``
     Both facets at random offsets from the nominal positions (2-20 um on every axis, random
