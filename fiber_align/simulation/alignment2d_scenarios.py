@@ -7,10 +7,10 @@ composite controller, driver, sensor noise and seed, from the control core's con
 stepped at the control rate in the order of docs/CONTRACTS.md. One period ``k``: both loops'
 measurements ``(x_k, y_k)`` (m) and the detector reading ``P_k`` (W, of the true tip position
 at ``t_k``) go to ``seq.update(t_k, x_k, y_k, P_k)``, whose setpoints drive the two loops for
-one period (the steps of :mod:`fiber_align.simulation.harness`; this module holds the rig's
-data: :class:`Bench2D`). ``run(name, seed)`` runs scenario ``name`` with the sequencer and then, on the
-same target and noise seeds, with the hill climb, and returns SI metrics (the baseline's
-under ``baseline``):
+one period (the steps of :mod:`fiber_align.simulation.harness`; this module holds the
+rig's data: :class:`Bench2D`). ``run(name, seed)`` runs scenario ``name`` with the
+sequencer and then, on the same target and noise seeds, with the hill climb, and returns SI
+metrics (the baseline's under ``baseline``):
 
 ``align2d``
     From IDLE, ``align`` with the target at a random point of the reachable square:

@@ -420,10 +420,11 @@ def print_human(res, out):
         rows.append((res['baseline'].get('method') or 'baseline', res['baseline']))
     for label, r in rows:
         print('  %-10s %s %s: loss %s dB, first light %s ms, time to peak %s ms, peak '
-              'samples %s' % (label, r.get('end_state', r['state']), r['fault_reason'],
-                              f(r['final_loss_db'], fmt='%.4f'),
-                              f(r['time_to_first_light_s'], 1e3), f(r['time_to_peak_s'], 1e3),
-                              f(r['peak_samples'], fmt='%d')), file=out)
+              'samples %s, all samples %s'
+              % (label, r.get('end_state', r['state']), r['fault_reason'],
+                 f(r['final_loss_db'], fmt='%.4f'), f(r['time_to_first_light_s'], 1e3),
+                 f(r['time_to_peak_s'], 1e3), f(r['peak_samples'], fmt='%d'),
+                 f(r['samples'], fmt='%d')), file=out)
         if r.get('tracking_max_loss_db') is not None:
             print('             tracking: max loss %.4f dB, mean %.4f dB over %.1f s'
                   % (r['tracking_max_loss_db'], r['tracking_mean_loss_db'],
