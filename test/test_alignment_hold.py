@@ -120,7 +120,7 @@ def test_1d_held_in_tracking_returns_by_the_rule_then_re_peaks():
     b.driver_active = None
     b.run_until(b.t + 1.0, lambda x: x.seq.state in (TRACKING, FAULT))
     assert b.seq.state == TRACKING, b.seq.fault_reason
-    arr = b.rec.arrays()
+    arr = b.trace()
     k = _returned_at(arr['state'], arr['y'], held, b.seq.p['settle_tolerance_m'],
                      int(b.seq.p['settle_samples']), k_rearm)
     assert arr['state'][k] == PEAKING
@@ -161,7 +161,8 @@ def test_2d_held_then_back_at_a_dark_point_searches_again_and_finds_the_light():
     b = _bench2d((20e-6, 30e-6))
     b.seq.driver_held(True, s2d.DRIVERS[1])
     assert b.seq.state == HELD
-    b.link.coupling.target.x0 = 45e-6
+    tg = b.link.coupling.target
+    tg.p0 = (45e-6, tg.p0[1])
     b.run_until(b.t + 0.05)
     b.seq.driver_held(False, s2d.DRIVERS[1])
     b.run_until(b.t + 0.1, lambda x: x.seq.state != HELD)
@@ -187,8 +188,8 @@ def test_station_held_by_one_axis_then_a_dark_point_searches_again(rig):
     b.driver_active = (True, True, True, False)
     b.step()
     assert b.seq.state == HELD and 'driver of y_out down' in b.seq.hold_reason
-    c = b.link.coupling
-    c.facets = (c.facets[0], (c.facets[1][0] + 8e-6, c.facets[1][1]))
+    tg = b.link.coupling.facets[1].target
+    tg.p0 = (tg.p0[0] + 8e-6, tg.p0[1])
     b.run_until(b.t + 0.05)
     b.driver_active = None
     b.run_until(b.t + 0.1, lambda x: x.seq.state != HELD)

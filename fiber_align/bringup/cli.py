@@ -21,7 +21,6 @@ from fiber_align.graph.description import check_namespace
 from fiber_align.graph.params import GraphError, PLANT, RECORDER, SCENARIO_RUNNER
 from fiber_align.simulation.setpoints import setpoint_range, Source
 
-TRACKING_SCENARIOS = ('step', 'sine', 'triangle', 'staircase')
 #: bringup's options that are no launch argument, of the simulated 1-D graph only:
 #: (attribute, option); the launch arguments' are :func:`describe`'s.
 ONE_AXIS_OPTIONS = (('rate', '--rate'), ('no_noise', '--no-noise'))

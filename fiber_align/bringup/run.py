@@ -23,11 +23,11 @@ import numpy as np
 
 from fiber_align.analysis import run_summary as sm
 from fiber_align.analysis.report import hysteresis_metrics
-from fiber_align.bringup.cli import TRACKING_SCENARIOS
 from fiber_align.bringup.harness import EXIT_INTERRUPTED, EXIT_OK, Harness, session, settings
 from fiber_align.bringup.observer import BringupError, StartStall
 from fiber_align.graph.params import PLANT, RECORDER, SCENARIO_RUNNER
 from fiber_align.graph.registry import expected_endpoints
+from fiber_align.simulation.scenarios import TRACKING as TRACKING_SCENARIOS
 
 
 class Bringup:

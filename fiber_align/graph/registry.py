@@ -7,8 +7,9 @@ nodes: ``control_graph`` hosts from it (:data:`HOSTABLE`), :data:`AREA_FILES`, t
 view's topics and ``bringup``'s endpoint checks (:func:`expected_endpoints`) derive from
 it. A new node touches its module, its config file, ``setup.py`` and this registry; the
 processes that run it are described in :mod:`fiber_align.graph.description`. The
-enumerations of the launch arguments (:data:`SYNC_MODES`, :data:`CONTROLLERS`,
-:data:`SCENARIOS`) are here too, once.
+enumerations the launch arguments take are each defined once where their concept lives:
+:data:`fiber_align.graph.params.SYNC_MODES`, :data:`fiber_align.control.factory.CONTROLLERS`,
+:data:`fiber_align.simulation.scenarios.GRAPH` (the 1-D graph's scenarios).
 """
 
 from dataclasses import dataclass
@@ -17,6 +18,7 @@ from typing import Tuple
 from fiber_align.graph.params import (
     COMPENSATOR, CONTROLLER, DRIVER, LIFECYCLE_MANAGER, LIVE_VIEW, PLANT, RECORDER,
     SCENARIO_RUNNER, SEQUENCER)
+from fiber_align.simulation.scenarios import GRAPH as GRAPH_SCENARIOS
 
 PACKAGE = 'fiber_align'
 #: Layout when the launch argument ``composed`` (or bringup's option) is not given.
@@ -141,8 +143,8 @@ OPTIONAL_FILES = ()
 #: Graph-wide params file, merged after the per-area files.
 GRAPH_FILE = 'fiber_align.yaml'
 
-SCENARIOS = ('none', 'step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment',
-             'align')
+#: The 1-D graph's ``scenario`` values (the one list: :mod:`fiber_align.simulation.scenarios`).
+SCENARIOS = GRAPH_SCENARIOS
 
 #: Remappings applied to every process (``from``, ``to``); the nodes use the graph's
 #: relative names as they are, so there are none today.

@@ -2,9 +2,8 @@
 """
 Optical coupling in two axes: the input core at ``(x, y)``, the output core at a target.
 
-The input fiber rides on two bimorphs (x and y, m); the output core sits at the target
-``(s_x(t), s_y(t))`` (m), unknown to the sequencer. Two equal Gaussian modes of radius ``w``
-(m) with a lateral offset ``(dx, dy)`` (m) and an end-face gap ``z`` (m) couple::
+The rig's link in :mod:`fiber_align.plant.link` terms: one facet of two axes (x, y; m), two
+equal Gaussian modes of radius ``w`` (m) across an end-face gap ``z`` (m), no chip::
 
     eta = exp(-(dx^2 + dy^2) / (w^2 q)) / q,   q = 1 + Z^2,   Z = lambda z / (2 pi n w^2)
 
@@ -26,8 +25,7 @@ import math
 
 import numpy as np
 
-from fiber_align.config import load_params
-from fiber_align.plant import optics as op
+from fiber_align.plant import link as ln
 
 CONFIG_FILE = 'optics2d.yaml'
 CONFIG_NODE = 'simulated_optics_2d'
@@ -35,8 +33,7 @@ TARGET_KEYS = ('position_x_m', 'position_y_m', 'drift_x_m_per_s', 'drift_y_m_per
                'vibration_amplitude_m', 'vibration_frequency_hz', 'vibration_angle_rad')
 LINK_KEYS = ('source_power_w', 'wavelength_m', 'mode_radius_m', 'gap_m', 'index',
              'fiber_broken')
-DETECTOR_KEYS = ('noise_floor_w', 'rin_db', 'averaging_time_s', 'saturation_w',
-                 'sample_period_s')
+DETECTOR_KEYS = ln.DETECTOR_KEYS
 
 
 def coupling_efficiency_2d(dx_m, dy_m, gap_m=0.0, mode_radius_m=5.2e-6, wavelength_m=1.55e-6,
@@ -51,113 +48,57 @@ def coupling_efficiency_2d(dx_m, dy_m, gap_m=0.0, mode_radius_m=5.2e-6, waveleng
     :param wavelength_m: vacuum wavelength (m).
     :param index: refractive index of the gap medium.
     """
-    q = op.rayleigh_factor(gap_m, mode_radius_m, wavelength_m, index)
-    dx = np.asarray(dx_m, dtype=float)
-    dy = np.asarray(dy_m, dtype=float)
-    # separable: the x factor times the y factor, the gap term counted once
-    out = (np.exp(-(dx / mode_radius_m) ** 2 / q) * np.exp(-(dy / mode_radius_m) ** 2 / q)
-           / q)
+    eta0, c = ln.overlap(mode_radius_m, mode_radius_m, gap_m, wavelength_m, index)
+    d2 = np.asarray(dx_m, dtype=float) ** 2 + np.asarray(dy_m, dtype=float) ** 2
+    out = eta0 * np.exp(-c * d2)
     return float(out) if out.ndim == 0 else out
 
 
 def offset_loss_db(offset_m, gap_m=0.0, mode_radius_m=5.2e-6, wavelength_m=1.55e-6,
                    index=1.0):
     """Return the loss (dB) of a lateral offset (m) against the aligned coupling."""
-    q = op.rayleigh_factor(gap_m, mode_radius_m, wavelength_m, index)
-    return 10.0 / math.log(10.0) * (offset_m / mode_radius_m) ** 2 / q
+    c = ln.overlap(mode_radius_m, mode_radius_m, gap_m, wavelength_m, index)[1]
+    return 10.0 / math.log(10.0) * c * offset_m ** 2
 
 
-class Target:
-    """
-    The output core's position (m) over time: start, drift velocity and vibration.
-
-    :param position_x_m: x at ``t = 0`` (m).
-    :param position_y_m: y at ``t = 0`` (m).
-    :param drift_x_m_per_s: drift velocity along x (m/s).
-    :param drift_y_m_per_s: drift velocity along y (m/s).
-    :param vibration_amplitude_m: vibration amplitude (m).
-    :param vibration_frequency_hz: vibration frequency (Hz).
-    :param vibration_angle_rad: direction of the vibration from the x axis (rad).
-    """
+class Target(ln.Target):
+    """The output core's position (m) over time, from the keys of ``optics2d.yaml``."""
 
     def __init__(self, position_x_m=30e-6, position_y_m=30e-6, drift_x_m_per_s=0.0,
                  drift_y_m_per_s=0.0, vibration_amplitude_m=0.0, vibration_frequency_hz=0.0,
                  vibration_angle_rad=0.0):
-        """Store the motion (SI)."""
-        self.x0 = float(position_x_m)
-        self.y0 = float(position_y_m)
-        self.vx = float(drift_x_m_per_s)
-        self.vy = float(drift_y_m_per_s)
-        self.amp = float(vibration_amplitude_m)
-        self.freq = float(vibration_frequency_hz)
-        self.angle = float(vibration_angle_rad)
-
-    def position(self, t_s):
-        """Return ``(x, y)`` (m) of the output core at ``t_s`` (s); scalars or arrays."""
-        t = np.asarray(t_s, dtype=float)
-        x = self.x0 + self.vx * t
-        y = self.y0 + self.vy * t
-        if self.amp:
-            v = self.amp * np.sin(2.0 * math.pi * self.freq * t)
-            x = x + v * math.cos(self.angle)
-            y = y + v * math.sin(self.angle)
-        if t.ndim == 0:
-            return float(x), float(y)
-        return x, y
+        """Store the start (m), drift (m/s), vibration (m, Hz) and its angle from x (rad)."""
+        a = float(vibration_angle_rad)
+        super().__init__((position_x_m, position_y_m), (drift_x_m_per_s, drift_y_m_per_s),
+                         vibration_amplitude_m, vibration_frequency_hz,
+                         (math.cos(a), math.sin(a)))
 
 
-class FiberCoupling2D:
+class FiberCoupling2D(ln.Coupling):
     """Noise-free coupled power (W) as a function of time and the tip position ``(x, y)``."""
 
     def __init__(self, target, source_power_w=1e-3, wavelength_m=1.55e-6,
                  mode_radius_m=5.2e-6, gap_m=10e-6, index=1.0, fiber_broken=False):
         """Store the link constants (SI: W, m); ``target`` is a :class:`Target`."""
-        if mode_radius_m <= 0 or wavelength_m <= 0 or index <= 0:
-            raise ValueError('mode_radius_m, wavelength_m and index must be > 0')
-        if source_power_w < 0 or gap_m < 0:
-            raise ValueError('source_power_w and gap_m must be >= 0')
         self.target = target
-        self.source_power_w = float(source_power_w)
-        self.wavelength_m = float(wavelength_m)
-        self.mode_radius_m = float(mode_radius_m)
         self.gap_m = float(gap_m)
-        self.index = float(index)
-        self.fiber_broken = bool(fiber_broken)
-
-    @property
-    def curvature_per_m2(self):
-        """Return ``1 / (w^2 q)`` (1/m^2): ``ln P = ln P_max - curvature |d|^2``."""
-        return 1.0 / (self.mode_radius_m ** 2 * op.rayleigh_factor(
-            self.gap_m, self.mode_radius_m, self.wavelength_m, self.index))
-
-    def max_power_w(self):
-        """Return the largest coupled power (W), at zero offset."""
-        if self.fiber_broken:
-            return 0.0
-        return self.source_power_w * coupling_efficiency_2d(
-            0.0, 0.0, self.gap_m, self.mode_radius_m, self.wavelength_m, self.index)
+        self.mode_radius_m = float(mode_radius_m)
+        facet = ln.Facet((0, 1), target, mode_radius_m, mode_radius_m, gap_m, wavelength_m,
+                         index)
+        super().__init__(source_power_w, (facet,), 1.0, fiber_broken)
+        self.curvature_per_m2 = facet.curvature_per_m2
 
     def power_w(self, t_s, x_m, y_m):
         """Return the true coupled power (W) with the input core at ``(x_m, y_m)`` at ``t_s``."""
-        if self.fiber_broken:
-            return 0.0 * np.asarray(x_m, dtype=float) if np.ndim(x_m) else 0.0
-        sx, sy = self.target.position(t_s)
-        return self.source_power_w * coupling_efficiency_2d(
-            np.asarray(x_m) - sx, np.asarray(y_m) - sy, self.gap_m, self.mode_radius_m,
-            self.wavelength_m, self.index)
+        return self.power_at(t_s, (x_m, y_m))
 
     def loss_db(self, t_s, x_m, y_m):
         """Return the true loss (dB) against the (moving) maximum at ``t_s``."""
-        return op.loss_db(self.power_w(t_s, x_m, y_m), self.max_power_w())
+        return self.loss_at(t_s, (x_m, y_m))
 
 
-class OpticalLink2D:
+class OpticalLink2D(ln.Link):
     """Coupling in two axes plus the 1-D model's :class:`~fiber_align.plant.optics.Detector`."""
-
-    def __init__(self, coupling, detector):
-        """Combine a :class:`FiberCoupling2D` and a detector."""
-        self.coupling = coupling
-        self.detector = detector
 
     @classmethod
     def from_params(cls, optics_params=None, target_params=None, seed=0, **overrides):
@@ -170,40 +111,27 @@ class OpticalLink2D:
             loads it).
         :param seed: detector noise seed.
         """
-        if optics_params is None:
-            optics_params = load_params(op.CONFIG_FILE, op.CONFIG_NODE)
-        if target_params is None:
-            target_params = load_params(CONFIG_FILE, CONFIG_NODE)
-        o = op._section(optics_params, op.CONFIG_KEY)
-        tg = op._section(target_params, 'target')
-        for k, v in overrides.items():
-            if k in TARGET_KEYS:
-                tg[k] = v
-            elif k in LINK_KEYS or k in DETECTOR_KEYS:
-                o[k] = v
-            else:
-                raise ValueError('unknown 2-D optics parameter %r (known: %s)'
-                                 % (k, ', '.join(TARGET_KEYS + LINK_KEYS + DETECTOR_KEYS)))
+        o, tg = ln.sections(optics_params, target_params, CONFIG_FILE, CONFIG_NODE, 'target')
+        ln.split_overrides(overrides, ((TARGET_KEYS, tg), (LINK_KEYS + DETECTOR_KEYS, o)),
+                           '2-D optics')
         unknown = sorted(set(tg) - set(TARGET_KEYS))
         if unknown:
             raise ValueError('unknown target parameter(s): %s (known: %s)'
                              % (', '.join(unknown), ', '.join(TARGET_KEYS)))
-        target = Target(**tg)
-        coupling = FiberCoupling2D(target, **{k: o[k] for k in LINK_KEYS if k in o})
-        detector = op.Detector(seed=seed, **{k: o[k] for k in DETECTOR_KEYS if k in o})
-        return cls(coupling, detector)
+        coupling = FiberCoupling2D(Target(**tg), **{k: o[k] for k in LINK_KEYS if k in o})
+        return cls(coupling, ln.detector(o, seed))
 
     def true_power_w(self, t_s, x_m, y_m):
         """Return the noise-free coupled power (W)."""
-        return self.coupling.power_w(t_s, x_m, y_m)
+        return super().true_power_w(t_s, (x_m, y_m))
 
     def measure(self, t_s, x_m, y_m, dt_s=None):
         """Return the detector reading (W) with the core at ``(x_m, y_m)`` (m) at ``t_s``."""
-        return self.detector.measure(float(self.coupling.power_w(t_s, x_m, y_m)), dt_s)
+        return super().measure(t_s, (x_m, y_m), dt_s)
 
     def loss_db(self, t_s, x_m, y_m):
         """Return the true loss (dB) against the (moving) maximum."""
-        return self.coupling.loss_db(t_s, x_m, y_m)
+        return super().loss_db(t_s, (x_m, y_m))
 
 
 def load_optics2d(seed=0, **overrides):

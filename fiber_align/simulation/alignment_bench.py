@@ -7,7 +7,9 @@ detector reading ``P_k`` (W, from the true tip position at ``t_k``) go to
 ``Sequencer.update(t_k, y_k, P_k)``, whose setpoint ``r_k`` (m) drives the loop for one
 period. Loops: :class:`CompositeLoop` (the control core's plant, compensator, feedback
 and driver, stepped by :class:`fiber_align.simulation.loop.ClosedLoop`) or
-:class:`FirstOrderLoop` (a fast first-order stand-in for tests). SI units throughout.
+:class:`FirstOrderLoop` (a fast first-order stand-in for tests); :class:`LoopRig` makes the
+loops of a machine of several axes. :class:`OneAxisBench` is the one-axis machine on the
+harness of :mod:`fiber_align.simulation.harness`. SI units throughout.
 """
 
 import math
@@ -15,10 +17,10 @@ import math
 import numpy as np
 
 from fiber_align.alignment import sequencer as sq
-from fiber_align.alignment.states import FAULT, PEAKING, TRACKING
 from fiber_align.config import load_params
 from fiber_align.control.driver import DriverCore
 from fiber_align.plant import optics as op
+from fiber_align.simulation import harness as hs
 from fiber_align.simulation import simulate as sim
 from fiber_align.simulation.loop import ClosedLoop
 
@@ -123,141 +125,43 @@ def make_loop(kind='composite', period_s=1e-3, seed=0, setup=None):
     return CompositeLoop(period_s=period_s, seed=seed, controller=kind, setup=setup)
 
 
-class Record:
-    """Per-period trace of a run (SI: s, m, W, dB); ``arrays()`` returns numpy arrays."""
+class OneAxisBench(hs.Bench):
+    """The one-axis machine: a loop and the fiber-to-fiber link (:mod:`.plant.optics`)."""
 
-    FIELDS = ('t', 'x', 'y', 'r', 'p', 'p_true', 'p_max', 'slot', 'state')
-
-    def __init__(self):
-        """Start empty."""
-        self.rows = {k: [] for k in self.FIELDS}
-
-    def add(self, **kw):
-        """Append one period."""
-        for k in self.FIELDS:
-            self.rows[k].append(kw[k])
-
-    def arrays(self):
-        """Return the trace as a dict of numpy arrays; ``state`` is an object array."""
-        out = {k: np.asarray(v, dtype=float) for k, v in self.rows.items() if k != 'state'}
-        out['state'] = np.asarray(self.rows['state'], dtype=object)
-        out['loss_db'] = op.loss_db(np.maximum(out['p_true'], 1e-30),
-                                    np.maximum(out['p_max'], 1e-30))
-        return out
-
-
-#: What :meth:`Stepping.align_run` reports of the sequencer when the run stops.
-SNAPSHOT = ('state', 'fault_reason', 'peak_samples', 'search_samples', 'iterations')
-
-
-class Stepping:
-    """
-    A bench stepped one control period at a time (SI: s).
-
-    A subclass has ``k`` (periods run), ``period_s``, ``seq`` (a sequencer: ``align()``,
-    ``state``), ``step()`` and ``true_loss()`` (dB of the last period).
-    """
+    POSITION, MEASURED, SETPOINT, TARGET = ('x',), ('y',), ('r',), ('slot',)
+    GOAL = dict(loss_db=0.05, time_s=0.5, samples=60)
+    WHERE = ('slot_m',)
 
     @property
-    def t(self):
-        """Return the time of the next period (s)."""
-        return self.k * self.period_s
+    def loop(self):
+        """Return the closed loop: the rig's one axis."""
+        return self.rig.loops[0]
 
-    def align_run(self, idle_s, max_s, loss_window_s):
-        """
-        Idle ``idle_s``, command ``align``, run to TRACKING or FAULT, then the loss window.
+    def sense(self, t, pos):
+        """Return the detector reading (W) with the core at ``pos[0]`` (m)."""
+        return self.link.measure(t, pos[0], self.period_s)
 
-        :param max_s: the longest run after the command (s).
-        :param loss_window_s: time in TRACKING over which the true loss is taken (s).
-        :returns: dict: ``t_cmd`` (s), ``time_to_first_light_s`` (command to the first
-            update in PEAKING, s), ``time_to_peak_s`` (command to the update that entered
-            TRACKING, s; ``None`` if it did not), ``losses`` (dB, one per period of the
-            window), and as they were when the run stopped (before the window): ``t_stop``
-            (s) and the sequencer's ``state``, ``fault_reason``, ``peak_samples``,
-            ``search_samples``, ``iterations`` (``None`` where it has none).
-        """
-        seq = self.seq
-        self.run_until(idle_s)
-        t_cmd = self.t
-        seq.align()
-        first = [None]
+    def truth(self, t, pos):
+        """Return the true power, the peak power (W) and the slot position (m)."""
+        c = self.link.coupling
+        return c.power_w(t, pos[0]), c.max_power_w(), (c.slot_position(t),)
 
-        def stop(b):
-            if first[0] is None and seq.state == PEAKING:
-                first[0] = b.t - b.period_s
-            return seq.state in (TRACKING, FAULT)
-
-        self.run_until(t_cmd + max_s, stop)
-        out = {k: getattr(seq, k, None) for k in SNAPSHOT}
-        out.update(t_cmd=t_cmd, t_stop=self.t, time_to_peak_s=None, losses=[],
-                   time_to_first_light_s=None if first[0] is None else first[0] - t_cmd)
-        if seq.state == TRACKING:
-            out['time_to_peak_s'] = self.t - self.period_s - t_cmd
-            t_end = self.t + loss_window_s
-            while self.t < t_end - 1e-12 and seq.state == TRACKING:
-                self.step()
-                out['losses'].append(self.true_loss())
-        return out
-
-    def run_until(self, t_end, stop=None):
-        """Step until ``t_end`` (s) or until ``stop(bench)`` is true; return the time (s)."""
-        while self.t < t_end - 1e-12:
-            self.step()
-            if stop is not None and stop(self):
-                break
-        return self.t
-
-
-class Bench(Stepping):
-    """A sequencer, an optical link and a loop stepped together, one control period a call."""
-
-    #: what a driver that holds its output drives the actuator to (m): its safe output
-    safe_m = 0.0
-
-    def __init__(self, loop, link, seq, period_s=1e-3, record=True):
-        """Combine the parts; time starts at 0 s."""
-        self.loop, self.link, self.seq = loop, link, seq
-        #: the sequencer's ``driver_active`` (None: as its drivers published); False: the
-        #: driver holds its output, the actuator goes to :attr:`safe_m`
-        self.driver_active = None
-        self.period_s = float(period_s)
-        self.k = 0
-        self.rec = Record() if record else None
-        self.last = None
-
-    def true_loss(self):
-        """Return the true loss (dB) of the last period."""
-        return true_loss(self)
-
-    def step(self):
-        """Run one control period; return ``(t, true position, power reading)``."""
-        t = self.t
-        x = self.loop.position_m
-        y = self.loop.y_meas
-        p = self.link.measure(t, x, self.period_s)
-        r = self.seq.update(t, y, p, driver_active=self.driver_active)
-        if self.rec is not None:
-            c = self.link.coupling
-            self.rec.add(t=t, x=x, y=y, r=r, p=p, p_true=c.power_w(t, x),
-                         p_max=c.max_power_w(), slot=c.slot_position(t),
-                         state=self.seq.state)
-        self.last = (t, x, p)
-        self.loop.step(self.safe_m if self.driver_active is False else r)
-        self.k += 1
-        return self.last
+    def loss(self, t, pos):
+        """Return the true loss in dB with the core at ``pos[0]`` (m), or at ``pos``."""
+        return self.link.loss_db(t, pos[0] if np.ndim(pos) else pos)
 
 
 def true_loss(bench):
     """Return the true loss (dB) of the last period."""
-    t, x, _ = bench.last
-    return float(bench.link.loss_db(t, x))
+    return bench.true_loss()
 
 
 def build(seed=0, loop='composite', slot_m=None, period_s=1e-3, record=True,
           seq_params=None, optics_params=None, setup=None, **optics_overrides):
     """
-    Return a :class:`Bench` with the slot at ``slot_m`` (m; random in the range if None).
+    Return a :class:`OneAxisBench` with the slot at ``slot_m`` (m; random in the range if None).
 
+    :param loop: a loop kind of :func:`make_loop` or a loop object.
     :param setup: the loaded :class:`~fiber_align.simulation.simulate.Setup` (None: read
         the files).
     :param optics_overrides: keys of ``config/optics.yaml`` (e.g. ``fiber_broken=True``,
@@ -276,5 +180,13 @@ def build(seed=0, loop='composite', slot_m=None, period_s=1e-3, record=True,
     ov.setdefault('sample_period_s', period_s)
     link = op.OpticalLink.from_params(oparams, seed=seed + 1000, **ov)
     lp = loop if not isinstance(loop, str) else make_loop(loop, period_s, seed, setup)
-    lp.reset()
-    return Bench(lp, link, seq, period_s, record)
+    return OneAxisBench(hs.Rig((lp,), period_s), link, seq, record)
+
+
+class LoopRig(hs.Rig):
+    """``n`` loops of :func:`make_loop`, loop ``i`` with noise seed ``seed + i``."""
+
+    def __init__(self, kind='composite', period_s=1e-3, seed=0, n=1):
+        """Build the loops (``kind``, control period ``period_s``, s) and reset them."""
+        super().__init__([make_loop(kind, period_s, seed + i) for i in range(n)], period_s,
+                         seed)

@@ -17,7 +17,17 @@ triangle at 0.1 Hz (paper Section 5.1), and there is no reference.
 from dataclasses import dataclass
 import math
 
+#: The reference scenarios (a setpoint source for one loop), and those a loop tracks.
 NAMES = ('step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment')
+TRACKING = NAMES[:4]
+#: The alignment scenarios of every machine (:mod:`fiber_align.simulation.harness`): the
+#: one-axis machine, the x-y rig, the coupled station.
+MACHINE_SCENARIOS = {'one': ('align', 'switch', 'track'),
+                     'rig': ('align2d', 'track2d', 'switch2d'),
+                     'station': ('station', 'cure')}
+ALIGNMENT = tuple(n for names in MACHINE_SCENARIOS.values() for n in names)
+#: What the 1-D graph's ``scenario`` argument takes (``none``: no runner).
+GRAPH = ('none',) + NAMES + ('align',)
 STEP_M = 82e-6
 SINE_HZ = 0.75
 TRIANGLE_HZ = 1.0

@@ -2,12 +2,13 @@
 """
 Offline station scenarios: the station sequencer (and its serial baseline) on four axes.
 
-The rig is two :class:`~fiber_align.simulation.alignment2d_scenarios.Rig2D` (input x-y and
-output x-y: four independent closed loops, each the control core's plant, composite
-controller, driver and sensor noise, its own seed), stepped at the control rate in the
-order of docs/CONTRACTS.md. One period ``k``: the four measured displacements and the
-output detector's reading ``P_k`` (W, of the true positions at ``t_k``) go to
-``seq.update(t_k, positions, P_k)``, whose four setpoints drive the loops for one period.
+The rig is four independent closed loops (:class:`StationRig`: input x-y and output x-y,
+each the control core's plant, composite controller, driver and sensor noise, its own seed),
+stepped at the control rate in the order of docs/CONTRACTS.md. One period ``k``: the four
+measured displacements and the output detector's reading ``P_k`` (W, of the true positions
+at ``t_k``) go to ``seq.update(t_k, positions, P_k)``, whose four setpoints drive the loops
+for one period (the steps of :mod:`fiber_align.simulation.harness`; this module holds the
+station's data, :class:`StationBench`, and its own step, :func:`cure_bench`).
 
 ``station``
     Both facets at random offsets from the nominal positions (2-20 um on every axis, random
@@ -27,22 +28,20 @@ output detector's reading ``P_k`` (W, of the true positions at ``t_k``) go to
 """
 
 import copy
-import json
 import math
-import sys
 
 import numpy as np
 
 from fiber_align.alignment import station as st
 from fiber_align.alignment import station_serial as ser
 from fiber_align.alignment.states import TRACKING
-from fiber_align.jsonout import json_clean
 from fiber_align.plant import station_optics as so
-from fiber_align.simulation import alignment_bench as sc1
-from fiber_align.simulation.alignment2d_scenarios import Rig2D
+from fiber_align.simulation import harness as hs
+from fiber_align.simulation.alignment_bench import LoopRig
+from fiber_align.simulation.scenarios import MACHINE_SCENARIOS
 from fiber_align.simulation.seeds2d import graph_period_s
 
-SCENARIOS = ('station', 'cure')
+SCENARIOS = MACHINE_SCENARIOS['station']
 METHODS = {'concurrent': st.Station, 'serial': ser.SerialStation}
 GOAL_LOSS_DB = 0.05
 #: The four axes in the order of the sequencer's positions and setpoints (the graph's
@@ -50,34 +49,12 @@ GOAL_LOSS_DB = 0.05
 AXIS_KEYS = ('x_in', 'y_in', 'x_out', 'y_out')
 
 
-class StationRig:
-    """Input and output x-y rigs: four closed loops (SI: m, s)."""
+class StationRig(LoopRig):
+    """Input and output x-y rigs: four loops ``in/x`` .. ``out/y``, seeds ``seed`` .. ``+ 3``."""
 
     def __init__(self, kind='composite', period_s=1e-3, seed=0):
-        """Build both :class:`Rig2D` (seeds ``seed``, ``seed + 2``)."""
-        self.period_s = float(period_s)
-        self.sides = (Rig2D(kind, period_s, seed), Rig2D(kind, period_s, seed + 2))
-        self.reset(seed)
-
-    def reset(self, seed):
-        """Rest the four loops; restart their noise with seeds ``seed`` .. ``seed + 3``."""
-        self.sides[0].reset(seed)
-        self.sides[1].reset(seed + 2)
-
-    @property
-    def position(self):
-        """Return the four true positions (m)."""
-        return self.sides[0].position + self.sides[1].position
-
-    @property
-    def measured(self):
-        """Return the four sensor readings (m)."""
-        return self.sides[0].measured + self.sides[1].measured
-
-    def step(self, r):
-        """Run one control period of the four loops for the setpoints ``r`` (m)."""
-        self.sides[0].step(r[0], r[1])
-        self.sides[1].step(r[2], r[3])
+        """Build the four loops (control period ``period_s``, s)."""
+        super().__init__(kind, period_s, seed, 4)
 
 
 class Hold:
@@ -94,47 +71,22 @@ class Hold:
         return self.point
 
 
-class StationBench(sc1.Stepping):
-    """A station sequencer, the chip's optical link and the rig, one period a call."""
+class StationBench(hs.Bench):
+    """The coupled station: four loops and the chip's link (:mod:`.plant.station_optics`)."""
 
-    #: Per-period trace columns (``record``): time, the four measured displacements, the
-    #: four setpoints and the detector reading (s, m, W).
-    FIELDS = ('t',) + tuple('m' + a for a in AXIS_KEYS) + tuple('r' + a for a in AXIS_KEYS) \
-        + ('p',)
+    POSITION = AXIS_KEYS
+    MEASURED = tuple('m' + a for a in AXIS_KEYS)
+    SETPOINT = tuple('r' + a for a in AXIS_KEYS)
+    TARGET = tuple('t' + a for a in AXIS_KEYS)
+    JOINT = True
+    GOAL = dict(loss_db=GOAL_LOSS_DB, time_s=None, samples=None)
+    WHERE = 'facets_m'
+    RIG, LINK = StationRig, so.StationLink
 
-    def __init__(self, rig, link, seq, record=False):
-        """Combine the parts; time starts at 0 s; ``record``: keep :meth:`trace`'s rows."""
-        self.rig, self.link, self.seq = rig, link, seq
-        self.period_s = rig.period_s
-        self.k = 0
-        self.last = None
-        self.rows = {k: [] for k in self.FIELDS} if record else None
-        #: what the drivers report to the sequencer (None, a bool or four bools)
-        self.driver_active = None
-
-    def step(self):
-        """Run one period; return ``(t, positions, reading)`` (s, m, W)."""
-        t = self.t
-        pos = self.rig.position
-        p = self.link.measure(t, pos, self.period_s)
-        m = self.rig.measured
-        r = self.seq.update(t, m, p, self.driver_active)
-        if self.rows is not None:
-            for k, v in zip(self.FIELDS, (t, *m, *r, p)):
-                self.rows[k].append(float(v))
-        self.last = (t, pos, p)
-        self.rig.step(r)
-        self.k += 1
-        return self.last
-
-    def true_loss(self):
-        """Return the true loss (dB) of the last period."""
-        t, pos, _ = self.last
-        return float(self.link.loss_db(t, pos))
-
-    def trace(self):
-        """Return the recorded run (``record``) as a dict of arrays (SI)."""
-        return {k: np.asarray(v, dtype=float) for k, v in self.rows.items()}
+    @property
+    def ALIGN_MAX_S(self):  # noqa: N802 (the harness's name of the limit)
+        """Return the longest alignment (s): the search timeout and 2 s to peak."""
+        return self.seq.p['search_timeout_s'] + 2.0
 
 
 def run_seeds(seed):
@@ -173,39 +125,19 @@ def build(seed=0, method='concurrent', facets=None, rig=None, seq_overrides=None
     seq = METHODS[method](**dict(dict(period_s=graph_period_s()), **(seq_overrides or {})))
     facets = random_facets(seed, seq) if facets is None else facets
     ov = dict(optics_overrides)
-    for k, v in zip(('facet_in_x_m', 'facet_in_y_m', 'facet_out_x_m', 'facet_out_y_m'),
-                    facets):
-        ov[k] = float(v)
+    ov.update(('facet_%s_%s_m' % (s, a), float(v))
+              for (s, a), v in zip([(s, a) for s in so.SIDES for a in 'xy'], facets))
     seeds = run_seeds(seed)
-    if rig is None or isinstance(rig, str):
-        rig = StationRig(rig or 'composite', seq.period_s, seeds['plant'])
-    rig.reset(seeds['plant'])
-    ov.setdefault('sample_period_s', rig.period_s)
-    link = so.StationLink.from_params(None, None, seed=seeds['detector'], **ov)
-    return StationBench(rig, link, seq, record)
+    return StationBench.assemble(seq, rig, (seeds['plant'], seeds['detector']), record, **ov)
 
 
 def align_bench(bench, idle_s=0.02, loss_window_s=0.02):
     """Idle, ``align``, run to TRACKING or FAULT, the loss window; return metrics (SI)."""
-    seq = bench.seq
-    run = bench.align_run(idle_s, seq.p['search_timeout_s'] + 2.0, loss_window_s)
-    keys = ('time_to_first_light_s', 'time_to_peak_s', 'final_loss_db', 'peak_samples',
-            'search_samples', 'samples', 'aligned_offset_m')
-    out = {k: None for k in keys}
-    out.update(state=run['state'], fault_reason=run['fault_reason'],
-               iterations=run['iterations'], method=seq.method,
-               time_to_first_light_s=run['time_to_first_light_s'],
-               facets_m=list(bench.link.coupling.peak(run['t_stop'])))
-    if run['state'] == TRACKING:
-        out['time_to_peak_s'] = run['time_to_peak_s']
-        out['peak_samples'] = int(run['peak_samples'])
-        out['search_samples'] = int(run['search_samples'])
-        out['samples'] = int(round(run['time_to_peak_s'] / bench.period_s))
-        out['final_loss_db'] = float(np.mean(run['losses'])) if run['losses'] else None
+    out = hs.align_bench(bench, idle_s, None, loss_window_s)
+    out['aligned_offset_m'] = None
+    if out['state'] == TRACKING:
         pk = np.asarray(bench.link.coupling.peak(bench.t))
-        out['aligned_offset_m'] = float(np.linalg.norm(np.asarray(seq.aligned) - pk))
-    out['aligned'] = bool(out['final_loss_db'] is not None
-                          and out['final_loss_db'] <= GOAL_LOSS_DB)
+        out['aligned_offset_m'] = float(np.linalg.norm(np.asarray(bench.seq.aligned) - pk))
     return out
 
 
@@ -239,7 +171,7 @@ def cure_bench(bench, cure, settle_s=0.2, tail_s=2.0, final_window_s=1.0):
     return out
 
 
-def run(name, seed=0, loop='composite', rig=None, **kw):
+def run(name, seed=0, loop='composite', rig=None, record=False, **kw):
     """
     Run scenario ``name`` (``station`` or ``cure``); return a dict of SI metrics.
 
@@ -257,7 +189,7 @@ def run(name, seed=0, loop='composite', rig=None, **kw):
     if period_s is not None:
         kw['seq_overrides'] = dict(period_s=float(period_s))
     rig = rig or StationRig(loop, period_s or graph_period_s(), 4 * seed)
-    b = build(seed, 'concurrent', rig=rig, **kw)
+    b = build(seed, 'concurrent', rig=rig, record=record, **kw)
     out = align_bench(b)
     out.update(scenario=name, seed=seed, loop=loop, control_rate_hz=1.0 / rig.period_s)
     if name == 'cure':
@@ -274,51 +206,16 @@ def run(name, seed=0, loop='composite', rig=None, **kw):
                        end_fault_reason=b.seq.fault_reason)
         out['simulated_s'] = b.t
         return out
-    out.update(end_state=b.seq.state, end_fault_reason=b.seq.fault_reason, simulated_s=b.t)
+    hs.end(out, b)
     base_bench = build(seed, 'serial', rig=rig, **kw)
     base = align_bench(base_bench)
     base.update(end_state=base_bench.seq.state, end_fault_reason=base_bench.seq.fault_reason)
     out['baseline'] = base
     for key, k in (('samples_ratio', 'peak_samples'), ('time_ratio', 'time_to_peak_s')):
-        a, c = out.get(k), base.get(k)
-        out[key] = (a / c) if a is not None and c else None
+        out[key] = hs.ratio(out.get(k), base.get(k))
     return out
 
 
 def run_cli(args):
     """Run ``fiber-align simulate --scenario station|cure``; return an exit code."""
-    name = getattr(args, 'scenario', 'station')
-    seed = int(getattr(args, 'seed', 0) or 0)
-    kw = {}
-    rate = getattr(args, 'rate', None)
-    if rate:
-        kw['period_s'] = 1.0 / float(rate)
-    loop = getattr(args, 'loop', None) or 'composite'
-    res = json_clean(run(name, seed=seed, loop=loop, **kw))
-    if getattr(args, 'json', False):
-        print(json.dumps(res, indent=2, sort_keys=True))
-    else:
-        _print_human(res, sys.stdout)
-    return 0 if res.get('end_state') == TRACKING else 1
-
-
-def _print_human(res, out):
-    """Print the figures for people (dB, ms)."""
-    def f(v, scale=1.0, fmt='%.1f'):
-        return '-' if v is None else fmt % (v * scale)
-
-    print('scenario %s, seed %s, loop %s, %.0f Hz, facets (%s) um'
-          % (res['scenario'], res['seed'], res['loop'], res['control_rate_hz'],
-             ', '.join('%.1f' % (v * 1e6) for v in res['facets_m'])), file=out)
-    rows = [('concurrent', res)] + ([('serial', res['baseline'])] if 'baseline' in res else [])
-    for label, r in rows:
-        print('  %-10s %s %s: loss %s dB, first light %s ms, time to peak %s ms, peak '
-              'samples %s' % (label, r['state'], r['fault_reason'],
-                              f(r['final_loss_db'], fmt='%.4f'),
-                              f(r['time_to_first_light_s'], 1e3), f(r['time_to_peak_s'], 1e3),
-                              f(r['peak_samples'], fmt='%d')), file=out)
-    if res.get('max_loss_db') is not None:
-        print('  cure: tracked max loss %.4f dB, final %.4f dB; untracked max %.4f dB, final '
-              '%.4f dB' % (res['max_loss_db'], res['final_loss_db'],
-                           res['untracked_max_loss_db'], res['untracked_final_loss_db']),
-              file=out)
+    return hs.run_cli(args, run)

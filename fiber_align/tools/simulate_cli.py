@@ -18,13 +18,11 @@ def register(sub):
     """Add the ``simulate`` and ``fuzzy-surface`` sub-commands."""
     p = sub.add_parser('simulate', help='closed-loop simulation of a control scenario')
     p.add_argument('--scenario', default='step',
-                   help='step | sine | triangle | staircase | hysteresis-experiment; '
-                        'align | switch | track run the alignment sequencer '
-                        '(fiber_align.simulation.alignment_scenarios); align2d | track2d | '
-                        'switch2d the two-axis sequencer and its hill-climb baseline '
-                        '(fiber_align.simulation.alignment2d_scenarios); station | cure the '
-                        'coupled input/output station and its serial baseline '
-                        '(fiber_align.simulation.station_scenarios)')
+                   help='%s; %s run the alignment sequencer; %s the two-axis sequencer and '
+                        'its hill-climb baseline; %s the coupled input/output station and '
+                        'its serial baseline (fiber_align.simulation.harness)'
+                        % tuple(' | '.join(n) for n in (scenarios.NAMES,) + tuple(
+                            scenarios.MACHINE_SCENARIOS.values())))
     p.add_argument('--controller', default='composite',
                    help='open-loop | feedforward | pid | fuzzy | composite | composite-pid')
     p.add_argument('--rate', type=float, default=None, help='control rate, Hz')
@@ -60,9 +58,11 @@ def register(sub):
     q.set_defaults(func=cmd_fuzzy_surface, paths={'--plot': 'out-file'})
 
 
-ALIGN_SCENARIOS = ('align', 'switch', 'track')
-ALIGN2D_SCENARIOS = ('align2d', 'track2d', 'switch2d')
-STATION_SCENARIOS = station_scenarios.SCENARIOS
+ALIGN_SCENARIOS = scenarios.MACHINE_SCENARIOS['one']
+STATION_SCENARIOS = scenarios.MACHINE_SCENARIOS['station']
+#: The machine of every alignment scenario (its module's ``run_cli``).
+MACHINES = {name: module for module in (alignment_scenarios, alignment2d_scenarios,
+                                        station_scenarios) for name in module.SCENARIOS}
 
 
 def _check_alignment_args(args):
@@ -102,13 +102,9 @@ def cmd_simulate(args):
         if extra:
             raise UsageError('%s do not apply to --scenario %s'
                              % (', '.join(extra), args.scenario))
-        return station_scenarios.run_cli(args)
-    if args.scenario in ALIGN2D_SCENARIOS:      # two-axis alignment
+    if args.scenario in MACHINES:
         _check_alignment_args(args)
-        return alignment2d_scenarios.run_cli(args)
-    if args.scenario in ALIGN_SCENARIOS:
-        _check_alignment_args(args)
-        return alignment_scenarios.run_cli(args)
+        return MACHINES[args.scenario].run_cli(args)
     extra = [o for o, v in (('--loop', args.loop), ('--cycles', args.cycles),
                             ('--slot', args.slot), ('--drift', args.drift)) if v is not None]
     if extra:
@@ -148,9 +144,8 @@ def cmd_simulate(args):
                 _fmt(m['max_voltage_v'], 1, 1)))
         return 0
     if args.scenario not in scenarios.NAMES:
-        raise UsageError('unknown --scenario %r (allowed: %s, %s)'
-                         % (args.scenario, ', '.join(scenarios.NAMES),
-                            ', '.join(ALIGN_SCENARIOS)))
+        raise UsageError('unknown --scenario %r (allowed: %s)'
+                         % (args.scenario, ', '.join(scenarios.NAMES + scenarios.ALIGNMENT)))
     if args.controller not in CONTROLLERS:
         raise UsageError('unknown --controller %r (allowed: %s)'
                          % (args.controller, ', '.join(CONTROLLERS)))
