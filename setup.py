@@ -26,7 +26,6 @@ NODES = [
     'control_graph',
     'scenario_runner',
     'power_meter',
-    'mdt693b_driver',
     'lifecycle_manager',
     'live_view',
 ]

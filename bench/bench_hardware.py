@@ -37,7 +37,7 @@ from fiber_align.alignment import hillclimb2d as hc, sequencer2d as s2d
 from fiber_align.config import load_params
 from fiber_align.graph.hardware import build_hardware
 from fiber_align.graph.hardware_rig import build_hardware_rig
-from fiber_align.hardware.mdt693b import MDT693BChannels
+from fiber_align.hardware.mdt693b_channels import MDT693BChannels
 from fiber_align.bringup.hardware import graph_trial, HardwareRun
 from fiber_align.plant.optics2d import OpticalLink2D
 from fiber_align.simulation.alignment2d_scenarios import random_target

@@ -8,7 +8,8 @@ import pytest
 from fiber_align.hardware import errors as er
 from fiber_align.hardware.emulators.mdt693b import MDT693BEmulator
 from fiber_align.hardware.emulators.physics import RigBench
-from fiber_align.hardware.mdt693b import MDT693B, MDT693BChannels
+from fiber_align.hardware.mdt693b import MDT693B
+from fiber_align.hardware.mdt693b_channels import MDT693BChannels
 
 BAUD, TURN = 115200, 1e-3
 

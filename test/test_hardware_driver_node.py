@@ -80,7 +80,7 @@ def test_driver_limits_ramp_unplug_and_reconnect(rig):
     # the refusal is over: the next report is the configured state, not the latched ERROR
     node.health.publish()
     assert spin_until(lambda: level(seen['diag'][-1][1]) == 0, 1.0)
-    assert node.out.values()['device_limit_v'] == 100.0
+    assert node.s.dev.values()['device_limit_v'] == 100.0
     assert node.trigger_activate() == SUCCESS
     # every extreme through the topic: clamped or held by the core, checked again
     rng = np.random.default_rng(3)
@@ -109,7 +109,7 @@ def test_driver_limits_ramp_unplug_and_reconnect(rig):
     assert all(b[3] <= a[3] for a, b in zip(ramp, ramp[1:]))
     n = len(emu.command_log)
     spin_until(lambda: False, 0.2)
-    assert len(emu.command_log) == n and node.out.values()['readback_v'] == 0.0
+    assert len(emu.command_log) == n and node.s.dev.values('')['readback_v'] == 0.0
     # unplugged mid-run: ERROR with the reason within 1 s, then unconfigured
     assert node.trigger_activate() == SUCCESS
     ff.publish(Float64(data=20.0))
@@ -119,7 +119,7 @@ def test_driver_limits_ramp_unplug_and_reconnect(rig):
     for _ in range(5):
         ff.publish(Float64(data=21.0))
         spin_until(lambda: False, 0.01)
-    assert spin_until(lambda: node.out is None and any(
+    assert spin_until(lambda: node.s is None and any(
         level(s) == 2 and 'device lost' in s.message and t > t_unplug
         for t, s in seen['diag']), 2.0)
     t_err, st = [(t, s) for t, s in seen['diag'] if level(s) == 2 and t > t_unplug][0]

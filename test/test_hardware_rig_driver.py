@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: Apache-2.0
-"""``mdt693b_driver``: one MDT693B for both axes of the rig, on the emulator (in-process)."""
+"""``actuator_driver`` as the rig's ``mdt693b_driver``: one MDT693B, both axes (in-process)."""
 
 import time
 
@@ -66,8 +66,9 @@ class Rig:
 
     def make(self):
         """Build the driver node (raises what its constructor raises)."""
-        from fiber_align.nodes.mdt693b_driver import Mdt693bDriverNode
-        self.node = Mdt693bDriverNode(context=self.ctx, namespace='/' + NS)
+        from fiber_align.nodes.actuator_driver import ActuatorDriverNode
+        self.node = ActuatorDriverNode(context=self.ctx, namespace='/' + NS,
+                                       node_name='mdt693b_driver')
         self.ex.add_node(self.node)
         return self.node
 

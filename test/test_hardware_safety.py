@@ -10,7 +10,7 @@ from fiber_align.control.driver import DriverCore
 from fiber_align.hardware import errors as er
 from fiber_align.hardware.emulators.mdt693b import MDT693BEmulator
 from fiber_align.hardware.emulators.physics import Bench
-from fiber_align.hardware.mdt693b import MDT693BOutput
+from fiber_align.hardware.mdt693b_channels import MDT693BOutput
 
 V_MIN, V_MAX = 0.0, 90.0
 

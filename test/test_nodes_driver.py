@@ -18,7 +18,6 @@ clean-clone run of ``test_hardware_driver_node.py`` with two CPU hogs, 2026-11-3
 import time
 
 import pytest
-from std_msgs.msg import Float64
 
 from fiber_align.nodes.actuator_driver import ActuatorDriverNode
 from test_nodes_parameters import make
@@ -31,16 +30,16 @@ def test_pairs_before_activate_are_driven_at_activate_in_order(ctx):
     drv = make(ctx, ActuatorDriverNode, 'sync_mode:=lockstep')
     drv.trigger_configure()
     sent = []
-    publish = drv._publish
-    drv._publish = lambda v: (sent.append(v), publish(v))
+    drive = drv._drive
+    drv._drive = lambda drives: (sent.extend(v for _, v in drives), drive(drives))
     for ff, fb in ((10.0, 1.0), (12.0, -0.5)):
-        drv._on_ff(Float64(data=ff))
-        drv._on_fb(Float64(data=fb))
+        drv._on_input('', True, ff)
+        drv._on_input('', False, fb)
     assert sent == []                   # inactive: nothing driven, nothing dropped
     drv.trigger_activate()
     assert sent == [11.0, 11.5]
-    drv._on_ff(Float64(data=13.0))
-    drv._on_fb(Float64(data=0.25))
+    drv._on_input('', True, 13.0)
+    drv._on_input('', False, 0.25)
     assert sent == [11.0, 11.5, 13.25]  # active: each pair at once
 
 
@@ -50,14 +49,15 @@ def test_a_reactivated_driver_does_not_trip_on_its_inactive_time(ctx):
     assert drv.get_parameter('sync_mode').value == 'realtime'
     drv.trigger_configure()
     drv.trigger_activate()
-    drv._on_ff(Float64(data=10.0))
-    drv._on_fb(Float64(data=0.5))
-    assert drv.core.v == 10.5
+    core = drv.s.driver.cores['']
+    drv._on_input('', True, 10.0)
+    drv._on_input('', False, 0.5)
+    assert core.v == 10.5
     drv.trigger_deactivate()
-    time.sleep(2 * drv.core.timeout)
+    time.sleep(2 * core.timeout)
     drv.trigger_activate()
     drv._on_tick()                          # the timer before the first new command
-    assert drv.core.watchdog_count == 0 and not drv.core.tripped
-    drv._on_ff(Float64(data=11.0))
-    drv._on_fb(Float64(data=0.5))
-    assert drv.core.v == 11.5               # driven at once, no recovery hold
+    assert core.watchdog_count == 0 and not core.tripped
+    drv._on_input('', True, 11.0)
+    drv._on_input('', False, 0.5)
+    assert core.v == 11.5                   # driven at once, no recovery hold

@@ -120,10 +120,12 @@ def configured(node):
 
 
 def test_driver_builds_from_its_parameters(ctx, tmp_path):
-    core = configured(make(ctx, ActuatorDriverNode, 'v_max:=80.0', 'latch_trips:=5')).core
+    drv = configured(make(ctx, ActuatorDriverNode, 'v_max:=80.0', 'latch_trips:=5'))
+    core = drv.s.driver.cores['']
     assert core.v_max == 80.0 and core.latch_trips == 5
     pf = params_file(tmp_path, {'actuator_driver': {'watchdog_timeout_s': 0.02}})
-    assert configured(make(ctx, ActuatorDriverNode, params_file=pf)).core.timeout == 0.02
+    drv = configured(make(ctx, ActuatorDriverNode, params_file=pf))
+    assert drv.s.driver.cores[''].timeout == 0.02
 
 
 def test_sequencer_builds_from_its_parameters(ctx, tmp_path):
@@ -188,7 +190,7 @@ def test_bad_live_values_are_refused_with_the_reason(ctx):
     drv = configured(make(ctx, ActuatorDriverNode))
     res = drv.set_parameters([Parameter('v_max', value=1000.0)])[0]
     assert not res.successful and res.reason
-    assert drv.core.v_max != 1000.0
+    assert drv.s.driver.cores[''].v_max != 1000.0
     ctl = make(ctx, FuzzyPidControllerNode)
     res = ctl.set_parameters([Parameter('u_max', value='high')])[0]
     assert not res.successful and res.reason

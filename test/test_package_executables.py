@@ -20,10 +20,7 @@ PACKAGE = ROOT / 'fiber_align'
 NOT_DOMAIN = ('bringup', 'control_graph', 'lifecycle_manager', 'bag_recorder', 'live_view')
 #: One executable per role (issue 38): the sequencer, the optics, the simulated plant.
 ONE_PER_ROLE = {'sequencer': 'alignment_sequencer', 'optics': 'simulated_optics',
-                'plant': 'simulated_actuator'}
-#: Executables still over the size while another change of issue 38 folds them away; an
-#: entry must go when its executable leaves setup.py (the last test says so).
-PENDING = {'mdt693b_driver': 'folded into the one driver executable (issue 38, item 2)'}
+                'plant': 'simulated_actuator', 'driver': 'actuator_driver'}
 
 
 def setup_nodes():
@@ -91,7 +88,7 @@ def test_one_executable_per_role_and_domain_executables_at_most_250_lines_each()
     for role, exe in ONE_PER_ROLE.items():
         assert exe in names, role
     retired = ('alignment_sequencer2d', 'station_sequencer', 'rig_optics', 'station_optics',
-               'rig_actuator')
+               'rig_actuator', 'mdt693b_driver')
     assert not set(retired) & set(names)
     sizes = {}
     for name in names:
@@ -100,10 +97,5 @@ def test_one_executable_per_role_and_domain_executables_at_most_250_lines_each()
         _, files = sources(name)
         assert len(files) == 1, '%s: one file, not a package' % name
         sizes[name] = len(files[0].read_text(encoding='utf-8').splitlines())
-    over = {n: k for n, k in sizes.items() if k > 250 and n not in PENDING}
+    over = {n: k for n, k in sizes.items() if k > 250}
     assert not over, 'domain executables over 250 lines: %s' % over
-
-
-def test_each_pending_executable_is_still_in_setup_py():
-    gone = sorted(set(PENDING) - set(setup_nodes()))
-    assert not gone, 'no longer in setup.py: drop from PENDING: %s' % gone

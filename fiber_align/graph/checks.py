@@ -201,3 +201,8 @@ def protections_off(params):
         if name in params and off(params[name]):
             out[name] = '%s=%r: %s' % (name, params[name], text)
     return out
+
+
+def protections_off_texts(params_by_axis):
+    """Return the texts of the protections any axis's values turn off, once each, in order."""
+    return list(dict.fromkeys(t for p in params_by_axis for t in protections_off(p).values()))

@@ -10,7 +10,8 @@ Under the rig namespace (``rig`` unless told):
   inverse PI feedforward (``controller: feedforward``) of its own model file, from
   ``x/setpoint`` to ``x/feedforward_voltage`` and ``x/reference`` (y alike);
 - ``/rig/mdt693b_driver`` (lifecycle): the amplifier's one owner, both axes' limits,
-  slew and watchdogs, both channels over one serial link;
+  slew and watchdogs, both channels over one serial link: the executable
+  ``actuator_driver`` with ``axes: [x, y]`` and backend ``mdt693b``, under this name;
 - ``/rig/power_meter``: ``optical_power`` from the PM100;
 - ``/rig/alignment_sequencer_2d``: the 2-D sequencer on that power against the
   commanded positions (``x/reference``, ``y/reference``), one update per reading;
@@ -38,10 +39,14 @@ from fiber_align.graph.params import (AMPLIFIER, check_user, COMPENSATOR, effect
 from fiber_align.graph.rig import (_axis_ns, AXES, RIG_FILES, RIG_NAMESPACE, RigGraph,
                                    SEQUENCER_2D)
 
+#: The amplifier's ROS arguments: the one driver executable under the rig's node name
+#: (a node-specific rule: in a composed process it renames the driver alone).
+AMPLIFIER_ARGS = ('--ros-args', '-r', '%s:__node:=%s' % (
+    g.NODES[AMPLIFIER].executable, AMPLIFIER), '--')
 #: Params files of the hardware rig, merged after the rig's own (names in ``config/``).
 HARDWARE_RIG_FILES = ('hardware.yaml', 'hardware_rig.yaml', 'sequencer2d_hardware.yaml')
 #: Nodes at the rig namespace (not per axis): name -> executable.
-ROOT_NODES = {SEQUENCER_2D: g.NODES[SEQUENCER_2D].executable, AMPLIFIER: AMPLIFIER}
+ROOT_NODES = {n: g.NODES[n].executable for n in (SEQUENCER_2D, AMPLIFIER)}
 CHANNELS = ('x', 'y', 'z')
 
 
@@ -71,12 +76,13 @@ def hardware_rig_processes(ns, composed):
         procs = [g.Process(a, g.COMPOSED_EXECUTABLE, (COMPENSATOR,), ('--nodes', COMPENSATOR),
                            namespace=_axis_ns(ns, a)) for a in AXES]
         procs.append(g.Process('rig', g.COMPOSED_EXECUTABLE, tuple(ROOT_NODES),
-                               ('--nodes', ','.join(ROOT_NODES)), namespace=ns))
+                               ('--nodes', ','.join(ROOT_NODES)) + AMPLIFIER_ARGS,
+                               namespace=ns))
     else:
         procs = [g.Process('%s/%s' % (a, COMPENSATOR), COMPENSATOR, (COMPENSATOR,),
                            node_name=COMPENSATOR, namespace=_axis_ns(ns, a)) for a in AXES]
-        procs += [g.Process(n, exe, (n,), node_name=n, namespace=ns)
-                  for n, exe in ROOT_NODES.items()]
+        procs += [g.Process(n, exe, (n,), AMPLIFIER_ARGS if n == AMPLIFIER else (),
+                            node_name=n, namespace=ns) for n, exe in ROOT_NODES.items()]
     procs.append(g.Process(POWER_METER, POWER_METER, (POWER_METER,), node_name=POWER_METER,
                            namespace=ns))
     procs.append(g.Process(LIFECYCLE_MANAGER, LIFECYCLE_MANAGER, (LIFECYCLE_MANAGER,),

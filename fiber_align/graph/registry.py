@@ -104,7 +104,7 @@ NODES = {
                      publishes=('drive_voltage',),
                      subscribes=('feedforward_voltage', 'feedback_voltage')),
     # the hardware rig's amplifier (graph/hardware_rig.py): one MDT693B, both axes
-    'mdt693b_driver': NodeSpec('mdt693b_driver', 'mdt693b_driver', 'Mdt693bDriverNode',
+    'mdt693b_driver': NodeSpec('mdt693b_driver', 'actuator_driver', 'ActuatorDriverNode',
                                ('hardware_rig.yaml',), lifecycle=True, area=False,
                                publishes=('x/drive_voltage', 'y/drive_voltage'),
                                subscribes=('x/feedforward_voltage', 'y/feedforward_voltage')),

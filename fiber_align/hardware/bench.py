@@ -32,7 +32,7 @@ from fiber_align.hardware import errors as er
 from fiber_align.hardware.emulators.mdt693b import MDT693BEmulator
 from fiber_align.hardware.emulators.physics import Bench, RigBench
 from fiber_align.hardware.emulators.pm100 import PM100Emulator
-from fiber_align.hardware.mdt693b import MDT693BOutput
+from fiber_align.hardware.mdt693b_channels import MDT693BOutput
 from fiber_align.hardware.pm100 import PM100
 from fiber_align.hysteresis.pi import PIModel
 

@@ -1,42 +1,35 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-``actuator_driver``: a managed (lifecycle) node around :class:`DriverCore`.
+``actuator_driver``: the one driver, a managed (lifecycle) node for the axes of one device.
 
-Sums ``feedforward_voltage`` and ``feedback_voltage`` (std_msgs/Float64, V), clamps and
-slew-limits them and publishes ``drive_voltage`` (V) while active (lockstep: the i-th of
-each; realtime: the newest, on each feedback, and on each feedforward while the feedback
-is late). ``~/enable`` false ramps to the safe voltage. The realtime
-watchdog ramps to ``safe_voltage_v`` when the input stops for ``watchdog_timeout_s``,
-resumes after ``RECOVERY_S`` of fresh input, and latches after ``latch_trips`` trips
-within ``latch_window_s`` (until ``~/enable`` true or a lifecycle cycle); ``drive_held``
-(latched Bool) parks the compensator and the controller for a bumpless resume. The
-voltage limits are checked against both field limits of the PZT layers. ``backend``
-``mdt693b`` drives a Thorlabs MDT693B channel (:mod:`fiber_align.nodes._driver_device`);
-``sensorless`` drives the feedforward alone. The realtime input rules are
-:class:`fiber_align.control.realtime.DriverStep`'s. The full behaviour, with the reasons:
-docs/ros_interface.md, section "actuator_driver".
+Per axis ``a`` of ``axes`` (``['']``: the 1-D names; ``[x, y]``: ``x/...``): in
+``a/feedforward_voltage``, ``a/feedback_voltage``; out ``a/drive_voltage``, ``a/drive_held``,
+``a/drive_voltage_readback`` (V). Rules: :class:`~fiber_align.control.driver_axes.DriverAxes`;
+transitions: :class:`~fiber_align.hardware.driver_session.DriverSession` (docs/ros_interface.md).
 """
 
 import sys
+import time
 
 from rclpy.clock import Clock, ClockType
-from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn as Ret
 from std_msgs.msg import Bool, Float64
 from std_srvs.srv import SetBool
 
-from fiber_align.config import ConfigError
+from fiber_align.config import ConfigError, load_params
 from fiber_align.control.cycle import CycleStats
-from fiber_align.control.driver import check_field_limits, DriverCore
-from fiber_align.control.realtime import DriverStep
+from fiber_align.control.driver_axes import (AXIS_KEYS, axis_name, axis_topic as topic, INPUTS,
+                                             LIMIT_KEYS, limit_updates, SETTINGS, SHARED_KEYS)
+from fiber_align.graph.checks import protections_off_texts
 from fiber_align.graph.registry import NODES
-from fiber_align.nodes._driver_device import DeviceBackend
-from fiber_align.nodes._driver_loop import DriverLoop
-from fiber_align.nodes._driver_params import declare_all, DriverParameters
-from fiber_align.nodes.ros.bus import Pub, release_timer, sample_timer, sender_of, slack_of
-from fiber_align.nodes.ros.bus import subscription, unsubscribe
-from fiber_align.nodes.ros.diagnostics import ERROR, Health, OK, WARN
+from fiber_align.hardware.driver_session import IDLE_OUTPUT, open_session, refusal
+from fiber_align.hardware.mdt693b_session import backend_defaults, DEVICE_KEYS, parameter_rows
+from fiber_align.nodes.ros import bus as b
+from fiber_align.nodes.ros.diagnostics import ERROR, Health, LEVELS
 from fiber_align.nodes.ros.lifecycle import guard_change_state
-from fiber_align.nodes.ros.params import node_defaults
+from fiber_align.nodes.ros.params import (check_parameters, declare, declare_graph_values,
+                                          declare_rows, flatten_defaults, node_defaults,
+                                          PRIORITY)
 from fiber_align.nodes.ros.qos import LATCHED_QOS, sample_pub_qos, sample_qos
 from fiber_align.nodes.ros.runtime import run_node
 
@@ -44,170 +37,208 @@ from fiber_align.nodes.ros.runtime import run_node
 SPEC = NODES['actuator_driver']
 
 
-class ActuatorDriverNode(DriverParameters, DeviceBackend, DriverLoop, LifecycleNode):
-    """Lifecycle transport around :class:`DriverCore`."""
+class ActuatorDriverNode(LifecycleNode):
+    """Lifecycle transport around a :class:`~fiber_align.hardware.driver_session.DriverSession`."""
 
-    def __init__(self, bus=None, **kwargs):
-        """
-        Declare parameters (defaults from config/); nothing is created until configure.
-
-        :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
-            process, or ``None``.
-        """
-        super().__init__(SPEC.node, **kwargs)
-        self.bus = bus
-        self.slack = slack_of(bus)
-        d = node_defaults(SPEC.node, SPEC.configs)
-        declare_all(self, d)
-        self.backend = self.get_parameter('backend').value
-        self.sensorless = bool(self.get_parameter('sensorless').value)
-        why = check_field_limits(self._core_params())
+    def __init__(self, bus=None, node_name=SPEC.node, **kwargs):
+        """Declare the parameters (defaults from config/); nothing is built until configure."""
+        super().__init__(node_name, **kwargs)
+        self.bus, self.slack = bus, b.slack_of(bus)
+        d = dict(node_defaults(SPEC.node, SPEC.configs))
+        g = declare_graph_values(self, d, 'rate_hz', 'sync_mode', 'sensorless',
+                                 'diagnostics_period_s', *PRIORITY)
+        self.period_s = 1.0 / float(g['rate_hz'])
+        self.lockstep, self.sensorless = g['sync_mode'] == 'lockstep', bool(g['sensorless'])
+        for k, (text, lo, hi, choices) in SETTINGS.items():
+            setattr(self, k, declare(self, d, k, text, lo, hi, True, choices=choices))
+            d.update(backend_defaults(self.backend, load_params('hardware.yaml', SPEC.node),
+                                      load_params('hardware.yaml', '/**')['port'])
+                     if k == 'backend' else {})
+        self.axes = [str(a) for a in self.axes]
+        [d.update(flatten_defaults(d, a)) for a in self.axes if a]     # <axis>.<key>
+        self.ranges = declare_rows(self, parameter_rows(self.axes, d))
+        why = refusal({a: self._params(a) for a in self.axes},
+                      {} if self.backend == 'mdt693b' else None)
         if why:
-            raise ConfigError('actuator_driver: %s' % why)
+            raise ConfigError('%s: %s' % (self.get_name(), why))
         self.add_on_set_parameters_callback(self._on_set)
-        self.core = None
-        self.pub = None
-        self.out = None                 # DeviceOutput of the mdt693b backend
-        self.pub_rb = None
-        self.lost = None                # one-line reason once the device is lost
-        self._rb_t = None
-        self.enabled = True
-        self.active = False
-        self.n_drive = 0
-        self.ff_q = []
-        self.fb_q = []
-        self._msg = Float64()
-        self.rt = None                  # realtime: the input rules (DriverStep)
-        self.i = 0
-        self._subs = []
-        self._timer = None
-        self._srv = None
-        self.held = None                # last value published on drive_held
-        self.pub_held = Pub(self, Bool, 'drive_held', LATCHED_QOS, bus, latched=True)
-        self._set_held(True, 'unconfigured')
-        self.health = Health(self, self.get_parameter('diagnostics_period_s').value,
-                             slack=self.slack, sender=sender_of(bus))
-        self.health.status(WARN, 'unconfigured: output 0 V')
-        self._report_protections(self._core_params())
-        self.refused_transitions = 0
+        self.s = self._timer = self._srv = self.held = None
+        self.pubs, self.subs, self.sent, self._ticks, self._off = {}, [], {}, 0, set()
+        self.enabled, self.refused_transitions = True, 0
+        self.pub_held = [b.Pub(self, Bool, topic(a, 'drive_held'), LATCHED_QOS, bus,
+                               latched=True) for a in self.axes]
+        diag_s, fqn = g['diagnostics_period_s'], self.get_fully_qualified_name()
+        self.health = Health(self, diag_s, slack=self.slack, sender=b.sender_of(bus))
+        self.status = {a: Health(self, diag_s, name='%s/%s' % (fqn, a)) if a else self.health
+                       for a in self.axes}
+        self._idle = 'unconfigured: output ' + IDLE_OUTPUT[self.backend]
+        self._report([('warn', None, self._idle)], 'unconfigured')
+        self._protections()
         guard_change_state(self)
 
-    # -- lifecycle ------------------------------------------------------------------
-    def _refuse(self, why):
-        self.get_logger().error('cannot configure: %s' % why)
-        self.health.status(ERROR, why)
-        self.health.error(why)                          # on /diagnostics at once
-        self.core = None
-        return TransitionCallbackReturn.FAILURE
+    def _params(self, axis, new=None):
+        p = {k: self.get_parameter(k).value for k in SHARED_KEYS + LIMIT_KEYS}
+        p.update({k: self.get_parameter(axis_name(axis, k)).value for k in AXIS_KEYS})
+        return dict(p, **(new or {}))
 
     def on_configure(self, state):
-        """Build the core, open the device (mdt693b) and the transport; nothing published."""
-        p = self._core_params()
-        why = self._check_core(p)
+        """Build the session, open the device (ramped to safe) and the topics."""
+        device = {k: self.get_parameter(k).value for k in DEVICE_KEYS} if \
+            self.backend == 'mdt693b' else None
+        self.s, why = open_session({a: self._params(a) for a in self.axes}, self.period_s,
+                                   device, self.lockstep, self.sensorless, self.enabled,
+                                   self.get_logger().info)
         if why:
-            return self._refuse(why)
-        self.period_s = 1.0 / float(self.get_parameter('rate_hz').value)
-        self.core = DriverCore.from_params(p, ramp_period_s=self.period_s)
-        self.rt = DriverStep(self.core, self.period_s, self.get_logger().info)
-        self.lockstep = self.get_parameter('sync_mode').value == 'lockstep'
-        why = self._open_device(Float64)
-        if why:
-            return self._refuse(why)
-        self.pub = Pub(self, Float64, 'drive_voltage', sample_pub_qos(self.lockstep), self.bus,
-                       slack=self.slack)
-        qos = sample_qos(self.lockstep)
-        self._subs = [
-            subscription(self, Float64, 'feedforward_voltage', self._on_ff, qos, self.bus)]
-        if not self.sensorless:
-            self._subs.append(subscription(self, Float64, 'feedback_voltage', self._on_fb,
-                                           qos, self.bus))
+            self._report([('refused', '', why)])        # on /diagnostics at once
+            self._teardown()
+            return Ret.FAILURE
+        pq, sq = sample_pub_qos(self.lockstep), sample_qos(self.lockstep)
+        outs = ('drive_voltage', 'drive_voltage_readback')[:1 + self.s.device]
+        self.pubs = {(a, n): b.Pub(self, Float64, topic(a, n), pq, self.bus, slack=self.slack)
+                     for a in self.axes for n in outs}
+        self.msgs = {a: Float64() for a in self.axes}
+        self.subs = [b.subscription(self, Float64, topic(a, n), lambda m, a=a, ff=ff:
+                                    self._on_input(a, ff, m.data), sq, self.bus)
+                     for a in self.axes for n, ff in INPUTS if ff or not self.sensorless]
         self._srv = self.create_service(SetBool, '~/enable', self._on_enable)
         if not self.lockstep:
-            self._timer = sample_timer(self, self.bus, self.watchdog_period_s(), self._on_tick,
-                                       Clock(clock_type=ClockType.STEADY_TIME), watchdog=True)
+            self._timer = b.sample_timer(self, self.bus, self.period_s, self._on_tick,
+                                         Clock(clock_type=ClockType.STEADY_TIME), True)
             self.health.cycle = CycleStats(1.0 / self.period_s)     # feedforward to drive
         self.health.resolve()                           # a refusal before this is over
-        self.health.status(OK, 'configured (inactive): output %g V' % self.core.v)
-        self._update_values()
-        return TransitionCallbackReturn.SUCCESS
-
-    def watchdog_period_s(self):
-        """Return the watchdog period (s): one control period (each ramp step is one)."""
-        return self.period_s
+        self._report([])
+        self._values()
+        return Ret.SUCCESS
 
     def on_activate(self, state):
-        """Start publishing drive commands (a lifecycle cycle re-arms a latched watchdog)."""
-        if self.core.latched:
-            self.core.rearm()
-            self.get_logger().info('watchdog latch re-armed by activate')
-        self.core.restart_watchdog()    # the inactive time is no loss of input
-        self.active = True
-        self._set_held(not self.enabled or self.core.tripped, 'activated')
-        if self.lockstep:
-            self._pair()        # the pairs that came between configure and activate
-        self.health.status(OK, 'active')
-        self.get_logger().info('active: %s pairing, %g..%g V'
-                               % ('lockstep' if self.lockstep else 'latest',
-                                  self.core.v_min, self.core.v_max))
+        """Follow the inputs (a lifecycle cycle re-arms a latched watchdog)."""
+        self._drive(self.s.activate())
+        self._report([], 'activated')
         return super().on_activate(state)
 
     def on_deactivate(self, state):
-        """Stop following ff + fb; ramp to the safe voltage (realtime) and hold it there."""
-        if self.pub is not None and self.core is not None and self.lockstep:
-            self._publish(self.core.safe)
-        elif self.core is not None:
-            self.core.start_safe_ramp(self._now())
-        self.active = False
-        self._set_held(True, 'deactivated')
-        if self._ramp_device():
-            return TransitionCallbackReturn.ERROR       # on_error closes the device
-        safe = self.core.safe if self.core else 0.0
-        if self.out is not None:
-            self._publish(safe)                         # the device is at it already
-            self.out.start()                            # read-back only (nothing pending)
-        self.health.status(OK, 'inactive: output %g V' % safe)
-        return super().on_deactivate(state)
+        """Follow no more; ramp every axis to its safe voltage and hold it there."""
+        self._drive(self.s.deactivate(time.monotonic()))
+        self._report([], 'deactivated')
+        return Ret.ERROR if self.s.lost else super().on_deactivate(state)
 
     def on_cleanup(self, state):
-        """Destroy the transport and the core; close the device (the output stays)."""
-        if self.lost is not None:
-            return TransitionCallbackReturn.ERROR
-        self._teardown()
-        self.health.status(WARN, 'unconfigured: output 0 V')
-        return TransitionCallbackReturn.SUCCESS
+        """Close the device (its outputs stay); destroy the topics and the session."""
+        return Ret.ERROR if self.s.lost else self._teardown(('warn', None, self._idle))
 
     def on_shutdown(self, state):
-        """Ramp the device to the safe voltage, then tear down."""
-        self._ramp_device()
-        self._teardown()
-        return TransitionCallbackReturn.SUCCESS
+        """Ramp the device to the safe voltages, then tear down."""
+        self.close()
+        return self._teardown()
 
     def on_error(self, state):
         """Close a lost device and end unconfigured (a later configure reconnects)."""
-        why = self.lost or 'a transition failed'
-        self._teardown()
-        self.health.status(ERROR, 'device lost: %s; unconfigured: a configure reconnects'
-                           % why)
-        return TransitionCallbackReturn.SUCCESS
+        return self._teardown(('fail', None, 'device lost: %s; unconfigured: a configure '
+                               'reconnects' % (self.s and self.s.lost or 'a transition failed')))
 
-    def _teardown(self):
-        self._close_device()
-        for s in self._subs:
-            unsubscribe(self, s)
-        self._subs = []
-        if self._timer is not None:
-            release_timer(self, self._timer, self._on_tick)
-            self._timer = None
-        if self._srv is not None:
-            self.destroy_service(self._srv)
-            self._srv = None
-        if self.pub is not None:
-            self.pub.destroy(self)
-            self.pub = None
-        self.core = None
-        self.active = False
-        self.ff_q, self.fb_q = [], []
-        self._set_held(True, 'unconfigured')
+    def _teardown(self, *reports):
+        self._report([])                                # the session's last words
+        self.s = self.s and self.s.close()
+        [b.unsubscribe(self, sub) for sub in self.subs]
+        [p.destroy(self) for p in self.pubs.values()]
+        self._timer and b.release_timer(self, self._timer, self._on_tick)
+        self._srv and self.destroy_service(self._srv)
+        self.pubs, self.subs, self._timer, self._srv = {}, [], None, None
+        self._report(list(reports), 'unconfigured')
+        return Ret.SUCCESS
+
+    def close(self):
+        """Process exit: ramp the device to the safe voltages, close it; publish no more."""
+        if getattr(self, 's', None) is not None:
+            self.s.ramp()
+            self.s.close()
+
+    def destroy_node(self):
+        """Ramp and close the device (:meth:`close`), then destroy the node."""
+        self.close()
+        return super().destroy_node()
+
+    def _on_input(self, axis, ff, v):
+        if self.s is not None:
+            self._drive(self.s.input(axis, ff, v, time.monotonic()))
+            self.s.reports and self._report([], 'input is back')
+            t_ff, cycle = self.s.driver.steps[axis].t_ff, self.health.cycle
+            if cycle is not None and t_ff is not None and not self.lockstep:
+                cycle.record(time.monotonic() - t_ff)
+
+    def _drive(self, drives, name='drive_voltage'):
+        for a, v in drives:
+            msg = self.msgs[a] if name == 'drive_voltage' else Float64()
+            msg.data = float(v)
+            self.pubs[a, name].publish(msg)
+            self.sent[a, name] = self.sent.get((a, name), 0) + 1
+
+    def _on_tick(self):
+        """Every period: the device (lost? read-backs) and every axis's watchdog."""
+        if self.s is None:
+            return
+        drives, readbacks, lost = self.s.tick(time.monotonic())
+        self._drive(drives)
+        self._drive(readbacks.items(), 'drive_voltage_readback')
+        self.s.reports and self._report([], 'device lost' if lost else 'watchdog')
+        if lost:      # the transition returns ERROR (s.lost): on_error closes the port
+            self.trigger_deactivate() if self.s.driver.active else self.trigger_cleanup()
+        self._ticks += 1
+        self._ticks % 20 or self._values()
+
+    def _report(self, reports, held_reason=None):
+        """Log and show the session's reports (then ``reports``); publish a changed held."""
+        for kind, a, text in (self.s.take_reports() if self.s else []) + reports:
+            targets = set(self.status.values()) | {self.health} if a is None else \
+                {self.status.get(a, self.health)}
+            if kind in ('error', 'refused'):
+                self.get_logger().error('cannot configure: ' * (kind == 'refused') + text)
+                [h.error(text) for h in targets]
+            elif kind == 'info':
+                self.get_logger().info(text)
+            [h.status(LEVELS.get(kind, ERROR), text) for h in targets if kind != 'info']
+        held = self.s is None or self.s.held
+        if held != self.held:
+            self.held = held
+            [pub.publish(Bool(data=held)) for pub in self.pub_held]
+            self.get_logger().info('drive_held %s (%s)' % (str(held).lower(), held_reason))
+
+    def _on_enable(self, request, response):
+        """Enable (true) or disable (false: ramp every axis to its safe voltage)."""
+        self.enabled = bool(request.data)
+        self.s and self.s.enable(self.enabled, time.monotonic())
+        response.success, response.message = True, 'output %s' % (
+            'enabled' if self.enabled else 'disabled: ramping to the safe voltage')
+        self._report([('info', None, response.message)], 'enable %s' % self.enabled)
+        return response
+
+    def _on_set(self, params):
+        """Accept live updates of the limits when in range and consistent on every axis."""
+        res = check_parameters(params, self.ranges)
+        new, why = limit_updates(self.axes, {p.name: p.value for p in params}, self._params) \
+            if res.successful else ({}, None)
+        if why:
+            res.successful, res.reason = False, why
+        elif new:
+            [self.s.driver.set_limits(a, n) for a, n in new.items() if self.s]
+            self._protections(new)
+        return res
+
+    def _protections(self, new=None):
+        """Report each protection the limits turn off: a WARN in the log and on /diagnostics."""
+        off = protections_off_texts(self._params(a, (new or {}).get(a)) for a in self.axes)
+        [self.get_logger().warning('protection off: %s' % t) for t in set(off) - self._off]
+        self._off = set(off)
+        self.health.condition('protections', 'protection off: %s' % '; '.join(off) if off
+                              else None)
+
+    def _values(self):
+        self.health.set_values(**self.s.values())
+        [self.status[a].set_values(**self.s.values(a)) for a in self.axes]
+
+    def sent_counts(self):
+        """Return published message counts per topic."""
+        return {topic(a, n): c for (a, n), c in self.sent.items()}
 
 
 def main(args=None):

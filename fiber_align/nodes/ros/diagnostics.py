@@ -20,6 +20,8 @@ from fiber_align.nodes.ros.qos import DIAG_QOS
 
 #: DiagnosticStatus levels as ints (the message field is a byte).
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
+#: The levels by the names a core's reports use.
+LEVELS = {'ok': OK, 'warn': WARN, 'fail': ERROR}
 
 
 def report_refusals(node, health):

@@ -147,6 +147,21 @@ def declare(node, defaults, name, description, lo=None, hi=None, read_only=False
     return v
 
 
+def declare_rows(node, rows):
+    """
+    Declare a table of parameters; return the ranges of the writable ones.
+
+    :param rows: ``(name, default, description, lo, hi, read_only, choices)`` each.
+    :returns: ``{name: (lo, hi)}`` of the rows not read-only (for :func:`check_parameters`).
+    """
+    ranges = {}
+    for name, v, text, lo, hi, read_only, choices in rows:
+        declare(node, {name: v}, name, text, lo, hi, read_only, choices)
+        if not read_only:
+            ranges[name] = (lo, hi)
+    return ranges
+
+
 def check_parameters(params, ranges, choices=None):
     """
     Check a parameter update against ranges; return a SetParametersResult.
