@@ -67,7 +67,7 @@ def test_record_hosts_the_recorder_in_the_composed_process_else_the_clock_waits(
         <= local and '/bench2/optical_power' in local
     rec = g.node_params('bag_recorder')
     assert rec['output'] == str(tmp_path / 'bag')
-    assert 'out/y/setpoint' in rec['topics'] and 'optical_power' in rec['topics']
+    assert 'out/y/reference' in rec['topics'] and 'optical_power' in rec['topics']
     assert not g.node_params('in/y/simulated_actuator').get('start_after_reader')
     g = gs.build_station(record=str(tmp_path / 'bag'), namespace='bench2', composed=False)
     assert g.processes[-1].executable == 'bag_recorder'
