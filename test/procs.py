@@ -9,6 +9,19 @@ import time
 from fiber_align.hardware.process import stop_process
 
 
+def alive(pid):
+    """Return whether process ``pid`` runs (a zombie of a dead parent counts as gone)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:
+        with open('/proc/%d/stat' % pid, encoding='ascii') as f:
+            return f.read().rsplit(')', 1)[1].split()[0] != 'Z'
+    except OSError:
+        return False
+
+
 def stop(proc, grace_s=10.0):
     """SIGINT ``proc`` if it still runs, then SIGKILL after ``grace_s`` (s)."""
     stop_process(proc, grace_s)
