@@ -218,7 +218,7 @@ class AlignmentSequencerNode(Node):
             if s['state'] == FAULT else (WARN, 'HELD: %s' % s.get('hold_reason', ''),
                                          log.warning) if s['state'] == HELD else (
             OK, s['state'], lambda text: log.info('state ' + text))
-        self.health.status(level, text)
+        self.health.summary(level, text)
         say(text)
         self.health.set_values(state=s['state'], fault_reason=s['fault_reason'],
                                peak_samples=s['peak_samples'], **values)

@@ -91,7 +91,7 @@ class SimulatedOpticsNode(Node):
                              sender=sender_of(bus))
         self.n = 0
         self._msg = Float64()
-        self.health.status(OK, 'ready')
+        self.health.summary(OK, 'ready')
         self.get_logger().info('%s optics ready (%s)' % (self.link_name, g['sync_mode']))
 
     # -- the links ----------------------------------------------------------------------

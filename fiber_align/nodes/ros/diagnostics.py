@@ -109,18 +109,13 @@ class Health:
     """
     Publish the node's health on ``/diagnostics``: the stand-in for ``diagnostic_updater``.
 
-    The shape of ``diagnostic_updater.Updater``: :meth:`add` (``add(name, fn)``, a task
-    ``fn(stat)`` filling a :class:`StatusWrapper`), :meth:`summary` (the node's own
-    level and message), :meth:`force_update`; swap it for the real updater when that is
-    installed. Each report is one DiagnosticArray: the node's own DiagnosticStatus,
-    named after the node's fully qualified name, then one per task, named
-    ``<node>: <task>`` as the updater names them. ``warn``/``error``
-    latch their level for ``hold_s`` seconds (wall time) so a short event is seen by
-    every subscriber; ``condition`` sets a standing WARN (a protection turned off) that
-    lasts until cleared; ``set_values`` adds key/value pairs (units in the key names).
-    Every :attr:`ENDPOINT_EVERY` periodic reports it also looks for publishers of
-    another type on the node's subscribed topics (their messages never arrive): a
-    standing WARN naming them, and one log line each time the set changes.
+    The updater's shape (module docstring). Each report is one DiagnosticArray: the node's
+    own status, named after its fully qualified name, then one per task, named ``<node>:
+    <task>``. ``warn``/``error`` latch their level for ``hold_s`` s (wall) so a short event
+    is seen by every subscriber; ``condition`` sets a standing WARN until cleared;
+    ``set_values`` adds key/value pairs (units in the key names). Every
+    :attr:`ENDPOINT_EVERY` reports it looks for publishers of another type on the node's
+    subscribed topics (their messages never arrive): a standing WARN naming them.
     """
 
     #: the condition key of the publishers of a wrong type
@@ -182,9 +177,6 @@ class Health:
         self._base_level, self._base_message = level, message
         if level >= self._level:
             self._until = 0.0
-
-    #: the name the nodes used before :meth:`summary` (the same call)
-    status = summary
 
     def add(self, name, fn=None):
         """
