@@ -2,13 +2,10 @@
 """
 A node's health on ``/diagnostics`` (diagnostic_msgs), with the status levels.
 
-:class:`Health` is the stand-in for ``diagnostic_updater.Updater`` (diagnostic_updater is
-not in a pip install of ROS 2), with its shape: tasks added by ``add(name, fn)``, each
-``fn(stat)`` filling a :class:`StatusWrapper` (the stand-in for
-``diagnostic_updater.DiagnosticStatusWrapper``: ``summary(level, message)``,
-``add(key, value)``), and ``force_update()``; its own status is set by
-``summary(level, message)`` too. Code written against that shape moves to the real
-updater when it is available.
+:class:`Health` is the stand-in for ``diagnostic_updater.Updater`` (not in a pip install
+of ROS 2), with its shape: ``add(name, fn)`` tasks, each ``fn(stat)`` filling a
+:class:`StatusWrapper` (``summary(level, message)``, ``add(key, value)``), the node's own
+``summary(level, message)`` and ``force_update()``; swap it for the updater when installed.
 """
 
 import time
@@ -386,6 +383,4 @@ def endpoint_node_name(info):
 
 
 def _fmt(v):
-    if isinstance(v, float):
-        return repr(v)
-    return str(v)
+    return repr(v) if isinstance(v, float) else str(v)
