@@ -21,7 +21,7 @@ from fiber_align.graph import station as gs
 from fiber_align.graph.params import GraphError
 from fiber_align.simulation import station_scenarios as sc
 from procs import run_bounded
-from test_nodes_graph import CONTROL, setup_py_nodes
+from test_graph_description import CONTROL, setup_py_nodes
 
 
 def test_composed_station_is_one_process_hosting_four_axes_the_optics_and_the_sequencer():
