@@ -18,13 +18,14 @@ from fiber_align.bringup.observer import BringupError
 from fiber_align.graph.registry import STATION_AXES as AXES4
 from fiber_align.simulation import station_scenarios as sc
 
-#: Streams recorded per sample: name -> topic.
+#: Streams recorded per sample: name -> topic. The setpoints as the loop accepted them
+#: (``reference``): a command topic keeps one reader, the loop's (graph.registry.COMMANDS).
 STREAMS = {'mx': 'x/displacement', 'my': 'y/displacement', 'p': 'optical_power',
-           'rx': 'x/setpoint', 'ry': 'y/setpoint'}
+           'rx': 'x/reference', 'ry': 'y/reference'}
 #: The station's (``bringup --station``): the offline bench's trace columns
 #: (:class:`fiber_align.simulation.station_scenarios.StationBench`).
 STATION_STREAMS = dict([('m' + k, a + '/displacement') for k, a in zip(sc.AXIS_KEYS, AXES4)]
-                       + [('r' + k, a + '/setpoint') for k, a in zip(sc.AXIS_KEYS, AXES4)]
+                       + [('r' + k, a + '/reference') for k, a in zip(sc.AXIS_KEYS, AXES4)]
                        + [('p', 'optical_power')])
 
 
