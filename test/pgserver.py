@@ -66,11 +66,13 @@ class PgServer:
         """Create the cluster (``initdb``); not started yet."""
         self.bindir = bindir
         self.timeout_s = timeout_s
-        self.root = Path(tempfile.mkdtemp(prefix='fa_pg_'))
+        self.as_root = os.geteuid() == 0
+        # the server's user must reach its folder: under root, in /tmp (world-traversable)
+        self.root = Path(tempfile.mkdtemp(prefix='fa_pg_', dir='/tmp' if self.as_root
+                                          else None))
         self.data = self.root / 'data'
         self.log = self.root / 'server.log'
         self.port = free_port()
-        self.as_root = os.geteuid() == 0
         if self.as_root:
             pw = pwd.getpwnam(USER)
             os.chown(self.root, pw.pw_uid, pw.pw_gid)
