@@ -8,7 +8,7 @@ import shutil
 import subprocess
 import sys
 
-from pgserver import find_bindir, PgServer
+from pg_cluster import find_bindir, PgServer
 import pytest
 
 # Discovery stays on this machine; no multicast leaves it.
@@ -195,12 +195,12 @@ def ctx():
     rclpy.shutdown(context=context)
 
 
-# --- A PostgreSQL server of the tests' own (test/pgserver.py), once per session. ---
+# --- A PostgreSQL server of the tests' own (test/pg_cluster.py), once per session. ---
 
 @pytest.fixture(scope='session')
 def pg_server():
     """
-    Yield a running :class:`pgserver.PgServer`; stopped and removed after, also on failure.
+    Yield a running :class:`pg_cluster.PgServer`; stopped and removed after, also on failure.
 
     It starts processes: a test that uses it is marked ``ros`` (and ``postgres``).
     """

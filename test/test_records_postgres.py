@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-The run catalogue on a PostgreSQL server of the tests' own (``test/pgserver.py``).
+The run catalogue on a PostgreSQL server of the tests' own (``test/pg_cluster.py``).
 
 The same rows give the same records, selections and report as on SQLite; two writers at
 once (two stations) lose and double nothing; a server stopped for 10 s in the middle of
@@ -16,7 +16,7 @@ from fiber_align.config import load_params
 from fiber_align.records import backends, query, report, rows
 from fiber_align.records.schema import CatalogError
 from fiber_align.records.writer import CatalogWriter
-from pgserver import free_port
+from pg_cluster import free_port
 
 pytestmark = [pytest.mark.ros, pytest.mark.postgres]
 
