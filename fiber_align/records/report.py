@@ -105,12 +105,13 @@ def figures(cols, usl_db, out_dir):
     fig, ax = plt.subplots(1, 2, figsize=(12, 4.5))
     for name, m in machines:
         x = cols['final_loss_db'][m]
-        ax[0].hist(x[np.isfinite(x)], bins=60, histtype='step', label=name)
+        x = x[np.isfinite(x)]
+        ax[0].hist(x, bins=_bins(len(x)), histtype='step', label=name)
         t = cols['time_to_peak_s'][m]
         t = t[np.isfinite(t) & (t > 0)] * 1e3
         if len(t):
-            ax[1].hist(t, bins=np.geomspace(t.min(), t.max() * 1.0001, 61), histtype='step',
-                       label=name)
+            ax[1].hist(t, bins=np.geomspace(t.min(), t.max() * 1.0001, _bins(len(t)) + 1),
+                       histtype='step', label=name)
     ax[0].axvline(usl_db, color='r', linestyle='--', label='USL %.3g dB' % usl_db)
     ax[0].set_xlabel('final coupling loss (dB)')
     ax[0].set_ylabel('alignments')
@@ -142,9 +143,23 @@ def as_datetimes(started_at):
     return np.array([str(t)[:26] for t in started_at], dtype='datetime64[us]')
 
 
-def _imr_chart(plt, x, t, lim, name, usl_db, path):
-    """Write the individuals and moving-range chart of one machine (``x`` dB, time order)."""
+def _imr_chart(plt, x, when, lim, name, usl_db, path):
+    """
+    Write the individuals and moving-range chart of one machine (``x`` dB, time order).
+
+    The x axis is the alignments' order (a control chart's), labelled with their start
+    times (``when``): alignments of one run may share a start.
+    """
+    from matplotlib.ticker import FuncFormatter, MaxNLocator
     fig, ax = plt.subplots(2, 1, figsize=(13, 6.5), sharex=True)
+    t = np.arange(len(x))
+    labels = np.datetime_as_string(when, unit='m')
+
+    def label(v, _pos):
+        i = int(round(v))
+        return labels[i].replace('T', '\n') if 0 <= i < len(labels) else ''
+    ax[1].xaxis.set_major_locator(MaxNLocator(8, integer=True))
+    ax[1].xaxis.set_major_formatter(FuncFormatter(label))
     mr = np.abs(np.diff(x))
     dense = len(x) > 2000        # a week of a line: dots and a rolling mean read better
     style = dict(ls='none', marker='.', ms=1.5, alpha=0.5) if dense else \
@@ -170,15 +185,19 @@ def _imr_chart(plt, x, t, lim, name, usl_db, path):
     ax[1].axhline(lim['mr_cl'], color='0.3', lw=0.9)
     ax[1].axhline(lim['mr_ucl'], color='0.3', linestyle='--', lw=0.9)
     ax[1].set_ylabel('moving range (dB)')
-    ax[1].set_xlabel('alignment start (UTC)')
+    ax[1].set_xlabel('alignments in time order, labelled by their start (UTC)')
     ax[1].set_title('moving range of consecutive alignments (CL %.4g dB, UCL %.4g dB)'
                     % (lim['mr_cl'], lim['mr_ucl']))
     for a in ax:
         a.grid(alpha=0.3)
-    fig.autofmt_xdate()
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def _bins(n):
+    """Return a histogram's bin count for ``n`` values (sqrt rule, 10 to 60)."""
+    return int(np.clip(np.sqrt(max(n, 1)), 10, 60))
 
 
 def _safe(name):
