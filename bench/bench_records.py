@@ -112,7 +112,7 @@ def main(argv=None):
     ap.add_argument('--keep', default=None, help='keep the catalogue and report here')
     ap.add_argument('--real', type=int, default=0, metavar='N',
                     help='also a catalogue of N seeds of real offline runs per machine')
-    ap.add_argument('--real-usl-loss-db', type=float, default=0.03)
+    ap.add_argument('--real-usl-loss-db', type=float, default=0.05)
     args = ap.parse_args(argv if argv is not None else [])
     tmp = Path(tempfile.mkdtemp(prefix='bench_records_'))
     try:

@@ -211,3 +211,18 @@ def test_rows_of_a_switch_scenario():
     assert [r['final_loss_db'] for r in got[1:]] == [0.01, 0.02, 0.03]
     assert [r['final_state'] for r in got[1:]] == ['TRACKING', 'TRACKING', 'FAULT']
     assert {r['part_id'] for r in got} == {'P'}
+
+
+def test_the_catalogue_never_imports_ros():
+    """The catalogue is pure: nodes and tools use it, it imports no rclpy nor a ROS message."""
+    import ast
+    from pathlib import Path
+    import fiber_align.records
+    found = []
+    for path in Path(fiber_align.records.__file__).parent.glob('*.py'):
+        for node in ast.walk(ast.parse(path.read_text(encoding='utf-8'))):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ''] if isinstance(node, ast.ImportFrom) else []
+            found += ['%s: %s' % (path.name, n) for n in names
+                      if n.split('.')[0] in ('rclpy', 'std_msgs', 'diagnostic_msgs')]
+    assert not found, found

@@ -81,8 +81,8 @@ def limits(x):
 
 def groups(cols):
     """Return ``[(name, mask)]``: each machine, then ``all``."""
-    machines = sorted({str(m) for m in cols['machine']})
-    return [(m, cols['machine'] == m) for m in machines] + [(ALL, np.ones(len(
+    names, which = np.unique(cols['machine'].astype(str), return_inverse=True)
+    return [(str(m), which == i) for i, m in enumerate(names)] + [(ALL, np.ones(len(
         cols['machine']), bool))]
 
 

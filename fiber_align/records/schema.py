@@ -83,7 +83,9 @@ def migrations(dialect):
     return {
         1: ['ALTER TABLE runs ADD COLUMN snapshot_paths %s' % TYPES[dialect]['json'],
             'CREATE INDEX IF NOT EXISTS alignments_part ON alignments (part_id)',
-            'CREATE INDEX IF NOT EXISTS alignments_started ON alignments (started_at)',
+            # the order of every selection (start, run, seq): no sort of its own
+            'CREATE INDEX IF NOT EXISTS alignments_started ON alignments (started_at, '
+            'run_id, seq)',
             'CREATE INDEX IF NOT EXISTS runs_machine ON runs (machine)'],
     }
 
