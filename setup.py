@@ -33,6 +33,7 @@ NODES = [
     'power_meter',
     'lifecycle_manager',
     'live_view',
+    'run_catalog',
 ]
 
 setup(

@@ -7,6 +7,7 @@ from pathlib import Path
 import shutil
 import subprocess
 import sys
+import tempfile
 
 from pg_cluster import find_bindir, PgServer
 import pytest
@@ -20,6 +21,10 @@ os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
 KEEP_DOMAIN = 'FIBER_ALIGN_TEST_KEEP_DOMAIN' in os.environ
 if not KEEP_DOMAIN:
     os.environ['ROS_DOMAIN_ID'] = str(1 + os.getpid() % 100)
+# Every graph writes the run catalogue by default ($ROS_HOME/fiber_align/catalog.db,
+# docs/records.md): the tests' graphs (and their ROS logs) write into a folder of the test
+# session's, never into the user's ~/.ros.
+os.environ['ROS_HOME'] = tempfile.mkdtemp(prefix='fiber_align_test_ros_home_')
 
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -3,7 +3,7 @@
 
 import math
 
-from fiber_align.alignment.record import AlignmentLog
+from fiber_align.alignment.record import AlignmentLog, RunTally
 
 
 def st(state, t, fault='', **kw):
@@ -61,3 +61,35 @@ def test_an_open_alignment_is_closed_with_the_run():
     log.on_status(st('HELD', 3.0))
     rows = log.close()
     assert [(r['seq'], r['final_state'], r['part_id']) for r in rows] == [(1, 'HELD', None)]
+
+
+def test_counted_times_and_a_switch_cycle():
+    """Counted in periods as bringup counts; a switch on starts a row; the part from status."""
+    log = AlignmentLog('run', reference_power_w=1e-3, period_s=1e-3)
+    got = log.on_status(st('SEARCHING', 0.099, sample=100, align_sample=100, part_id='A'))
+    got += log.on_status(st('PEAKING', 0.139, sample=141, align_sample=100, part_id='B'))
+    got += log.on_status(st('TRACKING', 0.199, sample=201, align_sample=100, part_id='B'))
+    got += log.on_status(st('RELEASING', 0.5, sample=501, align_sample=100, part_id='B'))
+    got += log.on_status(st('PEAKING', 0.6, sample=600, align_sample=100, part_id='B'))
+    got += log.on_status(st('TRACKING', 0.65, sample=651, align_sample=100, part_id='C'))
+    got += log.close()
+    assert [(r['seq'], r['part_id']) for r in got] == [(1, 'A'), (2, 'B')]
+    assert math.isclose(got[0]['time_to_first_light_s'], 0.040)
+    assert math.isclose(got[0]['time_to_peak_s'], 0.100)
+    assert got[1]['time_to_first_light_s'] == 0.0
+    assert math.isclose(got[1]['time_to_peak_s'], 0.050)
+    assert got[0]['samples'] == 401
+
+
+def test_run_tally_from_diagnostics():
+    """Cycles kept: the fewest of the plants (missed ones off); trips: summed per driver."""
+    t = RunTally()
+    assert t.figures() == dict(cycles_kept=None, watchdog_trips=None)
+    t.on_status('/rig/x/simulated_actuator', {'sim_time_s': '1.0', 'sample': '1000',
+                                              'missed_cycles': '3'})
+    t.on_status('/rig/y/simulated_actuator', {'sim_time_s': '1.0', 'sample': '1001'})
+    t.on_status('/rig/x/actuator_driver', {'watchdog_count': '1'})
+    t.on_status('/rig/x/actuator_driver', {'watchdog_count': '2'})
+    t.on_status('/rig/y/actuator_driver', {'watchdog_count': '1'})
+    t.on_status('/rig/alignment_sequencer_2d', {'state': 'TRACKING'})
+    assert t.figures() == dict(cycles_kept=997, watchdog_trips=3)

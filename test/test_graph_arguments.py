@@ -89,5 +89,7 @@ def _same(a, b, without=()):
      dict(hardware='true', rig='true', port='/dev/ttyX')),
 ])
 def test_bringup_starts_the_graph_launch_starts_for_the_same_arguments(options, given):
-    # bringup holds the simulated plants until the graph is connected (autostart)
-    _same(bringup_graph(parse_args(options))[0], launch(**given), without=('autostart',))
+    # bringup holds the simulated plants until the graph is connected (autostart); the
+    # run catalogue's copy of every node's parameters (graph_parameters) carries it too
+    _same(bringup_graph(parse_args(options))[0], launch(**given),
+          without=('autostart', 'graph_parameters'))

@@ -102,7 +102,9 @@ def test_the_launch_file_adds_the_view_through_the_description(monkeypatch):
         port = s.getsockname()[1]
     for extra in ({}, {'rig': 'true'}, {'hardware': 'true'}):
         g = mod.describe(dict(args, live='true', live_port=str(port), **extra))
-        assert g.processes[-1].executable == 'live_view'
+        # the last process but the run catalogue's (added after it: it reads no topic
+        # of the view's)
+        assert [p.executable for p in g.processes][-2:] == ['live_view', 'run_catalog']
         assert live_settings(g) == ('127.0.0.1', port)
     assert 'live_view' not in [p.executable for p in mod.describe(args).processes]
     text = (ROOT / 'launch' / 'fiber_align.launch.py').read_text()

@@ -10,8 +10,14 @@ when the sequencer enters SEARCHING, reaches first light when it enters PEAKING 
 peak when it enters TRACKING (times from the start, s, on the sequencer's clock), and
 ends at RELEASING, IDLE or FAULT; its final state is the one it was in
 (TRACKING, HELD, FAULT, ...); a SEARCHING again within it (false light, a re-search) does
-not end it. The part is the one set when the alignment started: a
-part set during an alignment applies to the next one, so a row never mixes two parts.
+not end it. A ``switch`` on (PEAKING with no alignment open) starts one too, its first
+light at once: the offline catalogue's switch cycles are rows as well. Where the machine
+counts its updates (``sample``) and a period is given, the times are counted in periods
+as ``bringup`` counts them (the command acts before update ``sample``; a state is entered
+at update ``sample - 1``), else they are the statuses' ``sample_time_s``. The part is the
+status's ``part_id`` (the sequencer's parameter) or the one :meth:`AlignmentLog.set_part`
+set, taken when the alignment started: a part set during an alignment applies to the
+next one, so a row never mixes two parts.
 The final loss is ``-10 log10(P / reference_power_w)`` (dB) of the last power before the
 end, when a reference power is given. Used by the catalogue's node (docs/records.md).
 """
@@ -31,13 +37,15 @@ class AlignmentLog:
     The alignments of one run (see the module docstring).
 
     :param run_id: the run's id; :param reference_power_w: the power of a loss of 0 dB
-        (W), or None (no loss figure).
+        (W), or None (no loss figure); :param period_s: the control period (s), or None
+        (times from ``sample_time_s`` only).
     """
 
-    def __init__(self, run_id, reference_power_w=None):
+    def __init__(self, run_id, reference_power_w=None, period_s=None):
         """Start with no alignment open and no part set."""
         self.run_id = run_id
         self.reference_power_w = reference_power_w
+        self.period_s = period_s
         self.part_id = None
         self.seq = 0
         self.open = None
@@ -70,16 +78,23 @@ class AlignmentLog:
                 a.update(state=FAULT, fault=status.get('fault_reason') or None)
             out.append(self._row(a, status, wall_s))
             self.open = a = None
-        if state == SEARCHING and a is None:
+        if state in (SEARCHING, PEAKING) and a is None:
+            if 'part_id' in status:
+                self.set_part(status['part_id'])
             self.seq += 1
-            self.open = dict(seq=self.seq, part=self.part_id, t0=t, wall0=rows.stamp(wall_s),
-                             state=SEARCHING, first_light=None, peak=None, fault=None,
-                             peak_w=None, last_w=None, sample0=status.get('align_sample'))
+            # a switch on: its command acted before update ``sample`` (align_sample is
+            # the last align's)
+            k0 = status.get('sample' if state == PEAKING else 'align_sample')
+            self.open = a = dict(seq=self.seq, part=self.part_id, t0=t,
+                                 wall0=rows.stamp(wall_s), state=state, first_light=None,
+                                 peak=None, fault=None, peak_w=None, last_w=None, sample0=k0)
+            if state == PEAKING:
+                a['first_light'] = 0.0
         elif a is not None and state:
             if state == PEAKING and a['first_light'] is None:
-                a['first_light'] = _since(a['t0'], t)
+                a['first_light'] = self._since(a, status)
             if state == TRACKING and a['peak'] is None:
-                a['peak'] = _since(a['t0'], t)
+                a['peak'] = self._since(a, status)
             a['state'] = state
         return out
 
@@ -87,6 +102,14 @@ class AlignmentLog:
         """End the run: return the open alignment's row (its state as it was), if any."""
         a, self.open = self.open, None
         return [] if a is None else [self._row(a, {}, wall_s)]
+
+    def _since(self, a, status):
+        """Return the time (s) from the alignment's start to the state of ``status``."""
+        k = status.get('sample')
+        if self.period_s and a['sample0'] is not None and k is not None:
+            return (int(k) - 1 - int(a['sample0'])) * float(self.period_s)
+        t0, t = a['t0'], status.get('sample_time_s')
+        return None if t0 is None or t is None else float(t) - float(t0)
 
     def _row(self, a, status, wall_s):
         loss = None
@@ -102,5 +125,32 @@ class AlignmentLog:
             samples=samples)
 
 
-def _since(t0, t):
-    return None if t0 is None or t is None else float(t) - float(t0)
+class RunTally:
+    """
+    A run's end figures from the graph's ``/diagnostics`` (values as text, as published).
+
+    A plant's status (it carries ``sim_time_s``) gives its updates ``sample`` and, in
+    realtime, its ``missed_cycles``: the cycles it kept are ``sample - missed_cycles``,
+    and the run's are the fewest any axis kept. A driver's status (``watchdog_count``, one
+    per driver or per axis of an amplifier) gives its watchdog trips; the run's are the
+    sum of each status's latest count.
+    """
+
+    def __init__(self):
+        """Start with nothing seen."""
+        self.kept, self.trips = {}, {}
+
+    def on_status(self, name, values):
+        """Take one status: its ``name`` and ``{key: text}`` values."""
+        try:
+            if 'sim_time_s' in values and 'sample' in values:
+                self.kept[name] = int(values['sample']) - int(values.get('missed_cycles', 0))
+            if 'watchdog_count' in values:
+                self.trips[name] = int(values['watchdog_count'])
+        except ValueError:
+            pass            # a value that is no count: not a figure of the run
+
+    def figures(self):
+        """Return ``{'cycles_kept': int or None, 'watchdog_trips': int or None}``."""
+        return dict(cycles_kept=min(self.kept.values()) if self.kept else None,
+                    watchdog_trips=sum(self.trips.values()) if self.trips else None)

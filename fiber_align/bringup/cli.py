@@ -66,6 +66,7 @@ OPTIONS = {
     'visa_resource': ('--visa-resource', {}), 'live': ('--live', dict(action='store_true')),
     'live_port': ('--live-port', dict(type=int, metavar='PORT')),
     'live_host': ('--live-host', dict(metavar='HOST')),
+    'catalog': ('--catalog', dict(metavar='URL')),
 }
 #: What ``bringup`` does beyond starting the graph, by option.
 NOTES = {
@@ -109,6 +110,9 @@ def parse_args(argv):
     ap.add_argument('--cycles', type=int, default=None,
                     help='align: switch off/on cycles after TRACKING (default 5); --rig: '
                     'release / align cycles after the first TRACKING (default 0)')
+    ap.add_argument('--part', metavar='P', default=None,
+                    help='--rig, --station: set the sequencer\'s part_id to P-1, P-2, ... before '
+                    'each align (the run catalogue\'s part of each alignment)')
     ap.add_argument('--storage', choices=('mcap', 'sqlite3'), default=None)
     ap.add_argument('-p', '--param', action='append', default=[], metavar='NODE:NAME:=VALUE',
                     help='override one parameter (NODE may be **)')

@@ -312,6 +312,18 @@ class Observer:
             raise Refused('%s refused: %s' % (what, res.message))
         return self.event(n)
 
+    def set_text(self, node, name, value, alive=lambda: None, timeout=10.0):
+        """Set the text parameter ``name`` of ``node`` (relative), as ``ros2 param set``."""
+        from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+        from rcl_interfaces.srv import SetParameters
+        req = SetParameters.Request(parameters=[Parameter(name=name, value=ParameterValue(
+            type=ParameterType.PARAMETER_STRING, string_value=str(value)))])
+        res = self.call(self.client(SetParameters, node + '/set_parameters'), req, timeout,
+                        alive)
+        if not res.results or not res.results[0].successful:
+            raise Refused('%s %s=%r refused: %s' % (node, name, value, res.results[0].reason
+                                                    if res.results else 'no answer'))
+
     def wait(self, cond, timeout, alive, what):
         """Wait (bounded, s wall) until ``cond()``; ``alive()`` may raise meanwhile."""
         end = time.monotonic() + timeout

@@ -71,13 +71,17 @@ def run_rig(a, g):
             lambda: int((time.monotonic() - t_run) * rate))
         k = int(round(sm.ALIGN_IDLE_S * rate))
         obs.wait(lambda: clock() >= k, 60.0, alive, 'sample %d' % k)
+        parts = iter(range(1, 10 ** 6))
+        part = (lambda: obs.set_text(g.own_nodes[-1], 'part_id', '%s-%d' % (
+            a.part, next(parts)), alive)) if a.part else (lambda: None)
+        part()
         k_align, tracking = _align(obs, alive, rate, clock, max_s)
         k_end = clock() + int(round(sm.LOSS_WINDOW_S * rate)) + 5
         obs.wait(lambda: clock() >= k_end, 60.0, alive, 'sample %d' % k_end)
         summary.update(align_sample=k_align, tracking_sample=tracking['sample'],
                        time_to_peak_s=(tracking['sample'] - 1 - k_align) / rate,
                        peak_samples=tracking['peak_samples'])
-        cycles = [_release_align(obs, alive, rate, clock, max_s)
+        cycles = [_release_align(obs, alive, rate, clock, max_s, part)
                   for _ in range(a.cycles or 0)]
         if cycles:
             summary['cycles_tracking'] = len(cycles)
@@ -150,10 +154,11 @@ def _align(obs, alive, rate, clock, max_s=sm.ALIGN_MAX_S):
     return k_align, tracking
 
 
-def _release_align(obs, alive, rate, clock, max_s=sm.ALIGN_MAX_S):
+def _release_align(obs, alive, rate, clock, max_s=sm.ALIGN_MAX_S, part=lambda: None):
     """
     One switch cycle of the rig: ``release`` to IDLE, then ``align`` to TRACKING.
 
+    :param part: sets the next part (``--part``) before the align.
     :returns: the time to peak of the new alignment (s of sample time).
     :raises BringupError: a refused call, a FAULT, a timeout.
     """
@@ -163,5 +168,6 @@ def _release_align(obs, alive, rate, clock, max_s=sm.ALIGN_MAX_S):
         raise BringupError('release ended in FAULT: %s' % obs.status.get('fault_reason'))
     k = clock() + int(round(sm.ALIGN_IDLE_S * rate))
     obs.wait(lambda: clock() >= k, 60.0, alive, 'sample %d' % k)
+    part()
     k_align, tracking = _align(obs, alive, rate, clock, max_s)
     return (tracking['sample'] - 1 - k_align) / rate

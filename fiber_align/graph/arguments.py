@@ -9,12 +9,14 @@ station, the sensorless hardware bench, the rig on hardware) is chosen by data: 
 ``rig``, ``station`` and ``hardware`` switches select a row of :data:`MACHINES`, which
 names its builder, its default namespace and the arguments it takes; an argument given
 to a machine that does not take it is refused in one line. ``live`` adds the live view
-to any of them (:func:`fiber_align.graph.live.with_live`).
+to any of them (:func:`fiber_align.graph.live.with_live`), ``catalog`` the run
+catalogue's node (:func:`fiber_align.graph.catalog.with_catalog`; on by default).
 """
 
 from dataclasses import dataclass
 from typing import Callable, Tuple
 
+from fiber_align.graph.catalog import with_catalog
 from fiber_align.graph.description import build, parse_bool
 from fiber_align.graph.hardware import build_hardware
 from fiber_align.graph.hardware_rig import build_hardware_rig
@@ -59,11 +61,16 @@ ARGUMENTS = (
      'docs/live_view.md)', ['true', 'false']),
     ('live_port', '', 'live view TCP port ("" = config/live_view.yaml: 8765)', None),
     ('live_host', '', 'live view address ("" = config/live_view.yaml: 127.0.0.1)', None),
+    ('catalog', '', 'run catalogue: none, default (SQLite $ROS_HOME/fiber_align/catalog.db), '
+     'a SQLite path or postgresql://... ("" = config/records.yaml: default; '
+     'docs/records.md)', None),
 )
 #: The switches that choose the machine, in the order of :data:`MACHINES`' keys.
 SWITCHES = ('rig', 'station', 'hardware')
 #: The live view's arguments (every machine), in :func:`with_live`'s order.
 LIVE_ARGS = ('live', 'live_port', 'live_host')
+#: The run catalogue's argument (every machine, :func:`with_catalog`).
+CATALOG_ARGS = ('catalog',)
 #: Every machine's arguments (its builder's keywords, ``seed`` aside).
 COMMON = ('namespace', 'composed', 'params_file')
 
@@ -134,7 +141,8 @@ def describe(arguments, overrides=None):
     """
     args = {k: v for k, v in dict(arguments).items() if v not in (None, '', (), [])}
     m = machine(args)
-    given = [k for k in args if k not in COMMON + m.takes + SWITCHES + LIVE_ARGS + ('seed',)]
+    given = [k for k in args if k not in COMMON + m.takes + SWITCHES + LIVE_ARGS + ('seed',)
+             + CATALOG_ARGS]
     if given:
         _refuse(given, m.chosen)
     over = dict(overrides or {})
@@ -146,6 +154,8 @@ def describe(arguments, overrides=None):
     elif m.seed == 'plant' and seed is not None:
         over[PLANT] = dict({'seed': check_seed(seed)}, **over.get(PLANT, {}))
     g = with_live(m.build(overrides=over, **kw), *[args.get(k, '') for k in LIVE_ARGS])
+    # last: its parameters are the whole graph's; the live view does not show its topics
+    g = with_catalog(g, args.get('catalog', ''), m.build in (build_hardware, build_hardware_rig))
     served = live_settings(g)
     if served:                  # a port in use: one line before any process starts
         check_endpoint(*served)

@@ -35,7 +35,7 @@ from fiber_align.graph import description as g
 from fiber_align.graph.hardware import POWER_METER
 from fiber_align.graph.params import (AMPLIFIER, check_user, COMPENSATOR, effective,
                                       GraphError, LIFECYCLE_MANAGER, LIVE_VIEW, merge,
-                                      merge_params, wildcard_first)
+                                      merge_params, RUN_CATALOG, wildcard_first)
 from fiber_align.graph.rig import (_axis_ns, AXES, RIG_FILES, RIG_NAMESPACE, RigGraph,
                                    SEQUENCER_2D)
 
@@ -65,7 +65,7 @@ class HardwareRigGraph(RigGraph):
             if sec:
                 out['%s/%s/%s' % (root, a, n)] = sec
         # the live view (``live:=true``) sits at the root too
-        for n in tuple(ROOT_NODES) + (POWER_METER, LIFECYCLE_MANAGER, LIVE_VIEW):
+        for n in tuple(ROOT_NODES) + (POWER_METER, LIFECYCLE_MANAGER, LIVE_VIEW, RUN_CATALOG):
             if n in base:
                 out['%s/%s' % (root, n)] = base[n]
         return wildcard_first({k: copy.deepcopy(v) for k, v in out.items()})

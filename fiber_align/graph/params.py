@@ -25,6 +25,8 @@ RECORDER = 'bag_recorder'
 LIFECYCLE_MANAGER = 'lifecycle_manager'
 #: The Foxglove live view (``live:=true``, :mod:`fiber_align.graph.live`).
 LIVE_VIEW = 'live_view'
+#: The run catalogue's node (``catalog:=URL``, :mod:`fiber_align.graph.catalog`).
+RUN_CATALOG = 'run_catalog'
 #: How the graph pairs its messages (``sync_mode``): by arrival on the wall clock's
 #: periods (``realtime``) or by index, deterministic (``lockstep``).
 SYNC_MODES = ('realtime', 'lockstep')
@@ -51,7 +53,7 @@ SHAPING_KEYS = ('shaping', 'shaping_omega_n_rad_s', 'shaping_damping_ratio',
 #: file is refused.
 SHARED = dict(
     # every node that declares the graph's rate or sync mode (a node of several axes too)
-    [(k, LOOP_NODES + AXES_NODES) for k in ('rate_hz', 'sync_mode')]
+    [(k, LOOP_NODES + AXES_NODES + (RUN_CATALOG,)) for k in ('rate_hz', 'sync_mode')]
     + [(k, LOOP_NODES) for k in ('controller', 'setpoint_min_m', 'setpoint_max_m',
                                  'realtime_setpoint_accel_m_per_s2')]
     + [('realtime_setpoint_rate_m_per_s', LOOP_NODES + (SEQUENCER_2D, STATION_SEQUENCER))]

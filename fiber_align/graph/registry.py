@@ -17,7 +17,7 @@ from typing import Tuple
 
 from fiber_align.graph.params import (
     COMPENSATOR, CONTROLLER, DRIVER, LIFECYCLE_MANAGER, LIVE_VIEW, PLANT, RECORDER,
-    SCENARIO_RUNNER, SEQUENCER)
+    RUN_CATALOG, SCENARIO_RUNNER, SEQUENCER)
 from fiber_align.simulation.scenarios import GRAPH as GRAPH_SCENARIOS
 
 PACKAGE = 'fiber_align'
@@ -116,6 +116,9 @@ NODES = {
                                 configs=('lifecycle_manager.yaml',)),
     # reads the graph's topics (a parameter, graph/live.py), publishes none
     LIVE_VIEW: NodeSpec(LIVE_VIEW, LIVE_VIEW, configs=('live_view.yaml',), area=False),
+    # the run catalogue (graph/catalog.py, docs/records.md): reads, publishes none
+    RUN_CATALOG: NodeSpec(RUN_CATALOG, RUN_CATALOG, configs=('records.yaml',), area=False,
+                          subscribes=('alignment_state', 'optical_power')),
 }
 #: Nodes a composed process can host: ``--nodes`` name -> spec, in build order.
 HOSTABLE = {k: v for k, v in NODES.items() if v.node_class}

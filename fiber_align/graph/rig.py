@@ -41,7 +41,8 @@ from fiber_align.config import config_dir
 from fiber_align.graph import description as g
 from fiber_align.graph.params import (check_user, DRIVER, effective, GraphError, LIFECYCLE_MANAGER,
                                       LIVE_VIEW, merge, merge_params, OPTICS_2D as OPTICS,
-                                      PLANT, RECORDER, SEQUENCER_2D, wildcard_first)
+                                      PLANT, RECORDER, RUN_CATALOG, SEQUENCER_2D,
+                                      wildcard_first)
 from fiber_align.graph.registry import NODES
 from fiber_align.simulation import seeds2d
 
@@ -91,7 +92,7 @@ class RigGraph(g.Graph):
                 sec = merge(base.get(n, {}), base.get('%s/%s' % (a, n), {}))
                 if sec:
                     out['%s/%s/%s' % (root, a, n)] = sec
-        for n in tuple(self.own_nodes) + (LIFECYCLE_MANAGER, LIVE_VIEW, RECORDER):
+        for n in tuple(self.own_nodes) + (LIFECYCLE_MANAGER, LIVE_VIEW, RECORDER, RUN_CATALOG):
             if n in base:
                 out['%s/%s' % (root, n)] = base[n]
         # a copy per section: no shared mappings, so no YAML aliases in the params file;

@@ -39,7 +39,7 @@ from fiber_align.graph.machines import CONFIG_FILES, MACHINES
 from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import ERROR, Health, OK, WARN
 from fiber_align.nodes.ros.params import declare, declare_graph_values, declare_si
-from fiber_align.nodes.ros.params import node_defaults, PRIORITY
+from fiber_align.nodes.ros.params import declare_part, node_defaults, PRIORITY
 from fiber_align.nodes.ros.qos import (DIAG_QOS, LATCHED_QOS, REALTIME_QOS,
                                        REFERENCE_LATCHED_QOS, sample_pub_qos, sample_qos,
                                        STATE_QOS, TRANSITION_EVENT_QOS)
@@ -88,8 +88,8 @@ class AlignmentSequencerNode(Node):
                              lambda msg, i=i: self._on_position(i, msg), qos, bus)
         subscription(self, Float64, 'optical_power', self._on_reading if self.sensorless
                      else self._on_power, REALTIME_QOS if self.sensorless else qos, bus)
-        self.pub_state, self.n_state, self._last = self.create_publisher(
-            String, 'alignment_state', STATE_QOS), 0, None
+        self.pub_state, self.n_state, self._last, self.part = self.create_publisher(
+            String, 'alignment_state', STATE_QOS), 0, None, declare_part(self, d)
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, DIAG_QOS)
         self.create_service(Trigger, 'align', lambda q, r: self._answer(r, self.seq.align(), 1))
         self.create_service(Trigger, 'release', lambda q, r: self._answer(r, self.seq.release()))
@@ -201,7 +201,7 @@ class AlignmentSequencerNode(Node):
 
     def _publish_state(self):
         """Publish the status when its state or fault changed; health and log too."""
-        s = self.seq.status()
+        s = self.part(self.seq.status())     # with the part of the time: the catalogue's
         # the time (s) of the last update: a lagging observer indexes the state by it
         s['sample_time_s'] = self.t_last
         values = {k: s[k] for k in self.m.values}

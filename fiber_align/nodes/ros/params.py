@@ -147,6 +147,19 @@ def declare(node, defaults, name, description, lo=None, hi=None, read_only=False
     return v
 
 
+def declare_part(node, defaults):
+    """
+    Declare the sequencer's ``part_id`` (text); return ``status -> status with part_id``.
+
+    The part the next ``align`` aligns, set by the operator before it (``ros2 param set``);
+    each status the sequencer publishes carries the value of its time, and the catalogue
+    takes the one of an alignment's start (:class:`fiber_align.alignment.record.AlignmentLog`).
+    """
+    declare(node, defaults, 'part_id', 'the part the next align aligns, for the run '
+            'catalogue (text; "" = none); set it before align')
+    return lambda status: dict(status, part_id=str(node.get_parameter('part_id').value))
+
+
 def declare_rows(node, rows):
     """
     Declare a table of parameters; return the ranges of the writable ones.
