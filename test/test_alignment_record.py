@@ -93,3 +93,14 @@ def test_run_tally_from_diagnostics():
     t.on_status('/rig/y/actuator_driver', {'watchdog_count': '1'})
     t.on_status('/rig/alignment_sequencer_2d', {'state': 'TRACKING'})
     assert t.figures() == dict(cycles_kept=997, watchdog_trips=3)
+
+
+def test_the_end_power_is_the_status_one():
+    """Readings that overtake the ending status (the fiber parking) do not set the loss."""
+    log = AlignmentLog('run', reference_power_w=1e-3)
+    log.on_status(st('SEARCHING', 0.0))
+    log.on_power(1e-3 * 10 ** -0.005)
+    log.on_status(st('TRACKING', 0.1, power_w=1e-3 * 10 ** -0.005))
+    log.on_power(1e-9)                      # after the release, before its status
+    row, = log.on_status(st('RELEASING', 0.2, power_w=1e-3 * 10 ** -0.003))
+    assert math.isclose(row['final_loss_db'], 0.03)

@@ -22,6 +22,7 @@ def test_rig_release_align_cycles_in_realtime_end_in_tracking(tmp_path):
     summary = tmp_path / 'rig.json'
     code, out = run_bounded([sys.executable, '-m', 'fiber_align.bringup', '--rig',
                              '--sync', 'realtime', '--cycles', '2', '--duration', '2',
+                             '--catalog', 'none',   # the CPU of the loops alone
                              '--summary', str(summary), '--quiet'], 120)
     assert code == 0, out
     s = json.loads(summary.read_text(encoding='utf-8'))

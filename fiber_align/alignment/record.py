@@ -19,7 +19,10 @@ status's ``part_id`` (the sequencer's parameter) or the one :meth:`AlignmentLog.
 set, taken when the alignment started: a part set during an alignment applies to the
 next one, so a row never mixes two parts.
 The final loss is ``-10 log10(P / reference_power_w)`` (dB) of the last power before the
-end, when a reference power is given. Used by the catalogue's node (docs/records.md).
+end, when a reference power is given: the ending status's ``power_w`` (the last power the
+sequencer stepped on before it ended: readings that overtake the status on the way, the
+fiber already parking, do not count) or else the last reading taken. Used by the
+catalogue's node (docs/records.md).
 """
 
 import math
@@ -49,6 +52,7 @@ class AlignmentLog:
         self.part_id = None
         self.seq = 0
         self.open = None
+        self.last = {}          # the latest status (the samples of an alignment cut by the end)
 
     def set_part(self, part_id):
         """Set the part of the alignments that start from now on (text, or None)."""
@@ -71,6 +75,7 @@ class AlignmentLog:
             epoch; None: now), the row's ``started_at``/``ended_at``.
         """
         state, t = status.get('state'), status.get('sample_time_s')
+        self.last = status
         out = []
         a = self.open
         if a is not None and state in ENDS:
@@ -101,7 +106,7 @@ class AlignmentLog:
     def close(self, wall_s=None):
         """End the run: return the open alignment's row (its state as it was), if any."""
         a, self.open = self.open, None
-        return [] if a is None else [self._row(a, {}, wall_s)]
+        return [] if a is None else [self._row(a, self.last, wall_s)]
 
     def _since(self, a, status):
         """Return the time (s) from the alignment's start to the state of ``status``."""
@@ -112,9 +117,10 @@ class AlignmentLog:
         return None if t0 is None or t is None else float(t) - float(t0)
 
     def _row(self, a, status, wall_s):
-        loss = None
-        if self.reference_power_w and a['last_w'] is not None and a['last_w'] > 0.0:
-            loss = -10.0 * math.log10(a['last_w'] / self.reference_power_w)
+        loss, last = None, status.get('power_w', a['last_w'])
+        last = a['last_w'] if last is None else float(last)
+        if self.reference_power_w and last is not None and last > 0.0:
+            loss = -10.0 * math.log10(last / self.reference_power_w)
         samples = None
         if a['sample0'] is not None and status.get('sample') is not None:
             samples = int(status['sample']) - int(a['sample0'])

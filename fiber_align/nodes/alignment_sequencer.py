@@ -99,7 +99,7 @@ class AlignmentSequencerNode(Node):
                              sender=sender_of(bus))
         self.q, self.q_p = [[] for _ in pre], []    # lockstep: (stamp s, m) and W not used
         self.latest = [None] * len(pre)     # realtime: the newest reading of each axis (m)
-        self.n, self.align_sample, self.t_last = 0, None, None
+        self.n, self.align_sample, self.t_last, self.p_last = 0, None, None, None
         self._watch_drivers(bus)
         self._publish_state()
         self.get_logger().info('sequencer ready: machine %s, %s' % (self.machine, g['sync_mode']))
@@ -194,14 +194,14 @@ class AlignmentSequencerNode(Node):
     def _step(self, t, pos, p):
         r = self.m.update(self.seq, t, [v if v is not None and math.isfinite(v) else None
                                         for v in pos], p)
-        self.n, self.t_last = self.n + 1, t
+        self.n, self.t_last, self.p_last = self.n + 1, t, p
         for pub, v in zip(self.pub_sp, r):
             pub.publish(Float64(data=float(v)))
         self._publish_state()
 
     def _publish_state(self):
         """Publish the status when its state or fault changed; health and log too."""
-        s = self.part(self.seq.status())     # with the part of the time: the catalogue's
+        s = self.part(self.seq.status(), self.p_last)     # the part and power: the catalogue's
         # the time (s) of the last update: a lagging observer indexes the state by it
         s['sample_time_s'] = self.t_last
         values = {k: s[k] for k in self.m.values}

@@ -22,6 +22,7 @@ description sets: ``machine``, ``hardware``, ``bag_path``, ``graph_parameters``)
 
 import json
 import sys
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
@@ -31,7 +32,7 @@ from fiber_align.alignment.record import AlignmentLog, RunTally
 from fiber_align.graph.registry import NODES
 from fiber_align.nodes.ros.diagnostics import Health, OK, WARN
 from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults
-from fiber_align.nodes.ros.qos import DIAG_QOS, REALTIME_QOS, STATE_QOS
+from fiber_align.nodes.ros.qos import DIAG_QOS, REALTIME_QOS, STATE_LOG_QOS
 from fiber_align.nodes.ros.runtime import run_node
 from fiber_align.nodes.ros.teardown import say
 from fiber_align.records import rows
@@ -56,6 +57,9 @@ RUN = {'machine': ('the machine: 1d, rig, station', None, None),
                              0.0, 1e3)}
 #: s to write the last rows at the stop (the teardown's bound is longer).
 CLOSE_S = 3.0
+#: At the stop, the statuses already on their way are still taken: until none came for
+#: ``QUIET_S`` (s), ``DRAIN_S`` (s) at most (a graph stopped right after a state change).
+QUIET_S, DRAIN_S = 0.2, 1.0
 
 
 class RunCatalogNode(Node):
@@ -75,8 +79,9 @@ class RunCatalogNode(Node):
         self.log = AlignmentLog(self.run_id, p['reference_power_w'] or None,
                                 1.0 / float(g['rate_hz']))
         self.tally, self.state, self.closed, self.n_rows = RunTally(), None, False, 0
+        self.n_status = 0
         self._put('runs', self._run_row())
-        self.create_subscription(String, 'alignment_state', self._on_state, STATE_QOS)
+        self.create_subscription(String, 'alignment_state', self._on_state, STATE_LOG_QOS)
         self.create_subscription(Float64, 'optical_power',
                                  lambda msg: self.log.on_power(float(msg.data)),
                                  REALTIME_QOS)
@@ -101,6 +106,7 @@ class RunCatalogNode(Node):
         self.n_rows += 1
 
     def _on_state(self, msg):
+        self.n_status += 1
         try:
             status = json.loads(msg.data)
         except ValueError:
@@ -152,9 +158,20 @@ class RunCatalogNode(Node):
         return {'catalog_rows': self.n_rows}
 
 
+def _drain(executor, node):
+    """Take the statuses already on their way once the spin ended (see :data:`QUIET_S`)."""
+    t0 = quiet = time.monotonic()
+    last = node.n_status
+    while time.monotonic() - t0 < DRAIN_S and time.monotonic() - quiet < QUIET_S:
+        executor.spin_once(timeout_sec=0.02)
+        if node.n_status != last:
+            last, quiet = node.n_status, time.monotonic()
+
+
 def main(args=None):
-    """Run the node (bad parameters: one line, exit 2)."""
-    return run_node(RunCatalogNode, SPEC.node, args, realtime=lambda node: False)
+    """Run the node (bad parameters: one line, exit 2); the last statuses are taken."""
+    return run_node(RunCatalogNode, SPEC.node, args, realtime=lambda node: False,
+                    then=_drain)
 
 
 if __name__ == '__main__':
