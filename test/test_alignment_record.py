@@ -3,7 +3,7 @@
 
 import math
 
-from fiber_align.alignment.record import AlignmentLog, RunTally
+from fiber_align.alignment.record import AlignmentLog, RunRecord, RunTally
 
 
 def st(state, t, fault='', **kw):
@@ -104,3 +104,22 @@ def test_the_end_power_is_the_status_one():
     log.on_power(1e-9)                      # after the release, before its status
     row, = log.on_status(st('RELEASING', 0.2, power_w=1e-3 * 10 ** -0.003))
     assert math.isclose(row['final_loss_db'], 0.03)
+
+
+def test_run_record_rows_at_start_and_end():
+    """The run's row at its start, its end figures and the open alignment at its end."""
+    rec = RunRecord(dict(machine='rig', sync_mode='lockstep', hardware=False, bag_path='',
+                         graph_parameters='{"/rig/x/simulated_actuator": {"seed": 2}}',
+                         reference_power_w=1e-3), 1e-3)
+    first = rec.start_row()
+    assert first['ended_at'] is None and first['machine'] == 'rig' and first['bag_path'] is None
+    assert '"seed": 2' in first['parameters']
+    assert rec.on_status('not json') == []
+    rec.on_status('{"state": "SEARCHING", "sample": 10, "align_sample": 10, "part_id": "Q"}')
+    rec.tally.on_status('/rig/x/simulated_actuator', {'sim_time_s': '1', 'sample': '900'})
+    end = rec.end_rows()
+    assert [t for t, _ in end] == ['alignments', 'runs']
+    assert end[0][1]['part_id'] == 'Q' and end[0][1]['final_state'] == 'SEARCHING'
+    run = end[1][1]
+    assert run['run_id'] == first['run_id'] and run['started_at'] == first['started_at']
+    assert run['cycles_kept'] == 900 and run['end_reason'] == 'stopped; sequencer SEARCHING'

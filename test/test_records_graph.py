@@ -57,8 +57,9 @@ def test_lockstep_rig_five_alignments_a_part_each(tmp_path):
     r = runs[0]
     assert (r['machine'], r['sync_mode'], r['hardware']) == ('rig', 'lockstep', 0)
     assert r['ended_at'] > r['started_at'] and r['end_reason'].startswith('stopped')
-    # the plants' last /diagnostics report (every 0.5 s; lockstep runs faster than that)
-    assert r['watchdog_trips'] == 0 and 0 < r['cycles_kept'] <= s['samples'] + 1, (r, s)
+    # the plants' last /diagnostics report (every 0.5 s; the plants may step on after the
+    # observer's last sample, before the hold takes): not a figure to compare exactly
+    assert r['watchdog_trips'] == 0 and r['cycles_kept'] > 0, (r, s)
     params = json.loads(r['parameters'])
     assert params['/rig/alignment_sequencer_2d']['machine'] == 'rig'
     rows = _rows(db, 'SELECT * FROM alignments ORDER BY seq')
@@ -94,8 +95,9 @@ def test_realtime_1d_run_align_and_switch_cycles(tmp_path):
     for a, i, j in zip(rows, starts, starts[1:] + [len(states)]):
         if 'TRACKING' in [st for _, st in states[i:j]]:
             assert a['final_state'] == 'TRACKING', (a, states)
+    # bringup fails a run whose last switch cycle did not end in TRACKING
     assert rows[0]['time_to_peak_s'] is not None and code == (
-        0 if all(a['final_state'] == 'TRACKING' for a in rows) else 1), out
+        0 if rows[-1]['final_state'] == 'TRACKING' else 1), out
     # the catalogue counts on the plant's stamps, the summary on the samples its observer
     # had when each state arrived (it lags on a loaded machine): within 50 ms
     assert rows[0]['time_to_peak_s'] == pytest.approx(s['align']['time_to_peak_s'], abs=0.05)

@@ -25,6 +25,7 @@ fiber already parking, do not count) or else the last reading taken. Used by the
 catalogue's node (docs/records.md).
 """
 
+import json
 import math
 
 from fiber_align.alignment.states import FAULT, IDLE, PEAKING, RELEASING, SEARCHING, \
@@ -160,3 +161,46 @@ class RunTally:
         """Return ``{'cycles_kept': int or None, 'watchdog_trips': int or None}``."""
         return dict(cycles_kept=min(self.kept.values()) if self.kept else None,
                     watchdog_trips=sum(self.trips.values()) if self.trips else None)
+
+
+class RunRecord:
+    """
+    One graph run's rows: its ``runs`` row (at the start, again at the end), its alignments.
+
+    :param run: ``machine``, ``sync_mode``, ``hardware``, ``bag_path`` (``''``: none),
+        ``graph_parameters`` (JSON text, ``''``: none), ``reference_power_w`` (W; 0: no
+        loss figure); :param period_s: the control period (s).
+    """
+
+    def __init__(self, run, period_s):
+        """Start the run now: a new run id, no alignment, nothing tallied."""
+        self.run = dict(run)
+        self.run_id, self.started_at = rows.new_run_id(), rows.stamp()
+        self.log = AlignmentLog(self.run_id, self.run['reference_power_w'] or None, period_s)
+        self.tally, self.state = RunTally(), None
+
+    def start_row(self, **end):
+        """Return the run's row (``end``: its end columns)."""
+        r = self.run
+        try:
+            params = json.loads(r['graph_parameters']) if r['graph_parameters'] else None
+        except ValueError:
+            params = None
+        return rows.run_row(self.run_id, r['machine'] or None, r['sync_mode'], r['hardware'],
+                            params, self.started_at, bag_path=r['bag_path'] or None, **end)
+
+    def on_status(self, text):
+        """Take one ``alignment_state`` (JSON text); return the rows it ended."""
+        try:
+            status = json.loads(text)
+        except ValueError:
+            return []
+        self.state = status.get('state', self.state)
+        return self.log.on_status(status)
+
+    def end_rows(self):
+        """End the run: ``[('alignments', row) ..., ('runs', row)]``."""
+        out = [('alignments', row) for row in self.log.close()]
+        return out + [('runs', self.start_row(
+            ended_at=rows.stamp(), end_reason='stopped; sequencer %s' % (
+                self.state or 'not seen'), **self.tally.figures()))]

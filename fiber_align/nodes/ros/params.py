@@ -149,16 +149,12 @@ def declare(node, defaults, name, description, lo=None, hi=None, read_only=False
 
 def declare_part(node, defaults):
     """
-    Declare the sequencer's ``part_id`` (text); return ``(status, power_w) -> status``.
+    Declare the sequencer's ``part_id``; return ``(status, power_w) -> status with both``.
 
-    The part the next ``align`` aligns, set by the operator before it (``ros2 param set``);
-    each status the sequencer publishes carries the value of its time and ``power_w``, the
-    last optical power (W) the sequencer stepped on (None before the first): the catalogue
-    takes the part of an alignment's start and the power of its end from them
-    (:class:`fiber_align.alignment.record.AlignmentLog`).
+    The part the next ``align`` aligns (``ros2 param set`` before it) and the last power
+    (W) the sequencer stepped on: the run catalogue's (docs/records.md).
     """
-    declare(node, defaults, 'part_id', 'the part the next align aligns, for the run '
-            'catalogue (text; "" = none); set it before align')
+    declare(node, defaults, 'part_id', 'the part the next align aligns (text; "" = none)')
     return lambda status, power_w=None: dict(
         status, part_id=str(node.get_parameter('part_id').value),
         power_w=None if power_w is None else float(power_w))

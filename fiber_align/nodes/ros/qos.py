@@ -60,9 +60,8 @@ DAC_QOS = profile(SAMPLE_DEPTH, False, False)
 LATCHED_QOS = profile(1, True, True)
 REFERENCE_LATCHED_QOS = LATCHED_QOS
 STATE_QOS = LATCHED_QOS
-#: A reader of every status of a state topic (the run catalogue's ``alignment_state``):
-#: reliable and durable as :data:`STATE_QOS`, but deep, so statuses that follow each other
-#: faster than its executor takes them (a lockstep PEAKING then TRACKING) are all kept.
+#: A reader of every status (the run catalogue's): as :data:`STATE_QOS`, but deep (a
+#: lockstep PEAKING then TRACKING come faster than an executor takes them).
 STATE_LOG_QOS = profile(100, True, True)
 #: The user's ``setpoint``: reliable, volatile, deep (every setpoint is checked, so each
 #: bad one is reported); a default rclpy or ``ros2 topic pub`` publisher matches it.
