@@ -1,0 +1,47 @@
+# SPDX-License-Identifier: Apache-2.0
+"""Align from anywhere on the hardware bench (emulators): again while TRACKING, re-plug."""
+
+import time
+
+import pytest
+
+
+@pytest.mark.ros  # starts processes
+def test_align_five_times_while_tracking_then_replug_tracks_again():
+    from std_srvs.srv import Trigger
+
+    from fiber_align.bringup.hardware import HardwareRun
+    from fiber_align.graph.hardware import build_hardware
+    from fiber_align.hardware.bench import emulated
+    with emulated(seed=3, slot_position_m=40e-6) as (bench, mdt, pm):
+        hw = HardwareRun(build_hardware(port=mdt.port, visa_resource=pm.resource))
+        try:
+            hw.start()
+            ok, _ = hw.align()
+            assert ok, hw.status
+            results = []
+            for _ in range(5):
+                time.sleep(0.3)
+                assert hw.status.get('state') == 'TRACKING', hw.status
+                ok, wall = hw.align()
+                results.append((ok, round(wall, 2), hw.status.get('fault_reason')))
+                time.sleep(0.2)
+                results[-1] += (bench.true_loss_db(),)
+            assert all(r[0] for r in results), results
+            assert all(r[3] < 0.1 for r in results), results
+            # the amplifier unplugged and re-plugged, startup: TRACKING with no align
+            mdt.unplug()
+            hw.wait(lambda: hw.status.get('state') == 'HELD', 2.0, 'sequencer HELD')
+            time.sleep(0.5)
+            mdt.plug()
+            startup = hw.obs.node.create_client(Trigger, 'lifecycle_manager/startup')
+            assert hw.call(startup, Trigger.Request(), 10.0).success
+            hw.wait(lambda: hw.status.get('state') in ('TRACKING', 'FAULT'), 8.0,
+                    'TRACKING again')
+            assert hw.status['state'] == 'TRACKING', hw.status
+            time.sleep(0.3)
+            assert hw.status['state'] == 'TRACKING', hw.status
+            assert bench.true_loss_db() < 0.1
+        finally:
+            codes = hw.stop()
+    assert all(c == 0 for c in codes.values()), codes
