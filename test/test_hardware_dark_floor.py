@@ -64,6 +64,8 @@ def test_rig_graph_on_a_floored_meter_tracks_within_0p1_db_and_names_a_frozen_me
                     'FAULT or HELD after the meter froze')
             dt = time.monotonic() - t0
             why = hw.status.get('fault_reason') or hw.status.get('hold_reason')
+            print('rig on a %g W floor: align %.2f s, loss %.4f dB; frozen meter named in '
+                  '%.2f s: %s' % (FLOOR_W, wall, sum(losses) / len(losses), dt, why))
             assert 'power meter frozen' in why, hw.status
             assert dt < 1.0, (dt, why)
         finally:
