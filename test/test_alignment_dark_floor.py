@@ -40,6 +40,7 @@ def _tracking_loss_db(b, window_s=0.05):
         b.step()
         assert b.seq.state == TRACKING, (b.seq.state, b.seq.fault_reason)
         losses.append(b.true_loss())
+    print('%s: TRACKING, mean loss %.4f dB' % (type(b.seq).__name__, sum(losses) / len(losses)))
     return sum(losses) / len(losses)
 
 
@@ -55,6 +56,7 @@ def _frozen_named_within(b, t0, bound_s=1.0):
     assert b.seq.state in (FAULT, HELD), 'still %s %.2f s after the meter froze' % (
         b.seq.state, b.t - t0)
     why = b.seq.fault_reason or b.seq.hold_reason
+    print('%s: frozen meter named after %.3f s' % (type(b.seq).__name__, b.t - t0))
     assert 'power meter frozen' in why, why
     return b.t - t0
 

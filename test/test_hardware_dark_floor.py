@@ -71,3 +71,21 @@ def test_rig_graph_on_a_floored_meter_tracks_within_0p1_db_and_names_a_frozen_me
         finally:
             codes = hw.stop()
     assert all(c == 0 for c in codes.values()), codes
+
+
+def test_1d_sensorless_bench_on_a_floored_meter_tracks_within_0p1_db():
+    """The 1-D bench on the device protocols (in-process emulators, no ROS)."""
+    from fiber_align.alignment import sequencer as sq
+    from fiber_align.hardware.bench import emulated, SensorlessBench
+    with emulated(seed=0, slot_position_m=30e-6, floor_w=FLOOR_W) as (bench, mdt, pm):
+        sb = SensorlessBench(mdt.port, pm.resource, truth=bench.true_loss_db)
+        try:
+            sb.connect()
+            sb.run(lambda b: False, 0.15)                   # IDLE readings: the floor
+            assert {row[1] for row in sb.trace} == {FLOOR_W}
+            ok, wall = sb.align(3.0)
+            assert ok, sb.seq.fault_reason
+            losses = sb.hold(0.3)
+            assert sb.seq.state == sq.TRACKING and sum(losses) / len(losses) < 0.1, losses
+        finally:
+            sb.close()

@@ -4,10 +4,10 @@ Align from anywhere on the 1-D hardware bench (the sensorless graph on the emula
 
 ``align`` while TRACKING five times in a row, each ending TRACKING within 0.1 dB of the
 slot; then the amplifier unplugged (HELD), re-plugged and ``startup`` called: the
-sequencer's own re-peak ends TRACKING with no ``align``. The re-powered bimorph starts
-from rest, so the held point no longer matches the fiber: before, the +-1.5 um re-peak
-FAULTed ("the 6 samples over 38.5..41.0 um do not show a peak"); now a local sweep with no
-peak widens, then searches again (docs/alignment.md).
+sequencer's own re-peak ends TRACKING with no ``align``, within 0.1 dB 3 s later. The
+re-powered bimorph starts from rest, so the held point no longer matches the fiber:
+before, the +-1.5 um re-peak FAULTed ("the 6 samples over 38.5..41.0 um do not show a
+peak"); now a local sweep with no peak widens, then searches again (docs/alignment.md).
 """
 
 import time
@@ -50,10 +50,14 @@ def test_align_five_times_while_tracking_then_replug_tracks_again():
             hw.wait(lambda: hw.status.get('state') in ('TRACKING', 'FAULT'), 8.0,
                     'TRACKING again')
             assert hw.status['state'] == 'TRACKING', hw.status
-            print('startup to TRACKING: %.2f s' % (time.monotonic() - t_startup))
-            time.sleep(0.3)
+            t_tracking = time.monotonic()
+            # the held point is off by the bimorph's new hysteresis branch; where the
+            # re-peak's verify missed, TRACKING climbs the rest (2 rad/s: about 1 s)
+            hw.wait(lambda: hw.status.get('state') != 'TRACKING' or bench.true_loss_db() < 0.1,
+                    3.0, 'within 0.1 dB while TRACKING')
             assert hw.status['state'] == 'TRACKING', hw.status
-            assert bench.true_loss_db() < 0.1
+            print('startup to TRACKING: %.2f s, then to within 0.1 dB: %.2f s'
+                  % (t_tracking - t_startup, time.monotonic() - t_tracking))
         finally:
             codes = hw.stop()
     assert all(c == 0 for c in codes.values()), codes

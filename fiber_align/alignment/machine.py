@@ -348,6 +348,8 @@ class Machine:
         self._resumed = self._resumed and state in (SEARCHING, PEAKING)
         self._state_t = self._t
         self._follow_since = None
+        if state not in ACTIVE:
+            self._frozen = None             # a frozen reading is judged while active only
         if state == PEAKING:
             self.peak_samples = 0
             self.iterations = 0
