@@ -122,6 +122,8 @@ def parse_args(argv):
     hw.add_argument('--emulate', action='store_true', help='with --hardware: start '
                     '`fiber-align emulate` and use its serial_link and visa_resource')
     hw.add_argument('--slot', type=float, metavar='M', help='--emulate: slot position (m)')
+    hw.add_argument('--meter-floor', type=float, default=None, metavar='W',
+                    help='--emulate: the PM100 clamps its readings at this floor (W)')
     hw.add_argument('--hold', type=float, default=None, metavar='S',
                     help='--hardware: hold TRACKING this long (s) after the cycles; '
                          'default: until Ctrl-C')
@@ -129,6 +131,8 @@ def parse_args(argv):
     # the launch arguments' combinations are describe()'s to check; these are bringup's
     if not a.hardware and (a.emulate or a.slot is not None or a.hold is not None):
         ap.error('--emulate, --slot and --hold need --hardware')
+    if a.meter_floor is not None and not a.emulate:
+        ap.error('--meter-floor needs --hardware --emulate')
     if a.slot is not None and a.rig:
         ap.error('--slot is not available with --rig (--seed picks the emulated target)')
     if a.emulate and (a.port or a.visa_resource):
