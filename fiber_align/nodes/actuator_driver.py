@@ -182,7 +182,7 @@ class ActuatorDriverNode(LifecycleNode):
         self._drive(readbacks.items(), 'drive_voltage_readback')
         self.s.reports and self._report([], 'device lost' if lost else 'watchdog')
         if lost:      # the transition returns ERROR (s.lost): on_error closes the port
-            self.trigger_deactivate() if self.s.driver.active else self.trigger_cleanup()
+            return self.trigger_deactivate() if self.s.driver.active else self.trigger_cleanup()
         self._ticks += 1
         self._ticks % 20 or self._values()
 
