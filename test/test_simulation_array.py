@@ -79,3 +79,5 @@ def test_seeds_spread_the_chip_over_the_stroke_and_the_roll_over_10_mrad():
 def test_cli_refuses_options_of_other_scenarios(capsys):
     assert cli.main(['simulate', '--scenario', 'array', '--cycles', '3']) != 0
     assert 'do not apply' in capsys.readouterr().err
+    assert cli.main(['simulate', '--scenario', 'array', '--plot', 'x.png']) != 0
+    assert 'do not apply' in capsys.readouterr().err

@@ -183,6 +183,8 @@ def run(name, seed=0, loop='composite', rig=None, record=False, **kw):
 
 def run_cli(args):
     """Run ``fiber-align simulate --scenario array``; return an exit code (0: TRACKING)."""
+    if getattr(args, 'plot', None) or getattr(args, 'csv', None):
+        raise ValueError('--plot and --csv do not apply to --scenario array')
     rate = getattr(args, 'rate', None)
     res = run(args.scenario, seed=int(args.seed or 0),
               loop=args.loop if args.loop in ('composite', 'ideal') else 'composite',
