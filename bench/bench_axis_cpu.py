@@ -16,7 +16,11 @@ tree over the baseline).
 
 Usage: ``python -m bench.bench_axis_cpu --baseline DIR [--repeats 3] [--seconds 20]
 [--rig-cycles 20] [--cases one,one-recorded,rig,station] [--json FILE]``; ``DIR`` is a checkout of
-the baseline (e.g. ``git worktree add --detach /tmp/base <commit>``).
+the baseline (e.g. ``git worktree add --detach /tmp/base <commit>``). ``--baseline-args``
+gives the baseline's runs more ``bringup`` options: with ``--baseline .`` one tree against
+itself with one setting changed, e.g. ``--baseline-args="-p **:cpu_idle_poll:=false"``
+(docs/realtime.md). Beside each run: the machine-floor probe's lost share (the bare
+loop that runs beside every realtime run), so a setting that costs the machine shows.
 """
 
 import argparse
@@ -39,8 +43,8 @@ CASES = {
 }
 
 
-def run_once(tree, case, seconds, tmp, cycles=20):
-    """Run one case on ``tree``; return ``{cpu_per_axis, cycles_kept, ...}``."""
+def run_once(tree, case, seconds, tmp, cycles=20, extra=()):
+    """Run one case on ``tree`` (``extra``: more bringup options); return its figures."""
     args, axes, recorded = CASES[case]
     summary = os.path.join(tmp, 'summary-%s-%s.json' % (case, os.getpid()))
     if os.path.exists(summary):
@@ -50,7 +54,7 @@ def run_once(tree, case, seconds, tmp, cycles=20):
         os.path.join(tree, 'fiber_align', 'bringup')) else 'fiber_align.nodes.bringup'
     cmd = [sys.executable, '-m', harness] + [
         x.format(seconds=seconds, cycles=cycles) for x in args] + [
-        '--sync', 'realtime', '--quiet', '--summary', summary]
+        '--sync', 'realtime', '--quiet', '--summary', summary] + list(extra)
     if recorded:
         bag = tempfile.mkdtemp(dir=tmp)
         os.rmdir(bag)
@@ -69,6 +73,7 @@ def run_once(tree, case, seconds, tmp, cycles=20):
             'processes': {k: v.get('cpu_per_s') for k, v in s.get('processes', {}).items()},
             'trips': sum(int(a.get('watchdog_count') or 0) for a in _axes(s)),
             'recorder_short': s.get('recorder_short'),
+            'floor_lost_share': (s.get('floor') or {}).get('lost_share'),
             'state': s.get('state'), 'error': s.get('error') or None,
             'exit_code': proc.returncode}
 
@@ -83,7 +88,7 @@ def _axes(s):
 def summarise(runs):
     """Return the median, min and max of each figure over ``runs``."""
     out = {}
-    for key in ('cpu_per_axis', 'cycles_kept'):
+    for key in ('cpu_per_axis', 'cycles_kept', 'floor_lost_share'):
         v = [r[key] for r in runs if r.get(key) is not None]
         out[key] = {'median': float(np.median(v)), 'min': min(v), 'max': max(v)} if v \
             else None
@@ -101,6 +106,8 @@ def main(argv=None):
     ap.add_argument('--rig-cycles', type=int, default=20,
                     help='rig: release / align cycles before the held part')
     ap.add_argument('--cases', default='one,one-recorded,rig')
+    ap.add_argument('--baseline-args', default='',
+                    help='more bringup options for the baseline runs (one string)')
     ap.add_argument('--json', default=None)
     a = ap.parse_args(argv)
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -111,27 +118,32 @@ def main(argv=None):
         for _ in range(a.repeats):
             for c in cases:
                 for t in ('this', 'baseline'):
-                    runs[(c, t)].append(run_once(trees[t], c, a.seconds, tmp,
-                                                 a.rig_cycles))
+                    runs[(c, t)].append(run_once(
+                        trees[t], c, a.seconds, tmp, a.rig_cycles,
+                        a.baseline_args.split() if t == 'baseline' else ()))
     out = {'seconds': a.seconds, 'repeats': a.repeats, 'load_average': os.getloadavg(),
+           'baseline_args': a.baseline_args,
            'cases': {}}
     lines = ['| case | tree | CPU per axis (s/s) median [min, max] | cycles kept, worst axis '
-             '(median) [min] | trips | failed runs |', '|---|---|---|---|---|---|']
+             '(median) [min] | floor lost, median [min, max] | trips | failed runs |',
+             '|---|---|---|---|---|---|---|']
     for c in cases:
         out['cases'][c] = {t: dict(summarise(runs[(c, t)]), runs=runs[(c, t)]) for t in trees}
         for t in trees:
             s = out['cases'][c][t]
-            cpu, cyc = s['cpu_per_axis'], s['cycles_kept']
-            lines.append('| %s | %s | %s | %s | %d | %d |' % (
+            cpu, cyc, fl = s['cpu_per_axis'], s['cycles_kept'], s['floor_lost_share']
+            lines.append('| %s | %s | %s | %s | %s | %d | %d |' % (
                 c, t, '%.3f [%.3f, %.3f]' % (cpu['median'], cpu['min'], cpu['max'])
                 if cpu else 'error', '%.3f %% [%.3f %%]' % (100 * cyc['median'],
                                                             100 * cyc['min'])
-                if cyc else '-', s['trips'], len(s['errors'])))
+                if cyc else '-', '%.3f %% [%.3f, %.3f]' % (
+                    100 * fl['median'], 100 * fl['min'], 100 * fl['max']) if fl else '-',
+                s['trips'], len(s['errors'])))
         a_, b_ = out['cases'][c]['this']['cpu_per_axis'], \
             out['cases'][c]['baseline']['cpu_per_axis']
         if a_ and b_:
             out['cases'][c]['ratio_cpu'] = a_['median'] / b_['median']
-            lines.append('| %s | this / baseline | %.2f | | | |'
+            lines.append('| %s | this / baseline | %.2f | | | | |'
                          % (c, out['cases'][c]['ratio_cpu']))
     print('\n'.join(lines))
     if a.json:

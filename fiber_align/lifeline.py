@@ -16,6 +16,7 @@ that forked the child exits, so a launcher that starts its processes from a work
 (a thread pool, a GUI) would stop them while it runs on. The parent is the one this
 module saw when it was first imported (:data:`PARENT_PID`); a parent that died before the
 watch began (the child reparented already) is seen by comparing ``getppid()`` with it.
+:class:`StopFlag` is what a stop signal sets, in a node process and in ``bringup`` alike.
 """
 
 import os
@@ -74,3 +75,51 @@ def _watch(parent_pid, fd, signum):
     while not parent_gone(parent_pid):  # also the pidfd's last look: the reparent is done
         time.sleep(POLL_S)
     os.kill(os.getpid(), signum)
+
+
+class StopFlag:
+    """
+    Set by a signal handler, read by a loop: a plain attribute, no lock.
+
+    A handler runs between two bytecodes of whatever it interrupted; an
+    ``threading.Event.set`` there takes the event's non-reentrant lock, so a second
+    signal arriving inside the first handler would deadlock the process.
+    """
+
+    __slots__ = ('_set', 'again')
+
+    def __init__(self):
+        """Start unset."""
+        self._set = False
+        #: the number of a signal that came after the flag was set (0: none)
+        self.again = 0
+
+    def set(self):
+        """Set the flag (safe in a signal handler, any number of times, nested)."""
+        self._set = True
+
+    def note(self, signum):
+        """Set the flag for signal ``signum``; one after the first is kept in ``again``."""
+        if self._set:
+            self.again = int(signum)
+        self._set = True
+
+    def exit_code(self, code=0):
+        """
+        Return ``code``, or ``128 + signal`` when a second signal came during the stop.
+
+        The first SIGINT or SIGTERM is the ordinary request to stop: the node stops in
+        order and exits ``code`` (0: ``ros2 launch`` reports it finished cleanly). A
+        second one while stopping does not cut the stop short (the recorder still
+        finalises its bag) but is reported the shell's way, as a process ended by that
+        signal: 130 for SIGINT, 143 for SIGTERM.
+        """
+        return 128 + self.again if self.again else code
+
+    def is_set(self):
+        """Return True once set."""
+        return self._set
+
+    def clear(self):
+        """Unset the flag."""
+        self._set = False

@@ -9,6 +9,35 @@ import time
 from fiber_align.hardware.process import stop_process
 
 
+def alive(pid):
+    """Return whether process ``pid`` runs (a zombie of a dead parent counts as gone)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:
+        with open('/proc/%d/stat' % pid, encoding='ascii') as f:
+            return f.read().rsplit(')', 1)[1].split()[0] != 'Z'
+    except OSError:
+        return False
+
+
+def wait_log(log, text, seconds, proc):
+    """Wait (bounded, s) until ``text`` is in the file ``log`` or ``proc`` exited."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end and proc.poll() is None:
+        if text in log.read_text(errors='replace'):
+            return True
+        time.sleep(0.1)
+    return text in log.read_text(errors='replace')
+
+
+def joint_state(*position):
+    """Return a sensor_msgs/JointState of ``bimorph_tip`` at ``position`` (m)."""
+    from sensor_msgs.msg import JointState
+    return JointState(name=['bimorph_tip'], position=list(position))
+
+
 def stop(proc, grace_s=10.0):
     """SIGINT ``proc`` if it still runs, then SIGKILL after ``grace_s`` (s)."""
     stop_process(proc, grace_s)

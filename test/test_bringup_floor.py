@@ -13,6 +13,7 @@ import pytest
 from fiber_align.analysis import run_summary as sm
 from fiber_align.control.cycle import cycle_warning, DeadlineGrid
 from fiber_align.bringup.floor import Floor
+from procs import alive
 
 GOAL = 0.001
 
@@ -70,14 +71,6 @@ def test_the_graph_is_held_to_its_goal_beyond_the_machines_floor():
     assert sm.machine_limit(s, 'realtime', GOAL) is None
 
 
-def _alive(pid):
-    try:
-        with open('/proc/%d/stat' % pid) as f:
-            return f.read().split(')')[-1].split()[0] != 'Z'
-    except OSError:
-        return False
-
-
 @pytest.mark.ros  # starts processes
 def test_the_probe_counts_the_periods_of_its_run_and_stops_on_sigint(tmp_path):
     probe = Floor(1000.0, 0, str(tmp_path))
@@ -117,13 +110,13 @@ def test_the_probe_ends_and_writes_its_figures_when_its_launcher_is_killed(tmp_p
         launcher.kill()
         launcher.wait(5)
         end = time.monotonic() + 2.0
-        while _alive(pid) and time.monotonic() < end:
+        while alive(pid) and time.monotonic() < end:
             time.sleep(0.02)
-        assert not _alive(pid), 'the probe outlived its launcher by 2 s'
+        assert not alive(pid), 'the probe outlived its launcher by 2 s'
         f = json.loads((tmp_path / 'floor.json').read_text(encoding='utf-8'))
         assert f['periods'] > 0
     finally:
         if launcher.poll() is None:
             launcher.kill()
-        if pid is not None and _alive(pid):
+        if pid is not None and alive(pid):
             os.kill(pid, signal.SIGKILL)

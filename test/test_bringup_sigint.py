@@ -12,21 +12,11 @@ import time
 
 import pytest
 
+from procs import alive
+
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 STOP_LIMIT_S = 5.0
-
-
-def _alive(pid):
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    try:
-        with open('/proc/%d/stat' % pid, encoding='ascii') as f:
-            return f.read().rsplit(')', 1)[1].split()[0] != 'Z'
-    except OSError:
-        return False
 
 
 def _pids(lines):
@@ -80,13 +70,13 @@ def test_sigint_mid_scenario_stops_cleanly_and_finalises_the_bag(tmp_path):
         assert sorted(re.findall(r'bringup: started (\S+) \(pid', ''.join(lines))) == [
             'bag_recorder', 'control_graph', 'lifecycle_manager', 'machine_floor'], \
             ''.join(lines)
-        left = [p for p in pids if _alive(p)]
+        left = [p for p in pids if alive(p)]
         assert stop_s <= STOP_LIMIT_S, 'bringup took %.2f s to exit' % stop_s
         assert code == 130, ''.join(lines)
         assert not left, 'processes left: %s' % left
     finally:
         for p in pids or _pids(lines):
-            if _alive(p):
+            if alive(p):
                 os.kill(p, signal.SIGKILL)
         if proc.poll() is None:
             proc.kill()
@@ -98,7 +88,7 @@ def test_sigint_mid_scenario_stops_cleanly_and_finalises_the_bag(tmp_path):
     assert all(ch['exit_code'] == 0 for ch in s['children'].values()), s['children']
     # the machine's floor was measured beside the realtime run, and its probe is gone
     assert 'error' not in s['floor'] and s['floor']['periods'] > 0, s['floor']
-    assert not _alive(s['floor']['pid'])
+    assert not alive(s['floor']['pid'])
     counts = _bag_counts(bag)
     sent = {}
     for node, c in s['sent'].items():

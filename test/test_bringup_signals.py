@@ -18,6 +18,7 @@ import time
 import pytest
 
 import procs
+from procs import alive
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 BRINGUP = [sys.executable, '-m', 'fiber_align.bringup']
@@ -25,18 +26,6 @@ BRINGUP = [sys.executable, '-m', 'fiber_align.bringup']
 
 def _pids(text):
     return [int(p) for p in re.findall(r'started \w+ \(pid (\d+)\)', text)]
-
-
-def _alive(pid):
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    try:        # a zombie of a dead parent is gone for every purpose here
-        with open('/proc/%d/stat' % pid) as f:
-            return f.read().rsplit(')', 1)[1].split()[0] != 'Z'
-    except OSError:
-        return False
 
 
 def _wait_for(path, text, timeout):
@@ -52,7 +41,7 @@ def _wait_for(path, text, timeout):
 def _gone(pids, timeout):
     end = time.monotonic() + timeout
     while time.monotonic() < end:
-        if not any(_alive(p) for p in pids):
+        if not any(alive(p) for p in pids):
             return True
         time.sleep(0.05)
     return False
@@ -60,7 +49,7 @@ def _gone(pids, timeout):
 
 def _kill_all(pids):
     for p in pids:
-        if _alive(p):
+        if alive(p):
             os.kill(p, signal.SIGKILL)
 
 
@@ -89,7 +78,7 @@ def test_background_job_of_a_script_stops_on_sigint(tmp_path):
         assert stop_s <= 5.0
         # the whole graph within the same 5 s
         assert _gone(pids, max(0.1, 5.0 - (time.monotonic() - t0))), \
-            [p for p in pids if _alive(p)]
+            [p for p in pids if alive(p)]
     finally:
         _kill_all(pids)
         procs.stop(sh, 2.0)
@@ -108,7 +97,7 @@ def test_sigkill_leaves_no_node_and_a_finalised_bag(tmp_path):
         t0 = time.monotonic()
         proc.kill()
         proc.wait(timeout=5)
-        assert _gone(pids, 2.0), [p for p in pids if _alive(p)]
+        assert _gone(pids, 2.0), [p for p in pids if alive(p)]
         print('no graph process left %.2f s after SIGKILL' % (time.monotonic() - t0))
         assert (bag / 'metadata.yaml').is_file()
         assert _readable(bag)['/displacement'][1] > 500

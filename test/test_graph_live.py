@@ -11,9 +11,11 @@ import pytest
 
 from fiber_align.graph import description as gd, rig as gr
 from fiber_align.graph.hardware import build_hardware
+from fiber_align.graph.arguments import describe
 from fiber_align.graph.live import (check_endpoint, graph_published, graph_topics,
-                                    live_settings, with_live)
+                                    live_settings, readers, with_live)
 from fiber_align.graph.params import GraphError
+from fiber_align.graph.registry import is_command
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -50,7 +52,7 @@ def test_live_on_the_rig_serves_both_axes_and_the_power_map_over_the_search_squa
                            'range_y_max_m')] == [
         seq['range_x_min_m'], seq['range_x_max_m'], seq['range_y_min_m'],
         seq['range_y_max_m']]
-    for t in ('x/displacement', 'y/displacement', 'optical_power', 'x/setpoint',
+    for t in ('x/displacement', 'y/displacement', 'optical_power', 'x/reference',
               'y/drive_voltage', 'x/tip_position'):
         assert t in p['topics'], t
 
@@ -105,3 +107,24 @@ def test_the_launch_file_adds_the_view_through_the_description(monkeypatch):
     assert 'live_view' not in [p.executable for p in mod.describe(args).processes]
     text = (ROOT / 'launch' / 'fiber_align.launch.py').read_text()
     assert "'live_view'" not in text            # no special case: the description's
+
+
+#: Every machine with everything that can read its topics: the live view, and the recorder
+#: where the machine records.
+VARIANTS = [dict(m, live='true', live_port='18765') for m in (
+    {'record': '/nonexistent/bag'}, {'rig': 'true'}, {'station': 'true', 'record': '/x/bag'},
+    {'hardware': 'true', 'record': '/x/bag'}, {'rig': 'true', 'hardware': 'true'})]
+
+
+@pytest.mark.parametrize('arguments', VARIANTS, ids=lambda a: '-'.join(
+    k for k in ('rig', 'station', 'hardware') if k in a) or '1d')
+def test_every_command_topic_keeps_one_reader_the_loops(arguments):
+    """A `ros2 topic pub --once` setpoint reaches the loop: the view reads `reference`."""
+    g = describe(arguments)
+    found = {t: r for t, r in readers(g).items() if is_command(t)}
+    assert found, 'no setpoint topic in %s' % arguments
+    for t, r in found.items():
+        assert len(r) == 1 and r[0].endswith('hysteresis_compensator'), (t, r)
+    served = g.node_params('live_view')['topics']
+    assert not [t for t in served if is_command(t)], served
+    assert [t for t in served if t.endswith('reference')], served

@@ -112,3 +112,19 @@ def test_topic_backend_drives_as_its_axes_and_refusals_are_one_line():
     assert refusal(axes(x='x', y='x'), {}) == 'channel x is named twice (axes x and y)'
     assert refusal(axes(x='x', y='x'), None) is None     # no device: channels unused
     assert 'field limit' in refusal({'x': dict(LIMITS, channel='x', v_max=160.0)}, None)
+
+
+def test_topic_backend_realtime_deactivate_ramps_its_drive_to_safe_by_tick():
+    """Without a device the ramp is the published drive: deactivate ends at the safe voltage."""
+    s = DriverSession(axes(x='x'), PERIOD_S, sensorless=True)
+    s.open()
+    s.activate()
+    assert s.input('x', True, 53.0, 0.0)[-1][1] > 0.0
+    assert s.deactivate(0.01) == []
+    drives = []
+    for k in range(1, 40):                               # 500 V/s: 53 V in about 0.11 s
+        drives += s.tick(0.01 + k * PERIOD_S)[0]
+    assert drives and drives[-1] == ('x', 0.0), drives
+    volts = [v for _, v in drives]
+    assert all(b <= a for a, b in zip(volts, volts[1:])), volts        # a ramp down
+    assert s.input('x', True, 53.0, 0.5) == [] and s.tick(0.5)[0] == []   # and it stays

@@ -7,6 +7,7 @@ and register the package in the ament index.
 """
 
 import configparser
+import re
 from pathlib import Path
 
 import pytest
@@ -17,7 +18,8 @@ ROOT = Path(__file__).resolve().parents[1]
 def console_scripts():
     """Return the console_scripts names declared in setup.py."""
     text = (ROOT / 'setup.py').read_text()
-    names = ['fiber-align']
+    # the named entries ('fiber-align = ...', 'bringup = ...'), then the nodes' list
+    names = re.findall(r"'([\w-]+) = fiber_align[\w.]*:main'", text)
     start = text.index('NODES = [')
     block = text[start:text.index(']', start)]
     names += [line.strip().strip("',") for line in block.splitlines()[1:] if line.strip()]

@@ -9,7 +9,7 @@ file of ``docs/``, ``config/``, ``launch/``, ``fiber_align/`` and the README is 
 for
 
 - dotted module names: ``fiber_align.a.b`` and the package's own relative ones
-  (``graph.params.SHARED``, ``nodes.ros.runtime.StopFlag``: they start with one of its
+  (``graph.params.SHARED``, ``nodes.ros.runtime.run_node``: they start with one of its
   areas), each resolved to a module and, past it, to a name that module defines;
 - file paths ``a/b.py`` (``.py``, ``.yaml``, ``.xml``, ``.md``), resolved from the
   repository, from ``fiber_align/`` or from ``fiber_align/nodes/``;

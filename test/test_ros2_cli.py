@@ -26,6 +26,7 @@ from pathlib import Path
 import re
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -385,8 +386,12 @@ def launched(ros2_env, tmp_path_factory):
 
 
 def _launch(ros2_env, bag, log, t0):
+    # with the live view, as users watch it: it must not take a `pub --once` setpoint
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        port = s.getsockname()[1]
     proc = spawn(ros2_env, ['ros2', 'launch', 'fiber_align', 'fiber_align.launch.py',
-                            'record:=%s' % bag], log)
+                            'record:=%s' % bag, 'live:=true', 'live_port:=%d' % port], log)
     listener = Listener()
     g = {'proc': proc, 'bag': bag, 'log': log, 'listener': listener}
     try:
@@ -461,6 +466,22 @@ def test_topic_pub_setpoint_is_reached_within_half_a_micrometre_in_2_s(launched,
         'not within 0.5 um of 50 um in 2 s; last y %.3f um' % (ys[-1][1] * 1e6))
     assert end and end_error <= TOL_M, 'not settled at 50 um: %.3f um off' % (end_error * 1e6)
     ls.streams(False)
+
+
+def test_ten_plain_pub_once_setpoints_all_reach_the_loop_beside_the_live_view(
+        launched, ros2_env):
+    """The CLI's `pub --once` sends once the first reader matched: that reader is the loop."""
+    ls = launched['listener']
+    values = [(20.0 + k) * 1e-6 for k in range(10)]
+    for v in values:
+        rc, out = ros2(ros2_env, 'topic', 'pub', '--once', '/setpoint',
+                       'std_msgs/msg/Float64', '{data: %r}' % v, timeout=30)
+        assert rc == 0, out
+    ls.wait(2.0, lambda: all(v in [x for _, x in list(ls.setpoints)] for v in values))
+    got = [v for v in values if v in [x for _, x in list(ls.setpoints)]]
+    print('pub --once beside the live view: %d of %d reached the loop' % (len(got),
+                                                                          len(values)))
+    assert got == values
 
 
 def test_topic_echo_once_a_second_after_a_setpoint_prints_the_present(launched, ros2_env):

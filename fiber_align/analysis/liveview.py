@@ -17,8 +17,10 @@ SI units throughout (m, W, s); dBm only where a person reads it.
 
 import json
 import math
+import os
 import re
 import struct
+import sys
 
 #: ROS 2 primitive field types (no dependency).
 PRIMITIVES = frozenset((
@@ -62,6 +64,25 @@ def msg_dependencies(package, text):
             continue
         out.add(typ.replace('/msg/', '/') if '/' in typ else '%s/%s' % (package, typ))
     return sorted(out)
+
+
+def read_msg(package, name):
+    """
+    Return the ``.msg`` text of ``package/msg/name``.
+
+    From the prefixes of ``AMENT_PREFIX_PATH`` (a sourced workspace), then this
+    interpreter's prefix (the pip route: the ROS wheels install ``share/`` there).
+
+    :raises FileNotFoundError: no prefix has it.
+    """
+    prefixes = [p for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
+    for prefix in prefixes + [sys.prefix]:
+        path = os.path.join(prefix, 'share', package, 'msg', name + '.msg')
+        if os.path.isfile(path):
+            with open(path, encoding='utf-8') as f:
+                return f.read()
+    raise FileNotFoundError('%s/msg/%s.msg is in none of %s' % (
+        package, name, ', '.join(prefixes + [sys.prefix])))
 
 
 def ros2msg_schema(type_name, read):

@@ -3,17 +3,10 @@
 The machine's floor beside a realtime graph: a bare loop at the graph's rate and priority.
 
 Not a ROS node: a process of its own that ``bringup`` starts beside every realtime run
-(:class:`Floor`), light to start (no rclpy) and with nothing of the graph's.
-
-A virtual machine can stop every one of its CPUs at once for milliseconds (the host runs
-something else); no program inside it keeps its periods then, and the graph's plant
-counts those periods as missed. This process measures what the machine allowed over the
-same seconds: a bare Python loop that sleeps to each deadline of the graph's rate, at
-the graph's ``SCHED_FIFO`` priority plus one (so the graph's own threads never delay
-it), and counts the periods it lost by the plant's rule
-(:class:`~fiber_align.control.cycle.DeadlineGrid`). ``bringup`` runs it for the length
-of every realtime run and puts its figures beside the graph's in the summary
-(:class:`Floor`).
+(:class:`Floor`), light to start (no rclpy), at the graph's ``SCHED_FIFO`` priority plus
+one; it counts the periods it lost by the plant's rule
+(:class:`~fiber_align.control.cycle.DeadlineGrid`). Why (a virtual machine stops all its
+CPUs at once) and how the summary uses it: docs/realtime.md ("The machine's floor").
 
 Run alone: ``python -m fiber_align.bringup.floor --rate-hz 1000 --priority 51
 --out FILE``; it stops at the end of its standard input (the pipe :class:`Floor` holds:

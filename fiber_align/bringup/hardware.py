@@ -3,17 +3,10 @@
 ``bringup --hardware``: the sensorless bench graph on a real or emulated MDT693B + PM100.
 
 The graph is ``hardware:=true``'s (:mod:`fiber_align.graph.hardware`; with ``--rig``
-:mod:`fiber_align.graph.hardware_rig`: both axes on one MDT693B). ``--emulate`` first
-starts ``fiber-align emulate`` as a child (it ends with ``bringup``) and uses the
-``serial_link`` and ``visa_resource`` it prints; with ``--rig``, ``fiber-align emulate
---rig`` with the target of the run seed (``--seed``, as the simulated rig's).
-
-Sequence: start the processes; wait until the driver is active, the meter reads and the
-sequencer has its floor (``floor_wait_s``); ``align`` (std_srvs/Trigger) and time it to
-TRACKING; ``--cycles`` switch off/on cycles; hold TRACKING for ``--hold`` s (0: until
-SIGINT); stop every child (SIGINT: the driver ramps the amplifier to the safe voltage);
-print a JSON summary (align wall time, peak power, states, faults). Exit 0 when aligned,
-1 on a fault or a timeout, 2 on bad input, 130 when interrupted before the end.
+:mod:`fiber_align.graph.hardware_rig`). ``--emulate`` first starts ``fiber-align
+emulate`` as a child (``--rig``: with the target of the run seed, as the simulated rig's).
+The steps (ready, ``align``, ``--cycles``, ``--hold``, stop, the JSON summary) and the
+exit codes: docs/hardware.md ("The hardware graph: launch and ``bringup --hardware``").
 """
 
 import json

@@ -18,6 +18,7 @@ import tempfile
 import time
 
 from fiber_align.analysis import run_summary as sm
+from fiber_align.analysis.recording import recorder_counts, recorder_short, recorder_short_full
 from fiber_align.bringup import interrupt
 from fiber_align.bringup.children import Child, wait_all
 from fiber_align.bringup.floor import Floor
@@ -25,7 +26,6 @@ from fiber_align.bringup.observer import BadInput, BringupError, Observer
 from fiber_align.graph.description import dds_environment
 from fiber_align.graph.params import effective, merge_params, PLANT, RECORDER
 from fiber_align.jsonout import json_default
-from fiber_align.nodes._recording import recorder_counts, recorder_short, recorder_short_full
 from fiber_align.nodes.ros.diagnostics import endpoint_node_name
 
 EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -285,7 +285,7 @@ class Harness:
         """
         Wait until the recorder holds every message the nodes sent; return (s waited, short).
 
-        The rule is :func:`fiber_align.nodes._recording.recorder_short`; only reports made
+        The rule is :func:`fiber_align.analysis.recording.recorder_short`; only reports made
         after the plant was held count. Reliable delivery may need a retransmission after
         a burst, so the wait is on the counts themselves, bounded by ``limit_s`` (s).
         ``short``: topic -> (recorded, sent) left.

@@ -11,7 +11,7 @@ every wait loop's liveness check (:func:`check`) raises it again until the run's
 ``except KeyboardInterrupt`` has taken it (:func:`handled`).
 """
 
-from fiber_align.nodes.ros.runtime import StopFlag
+from fiber_align.lifeline import StopFlag
 
 PENDING = StopFlag()
 

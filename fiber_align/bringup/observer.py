@@ -22,9 +22,9 @@ from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rclpy.executors import SingleThreadedExecutor
 
+from fiber_align.analysis.recording import diag_entry
 from fiber_align.analysis.run_summary import worst_cycles
 from fiber_align.control.trajectory import stamp_ns
-from fiber_align.nodes._recording import diag_entry
 from fiber_align.nodes.ros.qos import DIAG_QOS, LATCHED_QOS, sample_pub_qos
 
 

@@ -2,41 +2,37 @@
 """
 ``bringup --rig``, ``--station``, ``--array``: start a multi-axis graph, align, stop.
 
-Sequence: start the processes (plants held: ``autostart`` false), wait until
-``lifecycle_manager`` has every driver active, start every plant (``<axis>/
-simulated_actuator/run``), let ``ALIGN_IDLE_S`` of samples pass, call ``align``, wait
-for TRACKING (at most ``ALIGN_MAX_S`` of sample time), ``LOSS_WINDOW_S`` more, hold the
-plants, stop every process. The observer records, per sample, the displacements, the
-optical power and the setpoints (reliable, deep, transient local: every sample).
-
-In lockstep the run is compared with the offline run of the same description
-(:func:`fiber_align.analysis.run_summary.compare_offline`: the offline ``align2d`` with
-the ``align`` command before the same sample): the summary's ``offline`` holds the largest
-difference of each stream, and the exit code is 1 when one exceeds the tolerance.
+The plants start held until every driver is active; then ``align`` after
+``ALIGN_IDLE_S`` of samples, TRACKING within ``ALIGN_MAX_S`` (the station: its search
+timeout), ``LOSS_WINDOW_S`` more. In lockstep the run is compared with the offline run
+of the same description (:func:`fiber_align.analysis.run_summary.compare_offline`); the
+exit code is 1 when a stream differs beyond the tolerance. docs/alignment2d.md, docs/station.md.
 """
 
 import time
 
 from fiber_align.analysis import run_summary as sm
+from fiber_align.analysis.axes_summary import axis_figures, print_report
 from fiber_align.bringup.harness import Harness, session
 from fiber_align.bringup.observer import BringupError
 from fiber_align.graph.registry import STATION_AXES as AXES4
 from fiber_align.simulation import array_scenarios as asc
 from fiber_align.simulation import station_scenarios as sc
 
-#: Streams recorded per sample: name -> topic.
+#: Streams recorded per sample: name -> topic. The setpoints as the loop accepted them
+#: (``reference``): a command topic keeps one reader, the loop's (graph.registry.COMMANDS).
 STREAMS = {'mx': 'x/displacement', 'my': 'y/displacement', 'p': 'optical_power',
-           'rx': 'x/setpoint', 'ry': 'y/setpoint'}
+           'rx': 'x/reference', 'ry': 'y/reference'}
 #: The station's (``bringup --station``): the offline bench's trace columns
 #: (:class:`fiber_align.simulation.station_scenarios.StationBench`).
 STATION_STREAMS = dict([('m' + k, a + '/displacement') for k, a in zip(sc.AXIS_KEYS, AXES4)]
-                       + [('r' + k, a + '/setpoint') for k, a in zip(sc.AXIS_KEYS, AXES4)]
+                       + [('r' + k, a + '/reference') for k, a in zip(sc.AXIS_KEYS, AXES4)]
                        + [('p', 'optical_power')])
 #: The array's (``bringup --array``): :class:`fiber_align.simulation.array_scenarios.
 #: ArrayBench`'s trace columns, the outer channels' readings ``p_1`` and ``p_n``.
 _AB = asc.ArrayBench
 ARRAY_STREAMS = dict([(k, a + '/displacement') for k, a in zip(_AB.MEASURED, _AB.POSITION)]
-                     + [(k, a + '/setpoint') for k, a in zip(_AB.SETPOINT, _AB.POSITION)]
+                     + [(k, a + '/reference') for k, a in zip(_AB.SETPOINT, _AB.POSITION)]
                      + list(zip(_AB.POWERS, ('optical_power', 'optical_power_n'))))
 
 
@@ -127,7 +123,7 @@ def run_rig(a, g):
         if a.trace and h.obs is not None:
             sm.write_trace(a.trace, arrays(h.obs, streams), rate)   # full: every stream
         h.close()
-        _report(summary)
+        print_report(summary)
     return session(a, summary, steps, stop)
 
 
@@ -177,64 +173,3 @@ def _release_align(obs, alive, rate, clock, max_s=sm.ALIGN_MAX_S):
     obs.wait(lambda: clock() >= k, 60.0, alive, 'sample %d' % k)
     k_align, tracking = _align(obs, alive, rate, clock, max_s)
     return (tracking['sample'] - 1 - k_align) / rate
-
-
-def axis_figures(by_status, namespace, axes=('x', 'y')):
-    """
-    Return the realtime figures of each rig axis from its nodes' ``/diagnostics``.
-
-    :param by_status: :attr:`DiagnosticsWatch.by_status` (full status names).
-    :returns: ``{axis: {missed_share, watchdog_count, ..., worst: {node: window}}}``
-        (:func:`fiber_align.analysis.run_summary.realtime_figures`, SI).
-    """
-    out = {}
-    for axis in axes:
-        prefix = '/%s/%s/' % (namespace.strip('/'), axis) if namespace else '/%s/' % axis
-        latest = {k[len(prefix):]: v for k, v in by_status['latest'].items()
-                  if k.startswith(prefix)}
-        out[axis] = dict(sm.realtime_figures(latest), worst={
-            k[len(prefix):]: dict(v) for k, v in by_status['worst'].items()
-            if k.startswith(prefix)})
-    return out
-
-
-def _report(summary):
-    """Print the run for people (ms, um)."""
-    off = summary.get('offline') or {}
-
-    def worst(prefix):
-        return max(v for k, v in off.items() if k.startswith(prefix))
-    print('rig %s (%s, seed %d): %s, align at sample %s, time to peak %s ms, peak '
-          'samples %s%s' % (summary['scenario'], summary['sync_mode'], summary['seed'],
-                            summary.get('state') or summary['error'],
-                            summary.get('align_sample'),
-                            '%.1f' % (summary['time_to_peak_s'] * 1e3)
-                            if summary.get('time_to_peak_s') is not None else '-',
-                            summary.get('peak_samples'),
-                            '' if not off else '; offline: %d samples compared, max |dx| '
-                            '%.3g m, max |dsetpoint| %.3g m, max rel dP %.3g, %s'
-                            % (off['samples'], worst('max_abs_m'), worst('max_abs_r'),
-                               off['max_rel_p'],
-                               'EQUAL' if off['equal'] else 'DIFFERENT')), flush=True)
-    procs = {n: p.get('cpu_per_s') for n, p in summary.get('processes', {}).items()
-             if p.get('cpu_per_s') is not None}
-    if summary.get('cycles_tracking') is not None:
-        print('rig: %d release / align cycles, each to TRACKING; time to peak %.1f-%.1f ms'
-              % (summary['cycles_tracking'], 1e3 * min(summary['cycle_time_to_peak_s']),
-                 1e3 * max(summary['cycle_time_to_peak_s'])), flush=True)
-    if summary.get('axes'):
-        print('rig realtime: %s' % '; '.join(
-            '%s missed %s %% of the cycles, %s watchdog trips' % (
-                axis, '-' if rt.get('missed_share') is None else '%.3f' % (
-                    100 * rt['missed_share']), rt.get('watchdog_count', '-'))
-            for axis, rt in summary['axes'].items()), flush=True)
-    if procs:
-        print('rig CPU: %.2f core in all (%s)' % (sum(procs.values()), ', '.join(
-            '%s %.2f' % kv for kv in sorted(procs.items()))), flush=True)
-    if summary.get('floor'):
-        print('rig: machine floor (bare loop beside the graph): %s'
-              % sm.floor_text(summary['floor']), flush=True)
-    for m in summary.get('goals_missed') or ():
-        print('rig: GOAL MISSED: %s' % m, flush=True)
-    for m in summary.get('machine_limits') or ():
-        print('rig: MACHINE: %s' % m, flush=True)

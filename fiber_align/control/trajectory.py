@@ -30,6 +30,11 @@ def stamp_ns(stamp):
     return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
+def stamp_to_s(stamp):
+    """Return a builtin_interfaces/Time as float seconds."""
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
 class SetpointTrajectory:
     """
     Realtime setpoint trajectory, advanced by sample index (m, m/s, s).

@@ -34,8 +34,8 @@ from fiber_align.config import config_dir
 from fiber_align.graph import description as g
 from fiber_align.graph.hardware import POWER_METER
 from fiber_align.graph.params import (AMPLIFIER, check_user, COMPENSATOR, effective,
-                                      GraphError, LIFECYCLE_MANAGER, merge, merge_params,
-                                      wildcard_first)
+                                      GraphError, LIFECYCLE_MANAGER, LIVE_VIEW, merge,
+                                      merge_params, wildcard_first)
 from fiber_align.graph.rig import (_axis_ns, AXES, RIG_FILES, RIG_NAMESPACE, RigGraph,
                                    SEQUENCER_2D)
 
@@ -64,7 +64,8 @@ class HardwareRigGraph(RigGraph):
             sec = merge(base.get(n, {}), base.get('%s/%s' % (a, n), {}))
             if sec:
                 out['%s/%s/%s' % (root, a, n)] = sec
-        for n in tuple(ROOT_NODES) + (POWER_METER, LIFECYCLE_MANAGER):
+        # the live view (``live:=true``) sits at the root too
+        for n in tuple(ROOT_NODES) + (POWER_METER, LIFECYCLE_MANAGER, LIVE_VIEW):
             if n in base:
                 out['%s/%s' % (root, n)] = base[n]
         return wildcard_first({k: copy.deepcopy(v) for k, v in out.items()})

@@ -17,7 +17,8 @@ import socket
 
 from fiber_align.config import config_path
 from fiber_align.graph import description as gd
-from fiber_align.graph.params import GraphError, LIVE_VIEW, SEQUENCER_2D
+from fiber_align.graph.params import GraphError, LIVE_VIEW, RECORDER, SEQUENCER_2D
+from fiber_align.graph.registry import is_command
 
 #: The view's params file (in ``config/``).
 LIVE_FILE = 'live_view.yaml'
@@ -53,7 +54,9 @@ def graph_topics(graph):
     Return the topics the graph's nodes publish and read (relative to its namespace).
 
     A node in a namespace below the graph's (the rig's axes) prefixes its topics with
-    that part (``x/displacement``). In order of the processes, each topic once.
+    that part (``x/displacement``). In order of the processes, each topic once; never a
+    command topic (:data:`~fiber_align.graph.registry.COMMANDS`): its one reader is the
+    loop's, the view shows ``reference``.
 
     :param graph: a :class:`~fiber_align.graph.description.Graph` (or the rig's).
     """
@@ -62,7 +65,27 @@ def graph_topics(graph):
         for prefix, spec in _specs(p, graph.namespace):
             for t in spec.publishes + spec.subscribes:
                 out.append('%s/%s' % (prefix, t) if prefix else t)
-    return tuple(dict.fromkeys(out))
+    return tuple(t for t in dict.fromkeys(out) if not is_command(t))
+
+
+def readers(graph):
+    """
+    Return ``{topic: [reader, ...]}`` of a described graph (topics relative to its namespace).
+
+    The readers: every node's subscriptions (:data:`~fiber_align.graph.registry.NODES`),
+    and the ``topics`` the recorder and the live view read (their parameters).
+    """
+    out = {}
+    for p in graph.processes:
+        for prefix, spec in _specs(p, graph.namespace):
+            for t in spec.subscribes:
+                out.setdefault('%s/%s' % (prefix, t) if prefix else t, []).append(
+                    '/'.join(x for x in (prefix, spec.node) if x))
+    for n in (RECORDER, LIVE_VIEW):
+        if n in graph.nodes:
+            for t in graph.node_params(n).get('topics', ()):
+                out.setdefault(t.lstrip('/'), []).append(n)
+    return out
 
 
 def graph_published(graph):

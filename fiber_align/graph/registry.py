@@ -162,6 +162,17 @@ SCENARIOS = GRAPH_SCENARIOS
 #: Remappings applied to every process (``from``, ``to``); the nodes use the graph's
 #: relative names as they are, so there are none today.
 REMAPPINGS = ()
+#: The topics a user commands (``ros2 topic pub --once``, which sends once the first reader
+#: matched): each keeps exactly one reader in every graph, the loop's; the live view and
+#: the recorders read what the loop accepted (``reference``) instead (issue 39).
+COMMANDS = ('setpoint',)
+
+
+def is_command(topic):
+    """Return True for a topic of :data:`COMMANDS` (any namespace: ``x/setpoint``)."""
+    return topic.rpartition('/')[2] in COMMANDS
+
+
 #: What the scenario runner publishes in the open-loop experiment (it drives the driver).
 OPEN_LOOP = ('feedforward_voltage', 'feedback_voltage')
 

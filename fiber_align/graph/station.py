@@ -42,7 +42,7 @@ AXES = STATION_AXES
 OWN_NODES = {n: NODES[n].executable for n in (OPTICS, SEQUENCER)}
 #: Topics the recorder records (relative to the station's namespace): per axis what a
 #: user analyses (measured position, setpoint, drive), the power and the state.
-PER_AXIS_RECORDED = ('displacement', 'setpoint', 'drive_voltage')
+PER_AXIS_RECORDED = ('displacement', 'reference', 'drive_voltage')
 RECORDED = tuple('%s/%s' % (a, t) for a in AXES for t in PER_AXIS_RECORDED) + (
     'optical_power', 'alignment_state', '/diagnostics', '/clock')
 FACET_KEYS = ('facet_in_x_m', 'facet_in_y_m', 'facet_out_x_m', 'facet_out_y_m')

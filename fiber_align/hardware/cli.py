@@ -136,8 +136,8 @@ def _run(args):
                         v_limit_v=bench.v_limit, echo=mdt.echo, seed=seed, pid=os.getpid())
             if args.rig:
                 t = bench.coupling2d.target
-                info.update(rig=True, axes=bench.axes, target_x_m=t.x0, target_y_m=t.y0,
-                            drift_x_m_per_s=t.vx, drift_y_m_per_s=t.vy)
+                info.update(rig=True, axes=bench.axes, target_x_m=t.p0[0], target_y_m=t.p0[1],
+                            drift_x_m_per_s=t.v[0], drift_y_m_per_s=t.v[1])
             else:
                 info.update(fiber_channel=bench.fiber_channel,
                             slot_position_m=bench.coupling.slot_position_m,

@@ -118,7 +118,7 @@ class DriverSession:
             if self.lost:
                 self.reports.append(('error', '', 'device lost during the ramp: %s'
                                      % self.lost))
-            else:
+            elif self.device:       # a device ramps itself; a topic output ramps by tick
                 self.driver.at_safe()
         return self.lost
 

@@ -44,9 +44,12 @@ def start_emulator(extra=(), quiet=True, priority=0):
     try:
         return proc, json.loads(line)
     except ValueError:
-        stop_process(proc)
-        raise er.DeviceError('fiber-align emulate', er.NO_REPLY, 'no JSON line within %g s '
-                             '(%r)' % (EMULATE_TIMEOUT_S, line.strip())) from None
+        code = stop_process(proc) if proc.poll() is None else proc.returncode
+        why = ('no JSON line within %g s' % EMULATE_TIMEOUT_S if not ready else
+               'it ended with exit code %s before its JSON line' % code if not line else
+               'its first line is not JSON')
+        raise er.DeviceError('fiber-align emulate', er.NO_REPLY,
+                             '%s (%r)' % (why, line.strip())) from None
 
 
 def stop_process(proc, grace_s=5.0):

@@ -114,7 +114,7 @@ class PlantClock:
             self._start()
         else:
             self.running, self.dac.m0 = False, None
-            self.health.status(0, 'held at sample %d' % self.k)
+            self.health.summary(0, 'held at sample %d' % self.k)
         response.success, response.message = True, self.health.message
         return response
 
@@ -123,7 +123,7 @@ class PlantClock:
             return
         self._autostart_timer.cancel()
         self.running = True
-        self.health.status(0, 'running')
+        self.health.summary(0, 'running')
         if not self.started:
             self.started = True
             self.node.get_logger().info('sample clock started (%s)' % (

@@ -196,7 +196,7 @@ class ActuatorDriverNode(LifecycleNode):
                 [h.error(text) for h in targets]
             elif kind == 'info':
                 self.get_logger().info(text)
-            [h.status(LEVELS.get(kind, ERROR), text) for h in targets if kind != 'info']
+            [h.summary(LEVELS.get(kind, ERROR), text) for h in targets if kind != 'info']
         held = self.s is None or self.s.held
         if held != self.held:
             self.held = held

@@ -2,11 +2,9 @@
 """
 ``alignment_sequencer``: the setpoint source that finds, peaks, tracks and switches light.
 
-One executable for every machine, chosen by the read-only parameter ``machine`` (the
-params files set it per node: ``alignment_sequencer`` 1d, ``alignment_sequencer_2d`` rig,
-``station_sequencer`` station, ``array_sequencer`` array); the differences are data
-(:mod:`fiber_align.graph.machines`). Relative names, SI units, ``<a>/`` an axis's
-namespace (none in 1-D):
+One executable for every machine, chosen by its read-only parameter ``machine`` (set
+per node in the params files; the differences are data: :mod:`fiber_align.graph.machines`).
+Relative names, SI units, ``<a>/`` an axis's namespace (none in 1-D):
 
 - sub ``<a>/displacement`` (sensor_msgs/JointState, m, stamp t_k), ``optical_power``
   (std_msgs/Float64, W; the array's also ``optical_power_n``); pub ``<a>/setpoint``
@@ -37,8 +35,9 @@ from std_srvs.srv import SetBool, Trigger
 
 from fiber_align.alignment.states import FAULT, HELD
 from fiber_align.config import load_params
+from fiber_align.control.trajectory import stamp_to_s
 from fiber_align.graph.machines import CONFIG_FILES, MACHINES
-from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, stamp_to_s, subscription
+from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import ERROR, Health, OK, WARN
 from fiber_align.nodes.ros.params import declare, declare_graph_values, declare_si
 from fiber_align.nodes.ros.params import node_defaults, PRIORITY
@@ -222,7 +221,7 @@ class AlignmentSequencerNode(Node):
             if s['state'] == FAULT else (WARN, 'HELD: %s' % s.get('hold_reason', ''),
                                          log.warning) if s['state'] == HELD else (
             OK, s['state'], lambda text: log.info('state ' + text))
-        self.health.status(level, text)
+        self.health.summary(level, text)
         say(text)
         self.health.set_values(state=s['state'], fault_reason=s['fault_reason'],
                                peak_samples=s['peak_samples'], **values)

@@ -3,28 +3,14 @@
 ``bag_recorder``: record the graph's topics into a rosbag2 (version 9) bag with rosbags.
 
 Stands in for rosbag2's recorder (``ros2 bag record``), which a pip install of ROS 2 lacks.
-
-Parameters (``config/recorder.yaml``; each has its description): ``output``, ``storage``
-(mcap | sqlite3), ``topics`` (relative names resolve in the namespace),
-``discovery_period_s``, ``queue_depth``, ``counts_file``, ``flush_period_s``.
-
-A topic is subscribed raw (the CDR bytes written as received, stamped with the
-wall-clock receive time in ns) once a publisher shows its type, with the publishers'
-QoS (reliable if all are, transient-local if all are) ``queue_depth`` deep. Every
-message is written in its callback; on SIGINT, SIGTERM or shutdown the bag is
-finalised.
-
-In-process (hosted in ``control_graph`` on its :class:`~fiber_align.nodes.ros.bus.
-LocalBus`, the station composed with ``record``): a topic a node of the process
-publishes is taken from the bus as the message object, its CDR made here
-(:mod:`fiber_align.nodes.ros.cdr`) and written at once, the mcap chunk closed every
-``flush_period_s``; nothing of it goes through DDS. Other
-topics (``/diagnostics``, ``alignment_state``) are read from DDS as above. Nothing is
-lost silently: ``message_lost`` and ``incompatible_qos`` events
-are counted, logged and reported on ``/diagnostics`` (``lost``, ``incompatible_qos``,
-``recorded.<topic>``) and in ``recorder_counts.json``. Crash safety (mcap): every
-``flush_period_s`` the pending chunk is written, so after a SIGKILL
-``fiber-align bag-repair DIR`` recovers all but the last ``flush_period_s``.
+Parameters: ``config/recorder.yaml``. A topic is subscribed raw (the CDR bytes written as
+received, stamped with the wall-clock receive time in ns) once a publisher shows its type,
+with the publishers' QoS. In-process (hosted in ``control_graph`` on its
+:class:`~fiber_align.nodes.ros.bus.LocalBus`) a topic a node of the process publishes is
+taken from the bus as the message object and its CDR made here
+(:mod:`fiber_align.nodes.ros.cdr`); nothing of it goes through DDS. Lost messages,
+incompatible QoS, the finalised bag after any stop and the crash safety of the mcap chunks
+(``fiber-align bag-repair``): docs/ros_interface.md.
 """
 
 from datetime import datetime
@@ -223,7 +209,7 @@ class BagRecorder(Node):
         bad = self.lost or self.incompatible
         slow = ['%s (%s)' % (r.topic, r.encode.fallback) for r in self.local.values()
                 if r.encode is not None and r.encode.fallback]
-        self.health.status(WARN if bad else OK, 'lost %d message(s), %d incompatible QoS' % (
+        self.health.summary(WARN if bad else OK, 'lost %d message(s), %d incompatible QoS' % (
             self.lost, self.incompatible) if bad else 'recording %s' % self.output)
         if slow:
             # still every message, at rclpy's cost: worth knowing, not an error

@@ -106,8 +106,8 @@ class FuzzyPidControllerNode(Node):
         self.wired = self.lockstep      # realtime: the driver and compensator are heard
         self.sp_q, self.y_q = [], []
         self.n_fb = self.n_state = 0
-        self.health.status(OK, 'running (%s)' % self.mode if self.lockstep else
-                           'waiting for a setpoint: feedback off (%s)' % self.mode)
+        self.health.summary(OK, 'running (%s)' % self.mode if self.lockstep else
+                            'waiting for a setpoint: feedback off (%s)' % self.mode)
         self.get_logger().info('controller ready: mode %s at %g Hz, %s pairing'
                                % (self.mode, self.rate_hz,
                                   'index' if self.lockstep else 'latest-setpoint'))
@@ -170,7 +170,7 @@ class FuzzyPidControllerNode(Node):
             self.sp_q.append(self.sp.value)
             self._pair()
         elif not why and self.step.setpoint():  # the first: start parked where it is
-            self.health.status(OK, 'running (%s)' % self.mode)
+            self.health.summary(OK, 'running (%s)' % self.mode)
 
     def _on_disp(self, msg):
         y = msg.position[0] if len(msg.position) else math.nan

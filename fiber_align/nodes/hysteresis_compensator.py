@@ -108,7 +108,7 @@ class HysteresisCompensatorNode(Node):
         self.health = io.serve_health(cycle=True)
         self.n_ff = 0
         self.step = CompensatorStep(self.build(), *io.step_args())
-        self.health.status(OK, 'ready (%s)' % g['controller'])
+        self.health.summary(OK, 'ready (%s)' % g['controller'])
         self.get_logger().info('compensator ready: %s, shaping %s, model %s' % (
             g['controller'], self.shaping['shaping'], self.model_name()))
 

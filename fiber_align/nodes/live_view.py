@@ -2,42 +2,12 @@
 """
 ``live_view``: the graph's topics served to Foxglove over its WebSocket protocol.
 
-A process of its own (never inside ``control_graph``): the Foxglove SDK's server
-(``foxglove-sdk``, subprotocol ``foxglove.sdk.v1``) on ``ws://host:port``, fed from
-raw subscriptions, so a message goes from DDS to the client as the CDR bytes it was
-published as (no decode in Python). Docs: docs/live_view.md.
-
-Channels (topics absolute, as the graph's):
-
-- each topic of ``topics`` and ``extra_topics`` once a publisher shows its type: its ROS 2
-  type as a ``ros2msg`` schema (the ``.msg`` with its dependencies, as foxglove_bridge
-  sends it), ``cdr`` messages. A per-sample topic is decimated for the UI: its newest
-  message at most ``ui_rate_hz`` times a second (the channel's ``decimation`` metadata
-  says so; every message still goes to DDS and the recorder). A topic of
-  ``state_topics`` is served message by message, and again to a client that subscribes;
-- ``<view>/optical_power_dbm`` (JSON): the decimated optical power in W and dBm;
-- ``<view>/alignment`` (JSON, structured): the sequencer's ``alignment_state`` fields
-  and ``state_index``;
-- with ``power_map``: ``<view>/power_map`` (``foxglove.Grid``, JSON): the brightest
-  power (dBm) per cell of the 2-D search so far, from the rig's ``x/displacement``,
-  ``y/displacement`` and ``optical_power`` paired as the realtime 2-D sequencer pairs
-  them; a new search (``SEARCHING``) starts a new map.
-
-How it costs the loop nothing: the subscriptions live on a node no executor spins, best
-effort and shallow (the newest messages only, kept by DDS in C); a timer at ``ui_rate_hz``
-takes what arrived, so the Python side wakes ``ui_rate_hz`` times a second whatever the
-loop's rate. The SDK queues at most ``message_backlog`` messages per client and drops
-the oldest for a slow one; a vanished client costs nothing. The process runs at
-``niceness`` below the control processes. A port in use or a host that does not resolve:
-one line, exit code 2 (the graph runs on); a client's garbage or an unknown channel: the
-server answers that client with a status message.
-
-Parameters (``config/live_view.yaml``, read-only): ``host``, ``port``, ``topics``,
-``state_topics``, ``extra_topics``, ``ui_rate_hz`` (Hz), ``discovery_period_s`` (s),
-``power_map``, ``power_map_cell_m`` (m), ``power_map_period_s`` (s),
-``power_map_queue_depth``, ``message_backlog``, ``niceness``, and the map's range
-``range_x_min_m`` .. ``range_y_max_m`` (m; defaults: the 2-D sequencer's, in
-``config/sequencer2d.yaml``).
+A process of its own (never inside ``control_graph``): the Foxglove SDK's server fed from
+raw subscriptions that no executor spins, so a message goes from DDS to the client as the
+CDR bytes it was published as; per-sample topics decimated to ``ui_rate_hz``, the state
+topics message by message, the optical power in dBm, the alignment state and (the rig)
+the power map of the search as JSON channels. Channels, costs, parameters
+(``config/live_view.yaml``) and failures: docs/live_view.md.
 """
 
 import os
@@ -46,7 +16,6 @@ import threading
 import time
 
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from fiber_align.analysis import liveview as lv
 from fiber_align.analysis import powermap
@@ -54,6 +23,7 @@ from fiber_align.config import ConfigError, load_params
 from fiber_align.graph.registry import NODES
 from fiber_align.nodes._msgtypes import message_class
 from fiber_align.nodes.ros.params import declare, node_defaults
+from fiber_align.nodes.ros.qos import profile
 from fiber_align.nodes.ros.runtime import run_node
 
 #: the registry's entry of this node: its name and params files
@@ -83,33 +53,6 @@ PARAMS = {  # name: (description, low, high)
     'message_backlog': ('messages queued per client (oldest dropped)', 1, 1000000),
     'niceness': ('CPU niceness added to the process (os.nice; 0: none)', 0, 19),
 }
-
-
-def _qos(depth, reliable):
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
-                      reliability=ReliabilityPolicy.RELIABLE if reliable
-                      else ReliabilityPolicy.BEST_EFFORT,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL if reliable
-                      else DurabilityPolicy.VOLATILE)
-
-
-def read_msg(package, name):
-    """
-    Return the ``.msg`` text of ``package/msg/name``.
-
-    From the prefixes of ``AMENT_PREFIX_PATH`` (a sourced workspace), then this
-    interpreter's prefix (the pip route: the ROS wheels install ``share/`` there).
-
-    :raises FileNotFoundError: no prefix has it.
-    """
-    prefixes = [p for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p]
-    for prefix in prefixes + [sys.prefix]:
-        path = os.path.join(prefix, 'share', package, 'msg', name + '.msg')
-        if os.path.isfile(path):
-            with open(path, encoding='utf-8') as f:
-                return f.read()
-    raise FileNotFoundError('%s/msg/%s.msg is in none of %s' % (
-        package, name, ', '.join(prefixes + [sys.prefix])))
 
 
 class _Listener:
@@ -232,7 +175,7 @@ class LiveViewNode(Node):
     def schema(self, msgtype):
         """Return the ``ros2msg`` schema text of ``msgtype`` (cached)."""
         if msgtype not in self.schemas:
-            self.schemas[msgtype] = lv.ros2msg_schema(msgtype, read_msg)
+            self.schemas[msgtype] = lv.ros2msg_schema(msgtype, lv.read_msg)
         return self.schemas[msgtype]
 
     def discover(self):
@@ -265,7 +208,8 @@ class LiveViewNode(Node):
                 metadata={'ros_type': msgtype, 'decimation': 'every message' if state
                           else dec.describe()})
         sub = self.taps_node.create_subscription(
-            message_class(msgtype), topic, lambda msg: None, _qos(depth, state), raw=True)
+            message_class(msgtype), topic, lambda msg: None, profile(depth, state, state),
+            raw=True)
         self.taps[topic] = Tap(topic, msgtype, sub, channel, state, dec, map_key)
         self.sent[topic] = 0
         self.get_logger().info('serving %s (%s)' % (topic, msgtype))

@@ -25,7 +25,7 @@ the launch file) the process then ends, which ends the launch. ``scenario_state`
 
 With ``wait_for_recorder`` (the launch file sets it when it records) that end waits,
 at most ``recorder_wait_s``, until ``bag_recorder`` holds what the nodes sent
-(:mod:`fiber_align.nodes._recording`, from their ``/diagnostics`` counts): in lockstep
+(:mod:`fiber_align.analysis.recording`, from their ``/diagnostics`` counts): in lockstep
 every message, in realtime (the graph keeps running) every topic sent on. A short run
 can otherwise end the launch before the recorder has found its publishers.
 """
@@ -39,10 +39,10 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 
+from fiber_align.analysis.recording import diag_entry, recorder_missing, recorder_short
 from fiber_align.config import ConfigError
 from fiber_align.control.trajectory import stamp_ns
 from fiber_align.graph.registry import NODES
-from fiber_align.nodes._recording import diag_entry, recorder_missing, recorder_short
 from fiber_align.nodes.ros.bus import Pub, subscription
 from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults
 from fiber_align.nodes.ros.qos import DIAG_QOS, LATCHED_QOS, sample_pub_qos, sample_qos

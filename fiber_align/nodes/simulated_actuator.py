@@ -142,7 +142,7 @@ class SimulatedActuatorNode(Node):
         subscription(self, Float64, 'drive_voltage', self.clock.on_drive,
                      LOCKSTEP_QOS if self.sync_mode == 'lockstep' else DAC_QOS, bus)
         self.create_service(SetBool, '~/run', self.clock.on_run)
-        self.health.status(0, 'ready' if start['autostart'] else 'ready, waiting for run')
+        self.health.summary(0, 'ready' if start['autostart'] else 'ready, waiting for run')
         self.get_logger().info('plant ready: %s mode at %g Hz, optics %s'
                                % (self.sync_mode, self.rate_hz,
                                   'on' if self.optics else 'not installed'))

@@ -39,8 +39,9 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
+from fiber_align.control.trajectory import stamp_to_s
 from fiber_align.graph.registry import ARRAY_AXES, ARRAY_POWERS, STATION_AXES
-from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, stamp_to_s, subscription
+from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import Health, OK
 from fiber_align.nodes.ros.params import declare, declare_graph_values, flatten_defaults
 from fiber_align.nodes.ros.params import node_defaults, PRIORITY
@@ -99,7 +100,7 @@ class SimulatedOpticsNode(Node):
         self.n = 0
         # one message per topic: the DDS copy is written off this thread, after the loop
         self._msgs = [Float64() for _ in self.pubs]
-        self.health.status(OK, 'ready')
+        self.health.summary(OK, 'ready')
         self.get_logger().info('%s optics ready (%s)' % (self.link_name, g['sync_mode']))
 
     # -- the links ----------------------------------------------------------------------

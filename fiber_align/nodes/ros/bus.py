@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-In-process delivery between the nodes of one process, and message stamps.
+In-process delivery between the nodes of one process.
 
 :class:`LocalBus` stands in for rclcpp's intra-process communication, which rclpy (a pip
 install of ROS 2) lacks: messages between the nodes of ``control_graph`` go by a direct
@@ -15,17 +15,14 @@ class LocalBus:
     """
     In-process delivery between the nodes of one process (the composed graph).
 
-    ``rclpy`` has no intra-process transport: without this, a message between two nodes
-    of one process is serialised, handed to DDS and delivered back through the executor.
-    A node built with a bus publishes through :class:`Pub`, which calls the in-process
-    subscribers' callbacks directly, in the order they subscribed, and then hands the
-    message to DDS (so outside subscribers, the recorder first, still receive every one).
-    A topic is delivered locally when a node of the process publishes it
-    (:meth:`provide`, before the nodes are built); its in-process readers then create no
-    DDS subscription, so an outside publisher on that topic is not heard by them (one
-    writer per control topic). Topics are keyed by their fully qualified names
-    (:meth:`key`), so the nodes of one process may live in several namespaces (the rig's
-    axes and its optics); remapping is not supported in a composed process.
+    A node built with a bus publishes through :class:`Pub`: the in-process subscribers'
+    callbacks first, in the order they subscribed, then DDS (outside subscribers, the
+    recorder first, still receive every message). A topic is delivered locally when a node
+    of the process publishes it (:meth:`provide`, before the nodes are built); its
+    in-process readers then create no DDS subscription (one writer per control topic).
+    Topics are keyed by their fully qualified names (:meth:`key`), so the nodes of one
+    process may live in several namespaces; remapping is not supported in a composed
+    process.
     """
 
     def __init__(self, topics=()):
@@ -294,15 +291,3 @@ def unsubscribe(node, sub):
         sub.destroy()
     elif sub is not None:
         node.destroy_subscription(sub)
-
-
-def stamp_to_s(stamp):
-    """Return a builtin_interfaces/Time as float seconds."""
-    return stamp.sec + 1e-9 * stamp.nanosec
-
-
-def s_to_stamp(t_s):
-    """Return float seconds as a builtin_interfaces/Time (nanosecond exact for t >= 0)."""
-    from builtin_interfaces.msg import Time
-    ns = int(round(t_s * 1e9))
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)

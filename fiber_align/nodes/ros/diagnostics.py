@@ -2,13 +2,10 @@
 """
 A node's health on ``/diagnostics`` (diagnostic_msgs), with the status levels.
 
-:class:`Health` is the stand-in for ``diagnostic_updater.Updater`` (diagnostic_updater is
-not in a pip install of ROS 2), with its shape: tasks added by ``add(name, fn)``, each
-``fn(stat)`` filling a :class:`StatusWrapper` (the stand-in for
-``diagnostic_updater.DiagnosticStatusWrapper``: ``summary(level, message)``,
-``add(key, value)``), and ``force_update()``; its own status is set by
-``summary(level, message)`` too. Code written against that shape moves to the real
-updater when it is available.
+:class:`Health` is the stand-in for ``diagnostic_updater.Updater`` (not in a pip install
+of ROS 2), with its shape: ``add(name, fn)`` tasks, each ``fn(stat)`` filling a
+:class:`StatusWrapper` (``summary(level, message)``, ``add(key, value)``), the node's own
+``summary(level, message)`` and ``force_update()``; swap it for the updater when installed.
 """
 
 import time
@@ -109,18 +106,13 @@ class Health:
     """
     Publish the node's health on ``/diagnostics``: the stand-in for ``diagnostic_updater``.
 
-    The shape of ``diagnostic_updater.Updater``: :meth:`add` (``add(name, fn)``, a task
-    ``fn(stat)`` filling a :class:`StatusWrapper`), :meth:`summary` (the node's own
-    level and message), :meth:`force_update`; swap it for the real updater when that is
-    installed. Each report is one DiagnosticArray: the node's own DiagnosticStatus,
-    named after the node's fully qualified name, then one per task, named
-    ``<node>: <task>`` as the updater names them. ``warn``/``error``
-    latch their level for ``hold_s`` seconds (wall time) so a short event is seen by
-    every subscriber; ``condition`` sets a standing WARN (a protection turned off) that
-    lasts until cleared; ``set_values`` adds key/value pairs (units in the key names).
-    Every :attr:`ENDPOINT_EVERY` periodic reports it also looks for publishers of
-    another type on the node's subscribed topics (their messages never arrive): a
-    standing WARN naming them, and one log line each time the set changes.
+    The updater's shape (module docstring). Each report is one DiagnosticArray: the node's
+    own status, named after its fully qualified name, then one per task, named ``<node>:
+    <task>``. ``warn``/``error`` latch their level for ``hold_s`` s (wall) so a short event
+    is seen by every subscriber; ``condition`` sets a standing WARN until cleared;
+    ``set_values`` adds key/value pairs (units in the key names). Every
+    :attr:`ENDPOINT_EVERY` reports it looks for publishers of another type on the node's
+    subscribed topics (their messages never arrive): a standing WARN naming them.
     """
 
     #: the condition key of the publishers of a wrong type
@@ -182,9 +174,6 @@ class Health:
         self._base_level, self._base_message = level, message
         if level >= self._level:
             self._until = 0.0
-
-    #: the name the nodes used before :meth:`summary` (the same call)
-    status = summary
 
     def add(self, name, fn=None):
         """
@@ -394,6 +383,4 @@ def endpoint_node_name(info):
 
 
 def _fmt(v):
-    if isinstance(v, float):
-        return repr(v)
-    return str(v)
+    return repr(v) if isinstance(v, float) else str(v)

@@ -15,7 +15,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 SAMPLE_DEPTH = 5000
 
 
-def _profile(depth, reliable, latched):
+def profile(depth, reliable, latched):
+    """Return a KEEP_LAST profile ``depth`` deep, reliable or best effort, latched or volatile."""
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
                       reliability=ReliabilityPolicy.RELIABLE if reliable
                       else ReliabilityPolicy.BEST_EFFORT,
@@ -26,14 +27,14 @@ def _profile(depth, reliable, latched):
 #: Lockstep per-sample publishers: reliable, :data:`SAMPLE_DEPTH` deep, transient local,
 #: so a reader that matched the writer a moment after a sample was published
 #: (multi-process lockstep start-up) still receives it.
-CONTROL_QOS = _profile(SAMPLE_DEPTH, True, True)
+CONTROL_QOS = profile(SAMPLE_DEPTH, True, True)
 #: Realtime per-sample publishers: reliable and as deep (a matched reader that fell
 #: behind catches up from the writer's history), but volatile: a reader that joins
 #: (``ros2 topic echo``, a plot, the live view) sees the present, not seconds of replay,
 #: and the writer does not send its whole history to it from the control thread. A
 #: recorder that must hold every sample is waited for before the plant's clock starts
 #: (``simulated_actuator`` ``start_after_readers``).
-LIVE_QOS = _profile(SAMPLE_DEPTH, True, False)
+LIVE_QOS = profile(SAMPLE_DEPTH, True, False)
 #: Lockstep readers of the per-sample topics: index pairing needs every message,
 #: including one published before the match completed.
 LOCKSTEP_QOS = CONTROL_QOS
@@ -41,7 +42,7 @@ LOCKSTEP_QOS = CONTROL_QOS
 #: recorder loses no tick (rclpy's TimeSource subscribes best effort: it matches).
 CLOCK_QOS = CONTROL_QOS
 #: ``/diagnostics`` and other low-rate reports: reliable, volatile, depth 10.
-DIAG_QOS = _profile(10, True, False)
+DIAG_QOS = profile(10, True, False)
 #: A lifecycle node's ``~/transition_event`` (rcl's publisher: reliable, volatile, depth
 #: 10): the sequencers read every transition of their drivers.
 TRANSITION_EVENT_QOS = DIAG_QOS
@@ -49,19 +50,19 @@ TRANSITION_EVENT_QOS = DIAG_QOS
 #: so a node that fell behind skips stale samples. Best effort, as ROS's sensor-data
 #: profile (a reliable reader would hold every newer sample behind one lost on the way);
 #: volatile. Matches the reliable publishers.
-REALTIME_QOS = _profile(1, False, False)
+REALTIME_QOS = profile(1, False, False)
 #: The realtime simulated plant's ``drive_voltage`` reader: the DAC it stands for sees
 #: every value the driver wrote, so after a stall it can replay the ones written
 #: meanwhile (:mod:`fiber_align.plant.dac`); as :data:`REALTIME_QOS`, but deep.
-DAC_QOS = _profile(SAMPLE_DEPTH, False, False)
+DAC_QOS = profile(SAMPLE_DEPTH, False, False)
 #: State topics published on change only (``drive_held``, ``alignment_state``, the
 #: realtime ``reference``): a late joiner (a restarted node) gets the present state.
-LATCHED_QOS = _profile(1, True, True)
+LATCHED_QOS = profile(1, True, True)
 REFERENCE_LATCHED_QOS = LATCHED_QOS
 STATE_QOS = LATCHED_QOS
 #: The user's ``setpoint``: reliable, volatile, deep (every setpoint is checked, so each
 #: bad one is reported); a default rclpy or ``ros2 topic pub`` publisher matches it.
-SETPOINT_QOS = _profile(SAMPLE_DEPTH, True, False)
+SETPOINT_QOS = profile(SAMPLE_DEPTH, True, False)
 
 
 def sample_pub_qos(lockstep):

@@ -17,6 +17,7 @@ from rclpy.exceptions import ParameterException
 
 from fiber_align import lifeline
 from fiber_align.config import ConfigError
+from fiber_align.lifeline import StopFlag
 from fiber_align.nodes.ros.scheduling import (
     CpuLatencyRequest, node_priority, set_realtime_priority)
 from fiber_align.nodes.ros.teardown import drain, finish, say
@@ -52,54 +53,6 @@ def make_executor(realtime=False, threads=1):
 
 #: Errors of a node's construction that are bad input: one line, exit code 2.
 NODE_ERRORS = (ConfigError, ParameterException, ValueError, TypeError, KeyError)
-
-
-class StopFlag:
-    """
-    Set by a signal handler, read by a loop: a plain attribute, no lock.
-
-    A handler runs between two bytecodes of whatever it interrupted; an
-    ``threading.Event.set`` there takes the event's non-reentrant lock, so a second
-    signal arriving inside the first handler would deadlock the process.
-    """
-
-    __slots__ = ('_set', 'again')
-
-    def __init__(self):
-        """Start unset."""
-        self._set = False
-        #: the number of a signal that came after the flag was set (0: none)
-        self.again = 0
-
-    def set(self):
-        """Set the flag (safe in a signal handler, any number of times, nested)."""
-        self._set = True
-
-    def note(self, signum):
-        """Set the flag for signal ``signum``; one after the first is kept in ``again``."""
-        if self._set:
-            self.again = int(signum)
-        self._set = True
-
-    def exit_code(self, code=0):
-        """
-        Return ``code``, or ``128 + signal`` when a second signal came during the stop.
-
-        The first SIGINT or SIGTERM is the ordinary request to stop: the node stops in
-        order and exits ``code`` (0: ``ros2 launch`` reports it finished cleanly). A
-        second one while stopping does not cut the stop short (the recorder still
-        finalises its bag) but is reported the shell's way, as a process ended by that
-        signal: 130 for SIGINT, 143 for SIGTERM.
-        """
-        return 128 + self.again if self.again else code
-
-    def is_set(self):
-        """Return True once set."""
-        return self._set
-
-    def clear(self):
-        """Unset the flag."""
-        self._set = False
 
 
 def init(args=None):

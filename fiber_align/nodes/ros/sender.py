@@ -2,28 +2,12 @@
 """
 DDS publishes of a realtime process, made off its control thread (:class:`Sender`).
 
-Fast DDS holds a participant-wide lock while it builds the send resources of a newly
-discovered participant, and for a shared-memory port that existed before it sleeps in
-that lock (``port_wait_timeout_ms``, a third of a second). Every ``ros2`` command is a
-new participant. rclpy's ``publish`` keeps the GIL while it waits for that lock, so a
-publish on the control thread stopped the whole process for the length of that sleep.
-Here the control thread only converts the message to its C structure (rclpy's own
-conversion, a few microseconds, no DDS lock) and queues it; one thread of the process
-hands it to ``rcl_publish`` called by ``ctypes``, which releases the GIL for the length
-of the call, so a publish that waits holds up nobody but that thread. (Not
-``rcl_publish_serialized_message`` of ``serialize_message``'s bytes: those carry the
-middleware's size estimate, 4 bytes too long for a JointState, which strict CDR readers
-such as rosbags refuse.)
-
-A node's log lines take the same way (:class:`QueuedLogger`): rcl's ``/rosout`` handler
-publishes each line to DDS inside ``rcutils_log``, under the GIL when rclpy calls it;
-the sender thread calls ``rcutils_log`` by ``ctypes`` instead, in the FIFO's order.
-
-The process's listing of the graph's topics (each node's ``/diagnostics`` check for
-publishers of a wrong type) is the sender thread's too (:meth:`Sender.watch_graph`): one
-``rcl_get_topic_names_and_types`` per period for all the nodes of the process, without
-the GIL, instead of one per node on the control thread (a listing takes up to a
-millisecond or two on a busy graph, and rclpy's holds the GIL for it).
+The control thread converts a message to its C structure and queues it; one thread of the
+process calls ``rcl_publish`` by ``ctypes`` (the GIL released), so a publish that waits in
+Fast DDS holds up nobody but that thread. The nodes' log lines (:class:`QueuedLogger`)
+and the process's listing of the graph's topics (:meth:`Sender.watch_graph`) take the
+same thread. Why, and what was measured: docs/realtime.md ("The fix: the control thread
+does not call DDS").
 """
 
 import collections

@@ -12,7 +12,7 @@ dropped them, and the lockstep plant waited for that drive forever (a clean-clon
 
 A realtime driver activated again does not count its inactive time as a loss of input
 (its watchdog tripped at once when its timer ran before the first new command: a
-clean-clone run of ``test_hardware_driver_node.py`` with two CPU hogs, 2026-11-30).
+clean-clone run of ``test_nodes_actuator_driver_mdt693b.py`` with two CPU hogs, 2026-11-30).
 """
 
 import time
@@ -20,7 +20,7 @@ import time
 import pytest
 
 from fiber_align.nodes.actuator_driver import ActuatorDriverNode
-from test_nodes_parameters import make
+from test_nodes_ros_params import make
 
 pytestmark = pytest.mark.ros
 

@@ -22,7 +22,7 @@ from fiber_align.graph.params import GraphError
 from fiber_align.simulation import array_scenarios as sc
 from fiber_align.simulation import harness as hs
 from procs import run_bounded
-from test_nodes_graph import CONTROL, setup_py_nodes
+from test_graph_description import CONTROL, setup_py_nodes
 
 
 def test_composed_array_is_one_process_hosting_three_axes_the_optics_and_the_sequencer():

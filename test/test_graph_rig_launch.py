@@ -12,25 +12,15 @@ bounded; the launch is stopped by its pid and group.
 
 import json
 import signal
-import time
 
 import pytest
 
+from procs import wait_log
 from test_ros2_cli import ros2, ros2_env, spawn, stop_launch  # noqa: F401
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 NS = 'rigl'
-
-
-def _wait_log(log, text, seconds, proc):
-    """Wait (bounded, s) until ``text`` is in the log or the launch exited."""
-    end = time.monotonic() + seconds
-    while time.monotonic() < end and proc.poll() is None:
-        if text in log.read_text(errors='replace'):
-            return True
-        time.sleep(0.1)
-    return text in log.read_text(errors='replace')
 
 
 def launch_align_stop(env, log, args, ns, tracking_s=20.0, stop_s=10.0):
@@ -42,13 +32,13 @@ def launch_align_stop(env, log, args, ns, tracking_s=20.0, stop_s=10.0):
     """
     proc = spawn(env, ['ros2', 'launch', 'fiber_align', 'fiber_align.launch.py'] + args, log)
     try:
-        assert _wait_log(log, 'startup done', 60.0, proc), log.read_text()[-4000:]
-        assert _wait_log(log, 'sample clock started', 30.0, proc), log.read_text()[-4000:]
+        assert wait_log(log, 'startup done', 60.0, proc), log.read_text()[-4000:]
+        assert wait_log(log, 'sample clock started', 30.0, proc), log.read_text()[-4000:]
         # TRACKING needs every node: each axis's loop, the optics, the sequencer
         rc, out = ros2(env, 'service', 'call', '/%s/align' % ns, 'std_srvs/srv/Trigger',
                        timeout=30.0)
         assert rc == 0 and 'success=True' in out, out
-        assert _wait_log(log, 'state TRACKING', tracking_s, proc), log.read_text()[-4000:]
+        assert wait_log(log, 'state TRACKING', tracking_s, proc), log.read_text()[-4000:]
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=stop_s) == 0
         text = log.read_text(errors='replace')

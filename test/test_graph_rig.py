@@ -10,7 +10,7 @@ import yaml
 from fiber_align.graph import rig as graph_rig
 from fiber_align.graph.params import GraphError
 from fiber_align.simulation import alignment2d_scenarios as a2
-from test_nodes_graph import CONTROL, setup_py_nodes
+from test_graph_description import CONTROL, setup_py_nodes
 
 
 @pytest.mark.ros  # starts a process

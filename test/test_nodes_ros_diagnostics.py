@@ -191,7 +191,7 @@ def test_a_task_object_and_a_failing_task():
 def test_status_is_the_old_name_of_summary():
     node = FakeNode([], [], {})
     health = Health(node)
-    health.status(WARN, 'limits off')
+    health.summary(WARN, 'limits off')
     health.publish()
     st = node.published[-1].status
     assert len(st) == 1 and st[0].level == bytes([WARN]) and st[0].message == 'limits off'

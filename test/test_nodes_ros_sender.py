@@ -262,7 +262,7 @@ def test_log_lines_go_through_the_thread_to_rosout_with_the_callers_place(node):
     m = mine()[0]
     assert m.level == 30 and m.name == 'sender_test'
     assert m.function == ('test_log_lines_go_through_the_thread_to_rosout_with_the_callers'
-                          '_place') and m.file.endswith('test_nodes_sender.py')
+                          '_place') and m.file.endswith('test_nodes_ros_sender.py')
     with open(__file__, encoding='utf-8') as f:
         src = f.read().splitlines()
     assert m.line == next(i + 1 for i, t in enumerate(src) if "warn('queued %d'" in t)

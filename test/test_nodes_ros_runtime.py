@@ -16,7 +16,7 @@ pytestmark = pytest.mark.ros
 #: holds its lock: at ``notify_all``): as a parent-death SIGTERM that comes twice.
 CHILD = textwrap.dedent('''
     import os, signal, sys, threading
-    from fiber_align.nodes.ros.runtime import StopFlag
+    from fiber_align.lifeline import StopFlag
     stop = threading.Event() if sys.argv[1] == 'event' else StopFlag()
     inside = {'event': 'notify_all', 'flag': 'set'}[sys.argv[1]]
     fired = []
@@ -57,7 +57,7 @@ def test_the_harness_reproduces_the_deadlock_of_an_event():
 #: with its exit code and a line that names the stall.
 HANGING = textwrap.dedent('''
     import signal, sys, threading, time
-    from fiber_align.nodes.ros.runtime import StopFlag
+    from fiber_align.lifeline import StopFlag
     from fiber_align.nodes.ros.teardown import finish
 
     class Node:
@@ -98,7 +98,7 @@ def test_a_teardown_that_hangs_ends_the_process_with_its_code(how, code):
 #: report and the teardown guard's line meet a broken pipe.
 READER_GONE = textwrap.dedent('''
     import signal, sys, threading
-    from fiber_align.nodes.ros.runtime import StopFlag
+    from fiber_align.lifeline import StopFlag
     from fiber_align.nodes.ros.teardown import finish
 
     class Node:

@@ -21,7 +21,7 @@ from fiber_align.graph import station as gs
 from fiber_align.graph.params import GraphError
 from fiber_align.simulation import station_scenarios as sc
 from procs import run_bounded
-from test_nodes_graph import CONTROL, setup_py_nodes
+from test_graph_description import CONTROL, setup_py_nodes
 
 
 def test_composed_station_is_one_process_hosting_four_axes_the_optics_and_the_sequencer():
@@ -67,7 +67,7 @@ def test_record_hosts_the_recorder_in_the_composed_process_else_the_clock_waits(
         <= local and '/bench2/optical_power' in local
     rec = g.node_params('bag_recorder')
     assert rec['output'] == str(tmp_path / 'bag')
-    assert 'out/y/setpoint' in rec['topics'] and 'optical_power' in rec['topics']
+    assert 'out/y/reference' in rec['topics'] and 'optical_power' in rec['topics']
     assert not g.node_params('in/y/simulated_actuator').get('start_after_reader')
     g = gs.build_station(record=str(tmp_path / 'bag'), namespace='bench2', composed=False)
     assert g.processes[-1].executable == 'bag_recorder'

@@ -24,10 +24,19 @@ from std_srvs.srv import SetBool, Trigger  # noqa: E402
 
 from fiber_align.simulation import alignment_bench as ab  # noqa: E402
 from fiber_align.alignment import sequencer as sq  # noqa: E402
-from fiber_align.nodes.ros.bus import s_to_stamp, stamp_to_s  # noqa: E402
+from fiber_align.control.trajectory import stamp_to_s  # noqa: E402
 from fiber_align.nodes.ros.qos import CONTROL_QOS  # noqa: E402
 
 pytestmark = pytest.mark.ros
+
+
+def s_to_stamp(t_s):
+    """Return float seconds as a builtin_interfaces/Time (nanosecond exact for t >= 0)."""
+    from builtin_interfaces.msg import Time
+    ns = int(round(t_s * 1e9))
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
 SLOT = 30e-6
 PERIOD = 1e-3
 

@@ -14,7 +14,7 @@ import math
 
 import pytest
 
-from procs import nodes_on_executor, spin_until
+from procs import joint_state, nodes_on_executor, spin_until
 
 import rclpy  # noqa: E402, F401 - a hard dependency of the node tests
 
@@ -30,10 +30,6 @@ from fiber_align.plant import station_optics as so  # noqa: E402
 
 pytestmark = pytest.mark.ros
 LOCKSTEP = [Parameter('sync_mode', value='lockstep')]
-
-
-def _js(*position):
-    return JointState(name=['bimorph_tip'], position=list(position))
 
 
 @pytest.fixture()
@@ -56,9 +52,9 @@ def test_bad_tip_positions_give_nan_readings_and_do_not_poison_the_detector(stat
     assert spin_until(ex, lambda: all(p.get_subscription_count() for p in pub), 10.0)
     good = (40e-6, 25e-6, 22e-6, 41e-6)
     for first in (math.nan, None, good[0]):
-        pub[0].publish(_js() if first is None else _js(first))
+        pub[0].publish(joint_state() if first is None else joint_state(first))
         for p, v in zip(pub[1:], good[1:]):
-            p.publish(_js(v))
+            p.publish(joint_state(v))
     assert spin_until(ex, lambda: len(got) == 3, 10.0), got
     assert math.isnan(got[0]) and math.isnan(got[1])
     # the third reading is the offline link's first: the bad ones never reached it
@@ -78,9 +74,9 @@ def test_sequencer_answers_every_sample_refuses_read_only_and_align_while_down(s
     assert spin_until(ex, lambda: all(p.get_subscription_count() for p in pub.values()),
                       10.0)
     for x, p in ((None, 1e-10), (32.5e-6, math.nan), (math.inf, -1.0), (32.5e-6, 1e-10)):
-        pub['in/x/displacement'].publish(_js() if x is None else _js(x))
+        pub['in/x/displacement'].publish(joint_state() if x is None else joint_state(x))
         for a in AXES[1:]:
-            pub[a + '/displacement'].publish(_js(32.5e-6))
+            pub[a + '/displacement'].publish(joint_state(32.5e-6))
         pub['optical_power'].publish(Float64(data=p))
     assert spin_until(ex, lambda: all(len(v) == 4 for v in sp.values()), 10.0), sp
     assert seq.n == 4 and seq.seq.state == 'IDLE'

@@ -12,7 +12,7 @@ import math
 
 import pytest
 
-from procs import nodes_on_executor, spin_until
+from procs import joint_state, nodes_on_executor, spin_until
 
 import rclpy  # noqa: E402, F401 - a hard dependency of the node tests
 
@@ -26,10 +26,6 @@ from fiber_align.plant import optics2d as o2  # noqa: E402
 
 pytestmark = pytest.mark.ros
 LOCKSTEP = [Parameter('sync_mode', value='lockstep')]
-
-
-def _js(*position):
-    return JointState(name=['bimorph_tip'], position=list(position))
 
 
 @pytest.fixture()
@@ -54,8 +50,8 @@ def test_bad_tip_positions_give_nan_readings_and_do_not_poison_the_detector(rig)
                       10.0)
     samples = [(math.nan, 30e-6), (None, 30e-6), (31e-6, 29e-6)]
     for x, y in samples:
-        pub['x'].publish(_js() if x is None else _js(x))
-        pub['y'].publish(_js(y))
+        pub['x'].publish(joint_state() if x is None else joint_state(x))
+        pub['y'].publish(joint_state(y))
     assert spin_until(ex, lambda: len(got) == 3, 10.0), got
     assert math.isnan(got[0]) and math.isnan(got[1])
     # the third reading is the offline link's first: the bad ones never reached it
@@ -75,8 +71,8 @@ def test_sequencer_answers_every_sample_also_empty_and_nan_ones(rig):
     assert spin_until(ex, lambda: all(p.get_subscription_count() for p in pub.values()),
                       10.0)
     for x, p in ((None, 1e-10), (0.0, math.nan), (math.inf, -1.0), (0.0, 1e-10)):
-        pub['x/displacement'].publish(_js() if x is None else _js(x))
-        pub['y/displacement'].publish(_js(0.0))
+        pub['x/displacement'].publish(joint_state() if x is None else joint_state(x))
+        pub['y/displacement'].publish(joint_state(0.0))
         pub['optical_power'].publish(Float64(data=p))
     assert spin_until(ex, lambda: len(sp['x']) == 4 and len(sp['y']) == 4, 10.0), sp
     assert seq.n == 4 and seq.seq.state == 'IDLE'

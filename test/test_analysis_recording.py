@@ -1,9 +1,9 @@
 # SPDX-License-Identifier: Apache-2.0
-"""The recorder catch-up rule (``nodes._recording``) on hand-made /diagnostics reports."""
+"""The recorder catch-up rule (``analysis.recording``) on hand-made /diagnostics reports."""
 
 from types import SimpleNamespace
 
-from fiber_align.nodes._recording import diag_entry, recorder_missing, recorder_short
+from fiber_align.analysis.recording import diag_entry, recorder_missing, recorder_short
 
 
 def _report(t, **values):

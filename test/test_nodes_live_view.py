@@ -41,7 +41,7 @@ from fiber_align.analysis import liveview as lv
 from fiber_align.analysis import powermap
 from fiber_align.graph import description as gd
 from fiber_align.graph.live import graph_published, with_live
-from procs import stop
+from procs import stop, wait_log
 
 pytestmark = pytest.mark.ros
 
@@ -56,16 +56,6 @@ def free_port():
     with socket.socket() as s:
         s.bind(('127.0.0.1', 0))
         return s.getsockname()[1]
-
-
-def wait_log(log, text, seconds, proc):
-    """Wait (bounded, s) until ``text`` is in the log or ``proc`` exited."""
-    end = time.monotonic() + seconds
-    while time.monotonic() < end and proc.poll() is None:
-        if text in log.read_text(errors='replace'):
-            return True
-        time.sleep(0.1)
-    return text in log.read_text(errors='replace')
 
 
 @pytest.fixture(scope='module')
