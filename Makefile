@@ -17,7 +17,7 @@ venv: $(STAMP) ros2-tools
 $(STAMP): setup.py setup.cfg package.xml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[ros,test,bench,hardware,live]'
+	$(PY) -m pip install --quiet -e '.[ros,test,bench,hardware,live,records]'
 	touch $(STAMP)
 
 ros2-tools: $(STAMP)

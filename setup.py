@@ -14,6 +14,11 @@ LIVE = ['foxglove-sdk>=0.30', 'websockets']
 # The real devices (docs/hardware.md): the MDT693B piezo amplifier over pyserial, the PM100
 # power meter over pyvisa with the pure-Python pyvisa-py backend.
 HARDWARE = ['pyserial', 'pyvisa', 'pyvisa-py']
+# The run catalogue on PostgreSQL (docs/records.md): psycopg 3 with its bundled libpq.
+RECORDS = ['psycopg[binary]>=3.1']
+# The tests' own PostgreSQL server where the machine has no server package: pgserver's
+# wheels carry initdb, pg_ctl and postgres (Linux, CPython 3.9-3.12).
+PG_SERVER = ['pgserver; platform_system == "Linux" and python_version < "3.13"']
 
 NODES = [
     'simulated_actuator',
@@ -69,10 +74,11 @@ setup(
             'colcon-core',
             'colcon-ros',
             'mdt69x',           # an outside MDT693B client, run against the emulator
-        ] + HARDWARE + LIVE,
+        ] + HARDWARE + LIVE + RECORDS + PG_SERVER,
         'bench': ['scikit-fuzzy', 'pyswarms', 'networkx'],
         'hardware': HARDWARE,
         'live': LIVE,
+        'records': RECORDS,
     },
     zip_safe=True,
     maintainer='fiber_align maintainers',

@@ -17,7 +17,7 @@ from fiber_align.analysis import bag_repair, cli as analysis_cli
 from fiber_align.config import ConfigError
 from fiber_align.design import cli as design_cli
 from fiber_align.hardware import cli as hardware_cli
-from fiber_align.tools import identify_cli, simulate_cli
+from fiber_align.tools import identify_cli, runs_cli, simulate_cli
 from fiber_align.tools.common import UsageError
 from fiber_align.tools.paths import check_args, os_error_line
 
@@ -29,6 +29,7 @@ COMMAND_MODULES = (
     analysis_cli,        # analyze
     bag_repair,          # bag-repair
     hardware_cli,        # emulate
+    runs_cli,            # runs (the run catalogue)
 )
 
 

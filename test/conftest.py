@@ -8,6 +8,7 @@ import shutil
 import subprocess
 import sys
 
+from pg_cluster import find_bindir, PgServer
 import pytest
 
 # Discovery stays on this machine; no multicast leaves it.
@@ -192,3 +193,33 @@ def ctx():
     for n in nodes:
         n.destroy_node()
     rclpy.shutdown(context=context)
+
+
+# --- A PostgreSQL server of the tests' own (test/pg_cluster.py), once per session. ---
+
+@pytest.fixture(scope='session')
+def pg_server():
+    """
+    Yield a running :class:`pg_cluster.PgServer`; stopped and removed after, also on failure.
+
+    It starts processes: a test that uses it is marked ``ros`` (and ``postgres``).
+    """
+    bindir = find_bindir()
+    if bindir is None:
+        pytest.fail('no PostgreSQL server binaries (initdb, pg_ctl): install the server '
+                    '(README: set-up), or set FIBER_ALIGN_PG_BINDIR')
+    server = PgServer(bindir)
+    try:
+        server.start()
+        yield server
+    finally:
+        server.remove()
+
+
+_DATABASES = itertools.count(1)
+
+
+@pytest.fixture
+def pg_url(pg_server):
+    """Return the URL of a new, empty database on the session's PostgreSQL server."""
+    return pg_server.create_database('t%d_%d' % (os.getpid(), next(_DATABASES)))

@@ -81,3 +81,9 @@ def test_cli_refuses_options_of_other_scenarios(capsys):
     assert 'do not apply' in capsys.readouterr().err
     assert cli.main(['simulate', '--scenario', 'array', '--plot', 'x.png']) != 0
     assert 'do not apply' in capsys.readouterr().err
+
+
+def test_cli_refuses_the_catalogue_it_does_not_fill(capsys, tmp_path):
+    db = str(tmp_path / 'runs.sqlite')
+    assert cli.main(['simulate', '--scenario', 'array', '--catalog', db]) != 0
+    assert '--catalog does not record --scenario array' in capsys.readouterr().err

@@ -10,7 +10,7 @@ from fiber_align.tools import paths
 
 ROOT = os.geteuid() == 0
 
-#: (sub-command, its other arguments ({tmp}: the test's folder, {file}: an existing
+#: (sub-command (and action), its other arguments ({tmp}: the test's folder, {file}: an existing
 #: file there), the path argument, its kind)
 ARGS = [
     ('design', [], '--config', 'in-config'),
@@ -29,6 +29,8 @@ ARGS = [
     ('bag-repair', [], 'BAG', 'in-any'),
     ('bag-repair', ['{file}'], '--out', 'new-dir'),
     ('emulate', [], '--link-dir', 'in-dir'),
+    ('runs export', [], '--csv', 'out-file'),
+    ('runs report', ['--usl-loss-db', '0.5'], '--out', 'out-dir'),
 ]
 
 
@@ -92,23 +94,29 @@ def test_bad_path_is_one_line_and_exit_2(tmp_path, capsys, cmd, other, name, kin
     """A bad path of each argument: exit 2, one line naming the argument and the path."""
     bad = _bad_values(kind, tmp_path)[case]
     (tmp_path / 'input').write_text('t,voltage_v,displacement_m\n')
-    argv = [cmd] + [a.format(tmp=tmp_path, file=tmp_path / 'input') for a in other]
+    argv = cmd.split() + [a.format(tmp=tmp_path, file=tmp_path / 'input') for a in other]
     argv += [bad] if name.isupper() else [name, bad]
     code = cli.main(argv)
     out = capsys.readouterr()
     lines = out.err.strip().splitlines()
     assert code == 2, (argv, out.err)
     assert len(lines) == 1 and 'Traceback' not in out.err, out.err
-    assert lines[0].startswith('fiber-align %s: error: %s %s' % (cmd, name, bad)), lines[0]
+    assert lines[0].startswith('fiber-align %s: error: %s %s' % (cmd.split()[0], name, bad)), \
+        lines[0]
     assert out.out == ''
 
 
 def test_every_path_argument_is_declared_and_tested():
     """Each sub-command's path arguments are declared (kinds known) and all in ARGS."""
-    parser = cli.build_parser()
-    sub = next(a for a in parser._actions if a.dest == 'command')
+    def commands(parser, dest, prefix=''):
+        sub = next(a for a in parser._actions if a.dest == dest)
+        for cmd, p in sub.choices.items():
+            if any(a.dest == 'action' for a in p._actions):     # a command with actions
+                yield from commands(p, 'action', cmd + ' ')
+            else:
+                yield prefix + cmd, p
     declared = set()
-    for cmd, p in sub.choices.items():
+    for cmd, p in commands(cli.build_parser(), 'command'):
         for name, kind in p.get_default('paths').items():
             assert kind in paths.KINDS
             assert any(paths.dest(name) == a.dest for a in p._actions), (cmd, name)

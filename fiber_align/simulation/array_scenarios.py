@@ -185,6 +185,9 @@ def run_cli(args):
     """Run ``fiber-align simulate --scenario array``; return an exit code (0: TRACKING)."""
     if getattr(args, 'plot', None) or getattr(args, 'csv', None):
         raise ValueError('--plot and --csv do not apply to --scenario array')
+    if getattr(args, 'on_result', None) is not None:
+        raise ValueError('--catalog does not record --scenario array yet (its figures are '
+                         'not the catalogue\'s columns)')
     rate = getattr(args, 'rate', None)
     res = run(args.scenario, seed=int(args.seed or 0),
               loop=args.loop if args.loop in ('composite', 'ideal') else 'composite',

@@ -390,9 +390,9 @@ def run_cli(args, run, plot=None, options=()):
     """
     Run ``fiber-align simulate --scenario S`` with a machine's ``run``; return an exit code.
 
-    Reads ``args.scenario``, ``args.seed``, ``args.json``, ``args.rate`` (Hz), ``args.loop``,
-    ``args.plot`` (when ``plot(res, path)`` is given) and the ``options`` of
-    :data:`CLI_OPTIONS` the machine takes. Exit code 0 when the sequencer ends TRACKING.
+    Reads ``args.scenario, seed, json, rate`` (Hz), ``loop``, ``plot`` (with ``plot(res,
+    path)``), the ``options`` of :data:`CLI_OPTIONS` the machine takes; ``args.on_result``
+    (the catalogue's hook) gets the result. Exit code 0 when the sequencer ends TRACKING.
     """
     kw = {key: getattr(args, attr) for attr, key in CLI_OPTIONS
           if attr in options and getattr(args, attr, None) is not None}
@@ -407,6 +407,7 @@ def run_cli(args, run, plot=None, options=()):
     if path:
         plot(res, path)
     clean = json_clean(res, drop=('trace',))
+    getattr(args, 'on_result', lambda result: None)(clean)
     if getattr(args, 'json', False):
         print(json.dumps(clean, indent=2, sort_keys=True))
     else:

@@ -11,6 +11,7 @@ from fiber_align.control.fuzzy import FuzzyInference
 from fiber_align.plant.actuator import KINDS as PLANTS
 from fiber_align.simulation import (alignment2d_scenarios, alignment_scenarios,
                                     array_scenarios, scenarios, simulate, station_scenarios)
+from fiber_align.tools import runs_cli
 from fiber_align.tools.common import UsageError
 
 
@@ -50,6 +51,7 @@ def register(sub):
                     help='slot (output core) position, m (default: random in the range)')
     al.add_argument('--drift', type=float, default=None, metavar='M_PER_S',
                     help='track: slot drift, m/s (default 1e-6)')
+    runs_cli.add_simulate_options(p)
     p.set_defaults(func=cmd_simulate, paths={'--model': 'in-config', '--plot': 'out-file',
                                              '--csv': 'out-file'})
     q = sub.add_parser('fuzzy-surface', help='the three fuzzy rule surfaces')
@@ -105,9 +107,16 @@ def cmd_simulate(args):
         if extra:
             raise UsageError('%s do not apply to --scenario %s'
                              % (', '.join(extra), args.scenario))
+    record = runs_cli.recorder(args)     # None without --catalog (or with none)
     if args.scenario in MACHINES:
         _check_alignment_args(args)
-        return MACHINES[args.scenario].run_cli(args)
+        if record is None:
+            return MACHINES[args.scenario].run_cli(args)
+        args.on_result, finish = record
+        try:
+            return MACHINES[args.scenario].run_cli(args)
+        finally:
+            finish()
     extra = [o for o, v in (('--loop', args.loop), ('--cycles', args.cycles),
                             ('--slot', args.slot), ('--drift', args.drift)) if v is not None]
     if extra:
