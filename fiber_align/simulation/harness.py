@@ -95,9 +95,7 @@ class Bench:
     ALIGN_MAX_S = 1.0
     #: how :func:`align_bench` reports the best point: one key per axis, or one key (a list)
     WHERE = 'target_m'
-    #: the trace's columns: what the sequencer saw and set, and the truth
-    FIELDS = ('t', 'p')
-    TRUTH = ('p_true', 'p_max')
+    FIELDS, TRUTH = ('t', 'p'), ('p_true', 'p_max')     # the trace's: seen and set; truth
 
     #: the machine's rig, ``RIG(kind, period_s, seed)``, and link, ``LINK.from_params(...)``
     RIG = LINK = None
