@@ -39,7 +39,11 @@ one MDT693B (x and y channels) and a PM100 (:mod:`fiber_align.graph.hardware_rig
 actuator graphs ``/<namespace>/in/x`` .. ``/<namespace>/out/y``, the chip's optics and the
 station sequencer, namespace ``station`` unless given; ``seed`` as ``fiber-align simulate
 --scenario station --seed``; ``record`` records the station's topics); call
-``/station/align`` to align.
+``/station/align`` to align. ``array:=true``: the fiber array (:mod:`fiber_align.graph.
+array`: ``/<namespace>/x``, ``y_left``, ``y_right``, the array's optics publishing the
+outer channels' ``optical_power`` and ``optical_power_n``, the array sequencer; namespace
+``array`` unless given; ``seed`` as ``fiber-align simulate --scenario array --seed``);
+call ``/array/align``.
 
 ``live:=true [live_port:=8765] [live_host:=127.0.0.1]`` (any of the graphs above): the
 Foxglove live view, a process of its own (:mod:`fiber_align.graph.live`, docs/live_view.md).

@@ -50,7 +50,7 @@ def main(args=None):
     try:
         if a.hardware:
             code = hardware.run(a)
-        elif a.rig or a.station:
+        elif a.rig or a.station or a.array:
             code = run_rig(a, graph(a)[0])
         else:
             code = Bringup(a, *graph(a)).run()
