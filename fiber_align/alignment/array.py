@@ -48,7 +48,7 @@ from fiber_align.alignment.driver_state import DriverState
 from fiber_align.alignment.hold import um
 from fiber_align.alignment.machine import check_params, dbm, Machine
 from fiber_align.alignment.multiaxis import MultiAxis
-from fiber_align.alignment.states import PEAKING, SEARCHING, TRACKING
+from fiber_align.alignment.states import PEAKING, TRACKING
 from fiber_align.alignment.visit import PointPeaking
 from fiber_align.config import load_params
 from fiber_align.plant import array_optics as ao
@@ -179,20 +179,7 @@ class ArrayMachine(MultiAxis, Machine, PointPeaking):
                                             self.p['nominal_x_m'] * 1e6,
                                             self.p['nominal_y_m'] * 1e6, dbm(self.threshold_w)))
 
-    def _false_light(self):
-        """Nothing lit around the first-light point: a noise spike; walk on (same path)."""
-        self._log('no light around the first-light point: noise, searching on')
-        self.state = SEARCHING
-        self.events.append((self._t, SEARCHING, 'resumed'))
-        self._phase, self._confirm, self._best = 'search', 0, (0.0, self.sp.copy())
-        if getattr(self, '_path', None) is None:     # it was lit at the start: no walk yet
-            self._path = self.search_path(self.sp)
-
     # ---- PEAKING: the joint pattern --------------------------------------------------
-    def _start_search(self):
-        MultiAxis._start_search(self)
-        self._path = None
-
     def _start_pattern(self, center, radius):
         """Visit the pattern of ``radius`` (m) around the actuators ``center`` (m)."""
         self._phase = 'pattern'
