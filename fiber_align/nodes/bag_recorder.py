@@ -9,12 +9,11 @@ with the publishers' QoS. In-process (hosted in ``control_graph`` on its
 :class:`~fiber_align.nodes.ros.bus.LocalBus`) a topic a node of the process publishes is
 taken from the bus as the message object and its CDR made here
 (:mod:`fiber_align.nodes.ros.cdr`); nothing of it goes through DDS. Lost messages,
-incompatible QoS, the finalised bag after any stop and the crash safety of the mcap chunks
-(``fiber-align bag-repair``): docs/ros_interface.md.
+incompatible QoS, the finalised bag after any stop or a full disk (``analysis.bag.guard``)
+and the crash safety of the mcap chunks (``fiber-align bag-repair``): docs/ros_interface.md.
 """
 
 from datetime import datetime
-import json
 import os
 import sys
 import time
@@ -25,7 +24,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from fiber_align import lifeline
 from fiber_align.analysis import bag as bagio
-from fiber_align.analysis.bag.guard import GuardedBag
+from fiber_align.analysis.bag.guard import GuardedBag, write_json
 from fiber_align.analysis.recording import STOPPED_EARLY
 from fiber_align.config import ConfigError
 from fiber_align.graph.ranges import RECORDER_RANGES
@@ -213,17 +212,14 @@ class BagRecorder(Node):
 
     def _diag_values(self):
         """Report counts, lost and incompatible-QoS events on ``/diagnostics``."""
-        bad = self.lost or self.incompatible
-        if self.bag.stopped:            # the graph runs on; its bag ends here
-            self.health.summary(ERROR, self.bag.stopped)
-            self.health.set_values(**{STOPPED_EARLY: self.bag.stopped})
-            bad = None
+        bad, stopped = self.lost or self.incompatible, self.bag.stopped
         slow = ['%s (%s)' % (r.topic, r.encode.fallback) for r in self.local.values()
                 if r.encode is not None and r.encode.fallback]
-        if bad is not None:
-            self.health.summary(WARN if bad else OK, 'lost %d message(s), %d incompatible '
-                                'QoS' % (self.lost, self.incompatible) if bad
-                                else 'recording %s' % self.output)
+        self.health.summary(ERROR if stopped else WARN if bad else OK, stopped or (
+            'lost %d message(s), %d incompatible QoS' % (self.lost, self.incompatible)
+            if bad else 'recording %s' % self.output))
+        if stopped:                     # a full disk: the graph runs on, its bag ends here
+            self.health.set_values(**{STOPPED_EARLY: stopped})
         if slow:
             # still every message, at rclpy's cost: worth knowing, not an error
             self.health.set_values(cdr_fallback='; '.join(slow))
@@ -251,20 +247,12 @@ class BagRecorder(Node):
         msg = ', '.join('%s: %d' % kv for kv in sorted(self.counts.items())) or 'no topics'
         self.get_logger().info('bag %s closed%s; messages per topic: %s' % (
             self.output, (' (%s)' % why) if why else '', msg))
-        if self.counts_file:
-            try:
-                self._write_counts()
-            except OSError as exc:      # the disk that stopped the recording
-                self.get_logger().warning('no recorder_counts.json: %s' % exc)
+        why = self.counts_file and write_json(self.output, {
+            'recorder_counts.json': self.counts,
+            'recorder_events.json': {'lost': self.lost, 'incompatible_qos': self.incompatible}})
+        if why:                         # the disk that stopped the recording
+            self.get_logger().warning('no recorder_counts.json: %s' % why)
         return self.counts
-
-    def _write_counts(self):
-        with open(os.path.join(self.output, 'recorder_counts.json'), 'w',
-                  encoding='utf-8') as f:
-            json.dump(self.counts, f, indent=1, sort_keys=True)
-        with open(os.path.join(self.output, 'recorder_events.json'), 'w',
-                  encoding='utf-8') as f:
-            json.dump({'lost': self.lost, 'incompatible_qos': self.incompatible}, f)
 
 
 class _Local:

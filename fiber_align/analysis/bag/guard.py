@@ -17,6 +17,7 @@ Other storages (sqlite3) are closed with the reserve released, without the cut.
 """
 
 import errno
+import json
 import os
 from pathlib import Path
 import sqlite3
@@ -82,6 +83,21 @@ class ExactFile:
     def close(self):
         """Close the file."""
         self.f.close()
+
+
+def write_json(directory, files):
+    """
+    Write ``{name: data}`` as JSON files into ``directory``; return None or why not.
+
+    The recorder's counts beside its bag: after a full disk they may not fit (one line).
+    """
+    try:
+        for name, data in files.items():
+            with open(os.path.join(str(directory), name), 'w', encoding='utf-8') as f:
+                json.dump(data, f, indent=1, sort_keys=True)
+    except OSError as exc:
+        return str(exc)
+    return None
 
 
 def _chunk_times(index):
