@@ -75,8 +75,9 @@ PLANT_RANGES = {
     'noise_rms_m': ('sensor noise (m RMS)', 0.0, 1e-3),
     'resolution_m': ('sensor resolution (m)', 0.0, 1e-3),
     'seed': ('sensor noise seed', 0, 2 ** 31 - 1),
-    'cycle_goal_missed_share': ('realtime: a run that misses more than this share of its '
-                                'periods is a WARN on /diagnostics (1); 0: no warning',
+    'cycle_goal_missed_share': ('realtime: a loop that misses more than this share of its '
+                                'periods in the last 10 s is a WARN on /diagnostics (1; '
+                                'periods the driver holds are not counted); 0: no warning',
                                 0.0, 1.0),
     'lockstep_timeout_s': ('lockstep: warn when no drive within this time (s)', 0.001,
                            3600.0),

@@ -29,15 +29,16 @@ missed cycles: its ``latency_stats()`` and ``cycle.*`` on ``/diagnostics``.
 """
 
 import sys
+import time
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64
+from std_msgs.msg import Bool, Float64
 from std_srvs.srv import SetBool
 
-from fiber_align.control.cycle import cycle_warning, CycleStats
+from fiber_align.control.cycle import cycle_warning, CycleStats, RecentShare
 from fiber_align.graph.ranges import PLANT_RANGES
 from fiber_align.graph.registry import NODES
 from fiber_align.nodes._plant_clock import PlantClock
@@ -46,7 +47,7 @@ from fiber_align.nodes.ros.diagnostics import Health
 from fiber_align.nodes.ros.params import check_parameters, declare, declare_graph_values
 from fiber_align.nodes.ros.params import declare_row
 from fiber_align.nodes.ros.params import flatten_defaults, node_defaults, PRIORITY
-from fiber_align.nodes.ros.qos import CLOCK_QOS, DAC_QOS, LOCKSTEP_QOS
+from fiber_align.nodes.ros.qos import CLOCK_QOS, DAC_QOS, LATCHED_QOS, LOCKSTEP_QOS
 from fiber_align.nodes.ros.qos import sample_pub_qos
 from fiber_align.nodes.ros.runtime import run_node
 from fiber_align.plant.actuator import KINDS, SimulatedActuator
@@ -127,6 +128,9 @@ class SimulatedActuatorNode(Node):
         if self.sync_mode == 'realtime':
             self.create_timer(diag_period, lambda: self.slack.submit(self._update_values),
                               clock=Clock(clock_type=ClockType.STEADY_TIME))
+            # the driver's hold: periods the loop is not meant to run are not missed
+            subscription(self, Bool, 'drive_held', self.clock.on_held, LATCHED_QOS, bus)
+            self.recent = RecentShare()     # the cycle WARN: the recent window's share
         subscription(self, Float64, 'drive_voltage', self.clock.on_drive,
                      LOCKSTEP_QOS if self.sync_mode == 'lockstep' else DAC_QOS, bus)
         self.create_service(SetBool, '~/run', self.clock.on_run)
@@ -194,8 +198,10 @@ class SimulatedActuatorNode(Node):
                 'lockstep_holds': c.holds}
         if self.sync_mode == 'realtime':
             stats = c.latency_stats()
-            vals.update(stats)
-            self.health.condition('cycles', cycle_warning(stats, self.cycle_goal),
+            recent = self.recent.update(time.monotonic(), stats['periods'],
+                                        stats['missed_cycles'])
+            vals.update(stats, recent_missed_share=recent['missed_share'])
+            self.health.condition('cycles', cycle_warning(recent, self.cycle_goal),
                                   publish=False)
         vals.update({'sent.displacement': self.n_disp, 'sent.optical_power': self.n_power,
                      'sent.clock': self.n_clock})
