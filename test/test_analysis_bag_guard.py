@@ -81,6 +81,7 @@ def test_a_full_disk_stops_the_recording_and_leaves_a_readable_bag(tmp_path, flu
         assert 'the disk is full at %s' % (fs / 'bag') in bag.stopped, bag.stopped
         assert '\n' not in bag.stopped and 'filesystem %s' % fs in bag.stopped
         assert not bag.write(conn, 0, _message(ts, 0))          # recording stopped
+        assert bag.close() is None                              # the caller closes it
         assert (fs / 'bag' / 'metadata.yaml').is_file()
         assert not (fs / 'bag' / '.reserve').exists()
         with Reader(fs / 'bag') as r:                           # no repair needed
@@ -92,7 +93,7 @@ def test_a_full_disk_stops_the_recording_and_leaves_a_readable_bag(tmp_path, flu
             (kept, written)
         print('%d of %d messages kept: %s' % (kept, written, bag.stopped))
         assert [t for _, t in rows] == list(range(1000, 1000 + kept))
-        assert '%d message(s)' % kept in bag.stopped
+        assert 'keeps the %d message(s)' % kept in bag.stopped
         with BagReader(str(fs / 'bag')) as br:                  # the package's reader too
             assert '/x' in br.all_topics
         assert os.statvfs(str(fs)).f_bavail >= 0

@@ -16,6 +16,7 @@ and the crash safety of the mcap chunks (``fiber-align bag-repair``): docs/ros_i
 from datetime import datetime
 import os
 import sys
+import threading
 import time
 
 import rclpy
@@ -83,7 +84,7 @@ class BagRecorder(Node):
                              storage_plugin=bagio.storage_plugin(storage))
         self.writer.open()
         self.bag = GuardedBag(self.writer)     # a full disk: the bag closed readable
-        self.closed = False
+        self.closed, self.finisher = False, None
         self.subs = {}
         self.conns = {}
         self.counts = {}
@@ -176,12 +177,19 @@ class BagRecorder(Node):
         """Stop recording after a failed write (a full disk): one line; the graph runs on."""
         if self.closed:
             return
+        self.closed = True              # no more writes; _finish closes the bag
         self.get_logger().error(self.bag.stopped)
         for sub in self.subs.values():
             if sub is not None:
                 self.destroy_subscription(sub)
         self.subs = {t: None for t in self.subs}
-        self.close()
+        for rec in self.local.values():
+            rec.destroy()
+        if self.bus is None:
+            return self._finish()
+        # the bag's summary is written off a composed process's control thread
+        self.finisher = threading.Thread(target=self._finish, name='bag_finish')
+        self.finisher.start()
 
     def _on_lost(self, topic):
         def cb(info):
@@ -236,11 +244,17 @@ class BagRecorder(Node):
 
     def close(self):
         """Finalise the bag (idempotent); log and return the message counts per topic."""
+        if self.finisher is not None:
+            self.finisher.join()
         if self.closed:
             return self.counts
         self.closed = True
         for rec in self.local.values():
             rec.destroy()
+        return self._finish()
+
+    def _finish(self):
+        """Close the bag, log the counts and write the counts files; return the counts."""
         why = self.bag.close()
         if self.bag.stopped:
             self.counts.update(self.bag.counts())   # the bag's: a cut chunk is not in it

@@ -199,27 +199,34 @@ class GuardedBag:
 
     # -- the stop ---------------------------------------------------------------------
     def _stop(self, exc):
-        """Stop recording after ``exc``: release the reserve, close the bag, say so once."""
+        """
+        Stop recording after ``exc``: release the reserve, say so in one line.
+
+        The caller closes the bag (:meth:`close`: its summary and ``metadata.yaml`` in the
+        released reserve) where it has the time: a composed process off its control thread.
+        """
         what = WHAT.get(getattr(exc, 'errno', None)) or (
             'the disk is full' if 'full' in str(exc) else 'a write failed')
-        why = self.close()
-        n = sum(self.writer.counts.values())
+        self._release()
         self.stopped = (
-            'recording stopped early: %s at %s (filesystem %s: %s); %s' % (
+            'recording stopped early: %s at %s (filesystem %s: %s); the bag keeps the %d '
+            'message(s) before it and is closed readable' % (
                 what, self.path, mount_point(self.path), getattr(exc, 'strerror', '') or exc,
-                ('the bag is closed, readable as it is, with the %d message(s) before it'
-                 % n) if why is None else 'the bag could not be closed (%s): run '
-                'fiber-align bag-repair %s' % (why, self.path)))
+                sum(self.writer.counts.values())))
+
+    def _release(self):
+        """Free the reserve (once)."""
+        try:
+            os.unlink(self.reserve)
+        except OSError:
+            pass
 
     def close(self):
         """Close the bag (idempotent): release the reserve first; return None or why not."""
         if self.closed:
             return None
         self.closed = True
-        try:
-            os.unlink(self.reserve)
-        except OSError:
-            pass
+        self._release()
         why = None
         for _ in range(2):      # a pending chunk that failed is cut off: then the summary
             try:
