@@ -323,7 +323,8 @@ def goals_missed(s, sync, missed_goal):
     Realtime: at most ``missed_goal`` of the cycles missed beyond the machine's floor
     (:func:`beyond_floor`; all of them without a floor; ``missed_goal`` <= 0: no such
     goal), no watchdog trip; both modes:
-    every message a node sent is in the bag (when recording).
+    every message a node sent is in the bag (when recording; a recording that stopped
+    early, its disk full, is one goal missed: its tail is not in the bag by design).
     """
     out = []
     rt = s.get('realtime', {})
@@ -338,7 +339,9 @@ def goals_missed(s, sync, missed_goal):
         if rt.get('watchdog_count'):
             out.append('%d watchdog trip(s)' % rt['watchdog_count'])
     rec = s.get('recorded')
-    if rec:
+    if s.get('recording_stopped_early'):
+        out.append('the bag ends early: recording stopped (the recorder\'s line above)')
+    elif rec:
         for node, counts in s.get('sent', {}).items():
             for topic, n in counts.items():
                 key = '/' + topic.lstrip('/')

@@ -18,7 +18,8 @@ import tempfile
 import time
 
 from fiber_align.analysis import run_summary as sm
-from fiber_align.analysis.recording import recorder_counts, recorder_short, recorder_short_full
+from fiber_align.analysis.recording import (recorder_counts, recorder_short, recorder_short_full,
+                                            recorder_stopped)
 from fiber_align.bringup import interrupt
 from fiber_align.bringup.children import Child, wait_all
 from fiber_align.bringup.floor import Floor
@@ -249,6 +250,11 @@ class Harness:
                 except BringupError:
                     pass
             time.sleep(0.1)   # in-flight messages reach their subscribers
+        stopped = recorder_stopped(self.obs.watch.by_status['latest']) if self.obs else None
+        if stopped:                     # a full disk: the run went on, its bag ends early
+            s['recording_stopped_early'] = stopped
+            if self.quiet:              # else the recorder's own line was relayed
+                print('bringup: %s' % stopped, flush=True)
         if rec and rec[0].alive() and self.obs is not None:
             # the graph is held: the recorder works through its backlog before the
             # publishers go (a writer that exits takes its undelivered samples with it)

@@ -117,7 +117,8 @@ def run_rig(a, g):
         s = h.stop(code == 130)
         summary['children'] = {n: c['exit_code'] for n, c in s.get('children', {}).items()}
         summary['processes'] = s.get('processes', {})
-        for k in ('recorded', 'recorder_short', 'recorder_catch_up_s'):
+        for k in ('recorded', 'recorder_short', 'recorder_catch_up_s',
+                  'recording_stopped_early'):
             if k in s:
                 summary[k] = s[k]
         if a.trace and h.obs is not None:

@@ -23,6 +23,7 @@ from fiber_align.graph.live import check_endpoint, live_settings, with_live
 from fiber_align.graph.params import GraphError, PLANT
 from fiber_align.control.factory import CONTROLLERS
 from fiber_align.graph.params import SYNC_MODES
+from fiber_align.graph.refusals import check_graph
 from fiber_align.graph.registry import DEFAULT_COMPOSED, SCENARIOS
 from fiber_align.graph.rig import build_rig, check_seed, RIG_NAMESPACE
 from fiber_align.graph.station import build_station, STATION_NAMESPACE
@@ -138,8 +139,10 @@ def describe(arguments, overrides=None):
         them, or Python values; a missing one is its default, ``''`` "as the files say").
     :param overrides: ``{node or '/**': {name: value}}`` applied last (``bringup -p`` and
         its options), checked against the shipped files.
-    :raises GraphError: a bad value, an argument the machine does not take, a live view
-        port in use (one line, before any process starts).
+    :raises GraphError: a bad value (out of the range its node declares, a drive limit
+        beyond the field limits or the amplifier's:
+        :func:`~fiber_align.graph.refusals.check_graph`), an argument the machine does
+        not take, a live view port in use (one line, before any process starts).
     """
     args = {k: v for k, v in dict(arguments).items() if v not in (None, '', (), [])}
     m = machine(args)
@@ -155,6 +158,7 @@ def describe(arguments, overrides=None):
     elif m.seed == 'plant' and seed is not None:
         over[PLANT] = dict({'seed': check_seed(seed)}, **over.get(PLANT, {}))
     g = with_live(m.build(overrides=over, **kw), *[args.get(k, '') for k in LIVE_ARGS])
+    check_graph(g)              # every declared range, the drive limits: before any start
     served = live_settings(g)
     if served:                  # a port in use: one line before any process starts
         check_endpoint(*served)

@@ -18,6 +18,7 @@ import time
 
 from fiber_align import lifeline
 from fiber_align.hardware.bench import emulated
+from fiber_align.hardware.mdt693b import LIMIT_SWITCHES_V
 
 
 def register(subparsers):
@@ -110,7 +111,7 @@ def options(args):
             raise ValueError('--rig needs two channels; the MDT694B has x only')
     if args.v_limit is not None:
         v = _number('--v-limit', args.v_limit)
-        if v not in (75.0, 100.0, 150.0):
+        if v not in LIMIT_SWITCHES_V:
             raise ValueError('--v-limit must be 75, 100 or 150 (the switch), got %r'
                              % args.v_limit)
         emu['v_limit'] = v

@@ -40,10 +40,12 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from fiber_align.control.trajectory import stamp_to_s
+from fiber_align.graph.ranges import OPTICS_RANGES
 from fiber_align.graph.registry import ARRAY_AXES, ARRAY_POWERS, STATION_AXES
 from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import Health, OK
-from fiber_align.nodes.ros.params import declare, declare_graph_values, flatten_defaults
+from fiber_align.nodes.ros.params import declare, declare_graph_values, declare_row
+from fiber_align.nodes.ros.params import flatten_defaults
 from fiber_align.nodes.ros.params import node_defaults, PRIORITY
 from fiber_align.nodes.ros.qos import sample_pub_qos, sample_qos
 from fiber_align.nodes.ros.runtime import run_node
@@ -81,7 +83,7 @@ class SimulatedOpticsNode(Node):
         g = declare_graph_values(self, d, 'sync_mode', 'diagnostics_period_s', 'rate_hz',
                                  *PRIORITY)
         self.lockstep, self.period_s = g['sync_mode'] == 'lockstep', 1.0 / g['rate_hz']
-        seed = int(declare(self, d, 'seed', 'detector noise seed', 0, 2 ** 31 - 1, True))
+        seed = int(declare_row(self, d, OPTICS_RANGES, 'seed'))
         optics = {name: declare(self, d, name, 'optics constant (SI, see optics.yaml)',
                                 read_only=True)
                   for name in sorted(k for k in d if k.startswith('optics.'))}
