@@ -19,6 +19,8 @@ from fiber_align.hardware import errors as er
 from fiber_align.hardware.mdt693b_channels import check_channels
 from fiber_align.hardware.mdt693b_session import DeviceSession
 
+#: The steady status an event of the axes leaves (``drive_held`` for a foreign publisher).
+STEADY = {'back': 'ok', 'foreign': 'fail', 'gone': 'warn', 'resume': 'ok'}
 #: What each backend's output is while the driver is unconfigured.
 IDLE_OUTPUT = {'topic': '0 V', 'mdt693b': 'untouched'}
 
@@ -144,6 +146,11 @@ class DriverSession:
             if not self.driver.cores[a].tripped:
                 self.reports.append(('ok', a, 'active' if self.driver.active else 'inactive'))
 
+    def intrusion(self, text):
+        """Take the newest check of the topics' publishers (:meth:`DriverAxes.intrusion`)."""
+        self.driver.intrusion(text)
+        self._events()
+
     def tick(self, now):
         """
         One period: the device's loss and read-backs, then every axis's watchdog.
@@ -169,10 +176,11 @@ class DriverSession:
 
     def _events(self):
         for kind, a, text in self.driver.take_events():
-            error = kind in ('trip', 'latch')
+            error = kind in ('trip', 'latch', 'foreign')
             self.reports.append(('error' if error else 'info', a, text))
-            if kind == 'back':
-                self.reports.append(('ok', a, 'active'))
+            if kind in STEADY:      # the foreign publishers' state is every axis's
+                self.reports.append((STEADY[kind], None if kind != 'back' else a,
+                                     text if kind != 'back' else 'active'))
 
     @property
     def held(self):
@@ -188,7 +196,8 @@ class DriverSession:
         """Return the diagnostics values of the device (``axis`` None) or of ``axis``."""
         if axis is None:
             return dict(self.dev.values(), active=self.driver.active,
-                        enabled=self.driver.enabled, errors=self.lost or '')
+                        enabled=self.driver.enabled, errors=self.lost or '',
+                        foreign_publishers=self.driver.foreign or '')
         return dict(self.driver.values(axis), **self.dev.values(axis))
 
 
