@@ -98,11 +98,11 @@ class ActuatorDriverNode(LifecycleNode):
         self.pubs = {(a, n): b.Pub(self, Float64, topic(a, n), pq, self.bus, slack=self.slack)
                      for a in self.axes for n in outs}
         self.msgs = {a: Float64() for a in self.axes}
+        self.watch = watch_drives(self, self.axes, self._on_foreign)    # off this thread
         self.subs = [b.subscription(self, Float64, topic(a, n), lambda m, a=a, ff=ff:
-                                    self._on_input(a, ff, m.data), sq, self.bus)
+                                    self._on_input(a, ff, m.data), sq, self.bus, self.watch.events)
                      for a in self.axes for n, ff in INPUTS if ff or not self.sensorless]
         self._srv = self.create_service(SetBool, '~/enable', self._on_enable)
-        self.watch = watch_drives(self, self.axes, self._on_foreign)    # off this thread
         if not self.lockstep:
             self._timer = b.sample_timer(self, self.bus, self.period_s, self._on_tick,
                                          Clock(clock_type=ClockType.STEADY_TIME), True)

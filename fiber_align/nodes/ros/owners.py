@@ -1,18 +1,13 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-One graph per set of names: the start-up probe and the running driver's publisher watch.
+One graph per set of names (docs/ros_interface.md): the start-up probe, the driver's watch.
 
-:func:`refuse_taken`: before any node of a graph starts (the launch file and ``bringup``),
-a node of its own looks at the graph for ``discovery_wait_s`` and refuses, in one line,
-when nodes of the graph's names are there already (the comparison is pure:
-:func:`fiber_align.graph.endpoints.names_taken`).
-
-:class:`PublisherWatch`: a running driver's command and drive topics
-(:data:`fiber_align.graph.registry.DRIVES`) each have one publisher; a thread of its own
-counts them (``rcl_count_publishers`` by ``ctypes``, the GIL released: a graph query can
-wait on DDS, so never on the control thread) every :data:`PERIOD_S`, names the
-publishers of a topic that has more than one (rclpy's query, only then), and a steady
-timer of the node hands a changed finding to the driver on its executor.
+:func:`refuse_taken`: before any node starts (launch file, ``bringup``), a node of its own
+refuses in one line when the graph's node names are on the graph already. The driver's
+:class:`PublisherWatch`: one publisher per command and drive topic
+(:data:`fiber_align.graph.registry.DRIVES`), counted by a thread (``rcl_count_publishers``
+by ``ctypes``, the GIL released: a graph query can wait on DDS, never on the control
+thread); a DDS input's matched event holds at once.
 """
 
 import ctypes
@@ -23,6 +18,7 @@ import time
 import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.context import Context
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
@@ -35,11 +31,6 @@ from fiber_align.nodes.ros.rcl_ctypes import Rcl
 PERIOD_S = 0.25
 
 
-def domain():
-    """Return the ROS_DOMAIN_ID the processes use (text; unset: 0)."""
-    return os.environ.get('ROS_DOMAIN_ID') or '0'
-
-
 def refuse_taken(graph, wait_s=None):
     """
     Raise :class:`GraphError` (one line) when another graph owns ``graph``'s node names.
@@ -50,7 +41,7 @@ def refuse_taken(graph, wait_s=None):
     """
     if wait_s is None:
         wait_s = effective(merge_params(graph.params_files), 'bringup')['discovery_wait_s']
-    want = graph_names(graph)
+    want, domain = graph_names(graph), os.environ.get('ROS_DOMAIN_ID') or '0'
     ctx = Context()
     rclpy.init(args=[], context=ctx, signal_handler_options=SignalHandlerOptions.NO)
     why = None
@@ -60,7 +51,7 @@ def refuse_taken(graph, wait_s=None):
         t_end = time.monotonic() + float(wait_s)
         while why is None and time.monotonic() < t_end:
             time.sleep(0.05)
-            why = names_taken(want, node.get_node_names_and_namespaces(), domain())
+            why = names_taken(want, node.get_node_names_and_namespaces(), domain)
         node.destroy_node()
     finally:
         ctx.try_shutdown()
@@ -78,12 +69,15 @@ class PublisherWatch:
     """
     The publishers of a node's command and drive topics, counted off the control thread.
 
+    Each DDS input of the node also reports its matched publishers (:meth:`events`): a
+    second one is a finding at once, on the executor, before its first message (rclpy
+    serves a node's events before its subscriptions), so not one of its values is
+    followed; the thread then names it.
+
     :param node: the rclpy node (its graph; its executor runs the delivery timer).
     :param owners: ``{topic (relative): owner (fully qualified)}``
         (:func:`~fiber_align.graph.endpoints.drive_owners`).
-    :param on_change: called on the node's executor with the lines of
-        :func:`~fiber_align.graph.endpoints.extra_publishers` when they change (``[]``:
-        every topic has one publisher again).
+    :param on_change: called on the executor with the lines found when they change.
     """
 
     def __init__(self, node, owners, on_change, period_s=PERIOD_S):
@@ -91,23 +85,39 @@ class PublisherWatch:
         self._node, self._on_change, self.period_s = node, on_change, float(period_s)
         self.owners = {node.resolve_topic_name(t): o for t, o in owners.items()}
         self._rcl, self._ptr = Rcl(), node.handle.pointer
-        self._found, self._told, self.checks = (), (), 0
-        self._stop = threading.Event()
+        self._found, self._told, self._matched = (), (), {}
+        self._stop, self._wake = threading.Event(), threading.Event()
         self._thread = threading.Thread(target=self._run, name='fiber_align.owners',
                                         daemon=True)
         self._thread.start()
         self._timer = node.create_timer(self.period_s, self._deliver,
                                         clock=Clock(clock_type=ClockType.STEADY_TIME))
 
+    def events(self, topic):
+        """Return the ``event_callbacks`` of the node's subscription to ``topic``."""
+        name = self._node.resolve_topic_name(topic)
+        return SubscriptionEventCallbacks(matched=lambda info: self._on_matched(
+            name, info.current_count))
+
+    def _on_matched(self, topic, n):
+        self._matched[topic] = n
+        self._found = self._found or self._unnamed()
+        self._deliver()
+        self._wake.set()                # the thread names them now
+
+    def _unnamed(self):
+        return tuple('%s: %d publishers matched, 1 expected' % (t, n)
+                     for t, n in sorted(self._matched.items()) if n > 1)
+
     def _count(self, topic):
         n = ctypes.c_size_t()
-        if self._rcl.count_publishers(self._ptr, topic.encode(), ctypes.byref(n)):
-            self._rcl.reset_error()
-            return 0
-        return n.value
+        failed = self._rcl.count_publishers(self._ptr, topic.encode(), ctypes.byref(n))
+        return 0 if failed and self._rcl.reset_error() is None else n.value
 
     def _run(self):
-        while not self._stop.wait(self.period_s):
+        while not self._stop.is_set():
+            self._wake.wait(self.period_s)
+            self._wake.clear()
             try:
                 many = [t for t in self.owners if self._count(t) > 1]
                 # the names (rclpy's query, the GIL held for it): only for such a topic
@@ -115,8 +125,8 @@ class PublisherWatch:
                             self._node.get_publishers_info_by_topic(t)] for t in many}
             except Exception:  # noqa: BLE001 - the node is being destroyed
                 return
-            self._found = tuple(extra_publishers(self.owners, pubs))
-            self.checks += 1
+            # the graph's listing may lag the match: the matched count stands till then
+            self._found = tuple(extra_publishers(self.owners, pubs)) or self._unnamed()
 
     def _deliver(self):
         found = self._found
@@ -127,5 +137,6 @@ class PublisherWatch:
     def close(self):
         """Stop the thread (before the node is destroyed) and the timer; return None."""
         self._stop.set()
+        self._wake.set()
         self._thread.join(2.0)
         self._node.destroy_timer(self._timer)
