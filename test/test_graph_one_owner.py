@@ -12,6 +12,8 @@ displacement never leaves the setpoint range, and after the node is gone an
 its pid and group, also on failure.
 """
 
+import subprocess
+import sys
 import threading
 import time
 
@@ -24,6 +26,7 @@ from test_ros2_cli import descendants, ros2_env, spawn, stop_launch  # noqa: F40
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 LAUNCH = ['ros2', 'launch', 'fiber_align', 'fiber_align.launch.py']
+BRINGUP = [sys.executable, '-m', 'fiber_align.bringup', '--quiet']
 #: the foreign node's name (the ERROR must name it)
 INTRUDER = 'intruder_graph_b'
 
@@ -152,6 +155,29 @@ def test_a_second_launch_of_the_same_graph_is_refused_and_the_first_holds(
         client and client.close()
         second and stop_launch(second)
         stop_launch(first)
+
+
+@pytest.mark.parametrize('first, second', [
+    (LAUNCH, BRINGUP + ['--scenario', 'none', '--sync', 'realtime', '--duration', '60']),
+    (LAUNCH + ['rig:=true'], BRINGUP + ['--rig'])], ids=['1-D', 'rig'])
+def test_bringup_beside_a_running_graph_of_its_names_is_refused(
+        ros2_env, tmp_path, first, second):  # noqa: F811
+    log = tmp_path / 'first.log'
+    proc = spawn(ros2_env, first, log)
+    try:
+        assert _wait_log(log, 'startup done', 60.0, proc), log.read_text()[-3000:]
+        t0 = time.monotonic()
+        out = subprocess.run(second, env=ros2_env, capture_output=True, text=True,
+                             timeout=30.0)
+        took = time.monotonic() - t0
+        text = out.stdout + out.stderr
+        print('bringup: exit %d after %.2f s: %s' % (out.returncode, took, text.strip()))
+        assert out.returncode != 0 and took < 10.0, text
+        lines = text.strip().splitlines()            # one line, no process started
+        assert len(lines) == 1 and 'another graph owns' in lines[0], text
+        assert 'actuator_driver' in lines[0]
+    finally:
+        stop_launch(proc)
 
 
 @pytest.mark.parametrize('args, axis', [

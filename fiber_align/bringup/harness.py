@@ -25,7 +25,7 @@ from fiber_align.bringup.floor import Floor
 from fiber_align.bringup.observer import BadInput, BringupError, Observer
 from fiber_align.graph.description import dds_environment
 from fiber_align.graph.endpoints import graph_names
-from fiber_align.graph.params import effective, GraphError, merge_params, PLANT, RECORDER
+from fiber_align.graph.params import effective, merge_params, PLANT, RECORDER
 from fiber_align.jsonout import json_default
 from fiber_align.nodes.ros.diagnostics import endpoint_node_name
 from fiber_align.nodes.ros.owners import refuse_taken
@@ -102,8 +102,13 @@ class Harness:
         #: the recorded and sent counts when the recorder had matched every writer
         self.rec_base = None
 
-    def start(self, check_alone=True, ready=None):
-        """Observe, spawn every process, wait for the nodes, the active drivers, the topics."""
+    def start(self, check_alone=False, ready=None):
+        """
+        Observe, spawn every process, wait for the nodes, the active drivers, the topics.
+
+        :param check_alone: refuse first when another graph owns these names (``bringup``'s
+            main looks before any mode starts: :func:`~fiber_align.nodes.ros.owners.refuse_taken`).
+        """
         t0 = time.monotonic()
         g = self.graph
         timeout = float(self.gp['startup_timeout_s'])
@@ -112,10 +117,7 @@ class Harness:
         self.obs.start_stall_s = float(self.gp['start_stall_timeout_s'])
         want = graph_names(g)
         if check_alone:         # another graph of these names: one line, nothing started
-            try:
-                refuse_taken(g, float(self.gp['discovery_wait_s']))
-            except GraphError as exc:
-                raise BringupError(str(exc)) from None
+            refuse_taken(g, float(self.gp['discovery_wait_s']))
         env = dds_environment()
         # the recorder first: it is subscribed before the first sample is published
         for p in sorted(g.processes, key=lambda p: p.name != RECORDER):

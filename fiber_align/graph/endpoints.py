@@ -8,8 +8,12 @@ names them, so a node can put them on ``/diagnostics`` (a WARN) instead of waiti
 silence.
 """
 
-from fiber_align.graph.params import DRIVER
+from fiber_align.graph.params import DRIVER, GraphError
 from fiber_align.graph.registry import DRIVES
+
+
+class NamesTaken(GraphError):
+    """Another graph owns a graph's node names (:func:`names_taken`): nothing may start."""
 
 
 def type_name(msg_type):

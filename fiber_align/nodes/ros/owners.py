@@ -23,8 +23,8 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from fiber_align.graph.endpoints import (drive_owners, extra_publishers, graph_names,
-                                         names_taken, node_fqn)
-from fiber_align.graph.params import effective, GraphError, merge_params
+                                         names_taken, NamesTaken, node_fqn)
+from fiber_align.graph.params import effective, merge_params
 from fiber_align.nodes.ros.rcl_ctypes import Rcl
 
 #: s between two counts of the watched topics' publishers (and the finding's delivery)
@@ -33,30 +33,31 @@ PERIOD_S = 0.25
 
 def refuse_taken(graph, wait_s=None):
     """
-    Raise :class:`GraphError` (one line) when another graph owns ``graph``'s node names.
+    Raise :class:`NamesTaken` (one line) when another graph owns ``graph``'s node names.
 
     :param wait_s: how long discovery may take (s; ``None``: ``discovery_wait_s`` of the
-        ``bringup`` section of the graph's files): the listing is looked at every 50 ms
-        until a name is found or this is over.
+        ``bringup`` section of the graph's files): the listing is looked at every 50 ms.
     """
     if wait_s is None:
         wait_s = effective(merge_params(graph.params_files), 'bringup')['discovery_wait_s']
     want, domain = graph_names(graph), os.environ.get('ROS_DOMAIN_ID') or '0'
     ctx = Context()
     rclpy.init(args=[], context=ctx, signal_handler_options=SignalHandlerOptions.NO)
-    why = None
     try:
         node = Node('_fiber_align_probe_%d' % os.getpid(), context=ctx,
                     enable_rosout=False, start_parameter_services=False)
-        t_end = time.monotonic() + float(wait_s)
-        while why is None and time.monotonic() < t_end:
+        t_end, seen = time.monotonic() + float(wait_s), set()
+        while time.monotonic() < t_end:
             time.sleep(0.05)
-            why = names_taken(want, node.get_node_names_and_namespaces(), domain)
+            seen.update(node.get_node_names_and_namespaces())
+            if seen & want:             # found: 0.3 s more for the rest of its names
+                t_end = min(t_end, time.monotonic() + 0.3)
         node.destroy_node()
     finally:
         ctx.try_shutdown()
+    why = names_taken(want, seen, domain)
     if why:
-        raise GraphError(why)
+        raise NamesTaken(why)
 
 
 def watch_drives(node, axes, on_change):
@@ -69,10 +70,9 @@ class PublisherWatch:
     """
     The publishers of a node's command and drive topics, counted off the control thread.
 
-    Each DDS input of the node also reports its matched publishers (:meth:`events`): a
-    second one is a finding at once, on the executor, before its first message (rclpy
-    serves a node's events before its subscriptions), so not one of its values is
-    followed; the thread then names it.
+    Each DDS input also reports its matched publishers (:meth:`events`): a second one is
+    a finding at once, before its first message (rclpy serves a node's events before its
+    subscriptions), so none of its values is followed; the thread then names it.
 
     :param node: the rclpy node (its graph; its executor runs the delivery timer).
     :param owners: ``{topic (relative): owner (fully qualified)}``
