@@ -145,6 +145,7 @@ class DriverSession:
                                  'cleared)'))
             if not self.driver.cores[a].tripped:
                 self.reports.append(('ok', a, 'active' if self.driver.active else 'inactive'))
+        self._events()                  # a hold for a foreign publisher re-armed, or not
 
     def intrusion(self, text):
         """Take the newest check of the topics' publishers (:meth:`DriverAxes.intrusion`)."""
