@@ -183,3 +183,15 @@ def test_a_lifecycle_cycle_rearms_after_a_foreign_publisher_is_gone():
     drv.activate()
     assert [k for k, _, _ in drv.take_events()] == ['foreign', 'gone', 'resume']
     assert not drv.held
+
+
+def test_a_second_publisher_not_yet_named_holds_and_is_let_go_when_none_is_foreign():
+    """A restarted node's expired writer: matched twice, then named as the owner alone."""
+    drv = DriverAxes(axes(''), PERIOD_S)
+    drv.activate()
+    feed(drv, 0.0, 0.01, {'': 20.0})
+    drv.intrusion('/feedback_voltage: 2 publishers matched, 1 expected', pending=True)
+    assert drv.held is True and feed(drv, 0.01, 0.02, {'': 90.0})[-1] == ('', 20.0)
+    drv.intrusion(None)                         # named: none foreign; no re-arm needed
+    assert not drv.held and not drv.take_events()
+    assert feed(drv, 0.02, 0.03, {'': 30.0})[-1] == ('', 30.0)

@@ -113,7 +113,7 @@ class DriverAxes:
     @property
     def held(self):
         """Return True while the output does not follow the inputs (``drive_held``)."""
-        return not (self.active and self.enabled) or self.blocked or self.tripped()
+        return not (self.active and self.enabled) or bool(self.blocked) or self.tripped()
 
     def tripped(self, but=None):
         """Return True while an axis (other than ``but``) is tripped or latched."""
@@ -130,16 +130,24 @@ class DriverAxes:
         self.active = True
         self._rearm('a lifecycle deactivate/activate')
 
-    def intrusion(self, text):
+    def intrusion(self, text, pending=False):
         """
         Take the newest check of the command and drive topics' publishers.
 
         A second publisher (``text`` names it) holds every output where it is (the inputs
         are not followed, the watchdog does not run) until it is gone (``text`` None)
-        and the operator re-arms (:meth:`enable` true, :meth:`activate`).
+        and the operator re-arms (:meth:`enable` true, :meth:`activate`). ``pending``: a
+        second one matched but not named yet: held, and let go without a re-arm when
+        the names show none foreign (a restarted node's expired writer).
         """
         was, self.foreign = self.foreign, text
-        if text and text != was:
+        if text and pending:
+            self.blocked = self.blocked or 'pending'
+        elif not text and self.blocked == 'pending':
+            self.blocked = False
+            for c in self.cores.values():
+                c.restart_watchdog()    # the held time is no loss of input
+        elif text and text != was:
             self.blocked = True
             self.events.append(('foreign', '', 'second publisher on a command or drive '
                                 'topic: %s; every output held at %s until it is gone and '
@@ -153,7 +161,7 @@ class DriverAxes:
     def _rearm(self, how):
         if not self.blocked:
             return
-        if self.foreign:
+        if self.foreign or self.blocked == 'pending':
             self.events.append(('foreign', '', 'not re-armed by %s: still %s' % (
                 how, self.foreign)))
             return

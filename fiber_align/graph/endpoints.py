@@ -12,6 +12,10 @@ from fiber_align.graph.params import DRIVER, GraphError
 from fiber_align.graph.registry import DRIVES
 
 
+#: The name the graph's listing gives a publisher whose node it does not know yet.
+UNKNOWN = '_NODE_NAME_UNKNOWN_'
+
+
 class NamesTaken(GraphError):
     """Another graph owns a graph's node names (:func:`names_taken`): nothing may start."""
 
@@ -103,7 +107,9 @@ def extra_publishers(owners, publishers):
 
     A command or drive topic has one publisher in a graph (:data:`~.registry.DRIVES`):
     a second one (another graph's controller, compensator or driver, a client) mixes its
-    values into the loop's.
+    values into the loop's. A second one of the owner's own name is not named: it is a
+    restarted owner's writer whose process died (DDS keeps it until its lease ends), or
+    another graph of the same names, which its start refuses (:func:`names_taken`).
 
     :param owners: ``{topic: node}``: the node meant to publish each topic (fully
         qualified).
@@ -115,15 +121,10 @@ def extra_publishers(owners, publishers):
     out = []
     for topic, owner in owners.items():
         got = sorted(publishers.get(topic, ()))
-        if len(got) <= 1:
+        others = [n for n in got if n != owner]
+        if len(got) <= 1 or not others:
             continue
-        others = list(got)
-        if owner in others:
-            others.remove(owner)
-        if owner in others:
-            note = ' (a second %s: another graph of the same names)' % owner
-        else:
-            note = ' (besides %s)' % owner if len(others) < len(got) else ''
+        note = ' (besides %s)' % owner if len(others) < len(got) else ''
         out.append('%s: %d publishers, 1 expected: foreign %s%s'
                    % (topic, len(got), ', '.join(others), note))
     return sorted(out)

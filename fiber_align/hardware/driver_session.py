@@ -147,9 +147,9 @@ class DriverSession:
                 self.reports.append(('ok', a, 'active' if self.driver.active else 'inactive'))
         self._events()                  # a hold for a foreign publisher re-armed, or not
 
-    def intrusion(self, text):
+    def intrusion(self, text, pending=False):
         """Take the newest check of the topics' publishers (:meth:`DriverAxes.intrusion`)."""
-        self.driver.intrusion(text)
+        self.driver.intrusion(text, pending)
         self._events()
 
     def tick(self, now):

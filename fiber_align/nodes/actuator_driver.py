@@ -229,7 +229,7 @@ class ActuatorDriverNode(LifecycleNode):
                               else None)
 
     def _on_foreign(self, lines):   # a second publisher of a command or drive topic: hold
-        self.s.intrusion('; '.join(lines) or None)
+        self.s.intrusion('; '.join(lines) or None, self.watch.pending)
         self._report([], 'foreign publisher')
 
     def _values(self):

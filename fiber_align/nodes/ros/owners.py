@@ -2,12 +2,10 @@
 """
 One graph per set of names (docs/ros_interface.md): the start-up probe, the driver's watch.
 
-:func:`refuse_taken`: before any node starts (launch file, ``bringup``), a node of its own
-refuses in one line when the graph's node names are on the graph already. The driver's
-:class:`PublisherWatch`: one publisher per command and drive topic
-(:data:`fiber_align.graph.registry.DRIVES`), counted by a thread (``rcl_count_publishers``
-by ``ctypes``, the GIL released: a graph query can wait on DDS, never on the control
-thread); a DDS input's matched event holds at once.
+:func:`refuse_taken`: before any node starts (launch file, ``bringup``), refuse in one line
+when the graph's node names are on the graph. :class:`PublisherWatch`: one publisher per
+command and drive topic (:data:`fiber_align.graph.registry.DRIVES`), counted by a thread
+(``rcl_count_publishers`` by ``ctypes``, the GIL released: never on the control thread).
 """
 
 import ctypes
@@ -23,7 +21,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from fiber_align.graph.endpoints import (drive_owners, extra_publishers, graph_names,
-                                         names_taken, NamesTaken, node_fqn)
+                                         names_taken, NamesTaken, node_fqn, UNKNOWN)
 from fiber_align.graph.params import effective, merge_params
 from fiber_align.nodes.ros.rcl_ctypes import Rcl
 
@@ -62,21 +60,17 @@ def refuse_taken(graph, wait_s=None):
 
 def watch_drives(node, axes, on_change):
     """Return the :class:`PublisherWatch` of a driver's command and drive topics."""
-    return PublisherWatch(node, drive_owners(node.get_fully_qualified_name(), axes),
-                          on_change)
+    return PublisherWatch(node, drive_owners(node.get_fully_qualified_name(), axes), on_change)
 
 
 class PublisherWatch:
     """
     The publishers of a node's command and drive topics, counted off the control thread.
 
-    Each DDS input also reports its matched publishers (:meth:`events`): a second one is
-    a finding at once, before its first message (rclpy serves a node's events before its
-    subscriptions), so none of its values is followed; the thread then names it.
+    A DDS input's second matched publisher (:meth:`events`) is a finding at once, before
+    its first message (rclpy serves a node's events first), :attr:`pending` until named.
 
-    :param node: the rclpy node (its graph; its executor runs the delivery timer).
-    :param owners: ``{topic (relative): owner (fully qualified)}``
-        (:func:`~fiber_align.graph.endpoints.drive_owners`).
+    :param owners: ``{topic (relative): owner (fully qualified)}`` (``drive_owners``).
     :param on_change: called on the executor with the lines found when they change.
     """
 
@@ -85,7 +79,7 @@ class PublisherWatch:
         self._node, self._on_change, self.period_s = node, on_change, float(period_s)
         self.owners = {node.resolve_topic_name(t): o for t, o in owners.items()}
         self._rcl, self._ptr = Rcl(), node.handle.pointer
-        self._found, self._told, self._matched = (), (), {}
+        self._state, self._told, self._matched, self.pending = ((), False), (), {}, False
         self._stop, self._wake = threading.Event(), threading.Event()
         self._thread = threading.Thread(target=self._run, name='fiber_align.owners',
                                         daemon=True)
@@ -101,13 +95,15 @@ class PublisherWatch:
 
     def _on_matched(self, topic, n):
         self._matched[topic] = n
-        self._found = self._found or self._unnamed()
-        self._deliver()
-        self._wake.set()                # the thread names them now
+        if n > 1 and not self._state[0]:    # held at once, until the thread names them
+            self._state = (self._unnamed(), True)
+            self._deliver()
+        self._wake.set()
 
-    def _unnamed(self):
+    def _unnamed(self, counts=None):
         return tuple('%s: %d publishers matched, 1 expected' % (t, n)
-                     for t, n in sorted(self._matched.items()) if n > 1)
+                     for t, n in sorted(self._matched.items())
+                     if n > 1 and (counts is None or counts.get(t, 0) < n))
 
     def _count(self, topic):
         n = ctypes.c_size_t()
@@ -119,24 +115,27 @@ class PublisherWatch:
             self._wake.wait(self.period_s)
             self._wake.clear()
             try:
-                many = [t for t in self.owners if self._count(t) > 1]
+                counts = {t: self._count(t) for t in self.owners}
                 # the names (rclpy's query, the GIL held for it): only for such a topic
                 pubs = {t: [node_fqn(i.node_name, i.node_namespace) for i in
-                            self._node.get_publishers_info_by_topic(t)] for t in many}
+                            self._node.get_publishers_info_by_topic(t)]
+                        for t, n in counts.items() if n > 1}
             except Exception:  # noqa: BLE001 - the node is being destroyed
                 return
-            # the graph's listing may lag the match: the matched count stands till then
-            self._found = tuple(extra_publishers(self.owners, pubs)) or self._unnamed()
+            # a match the graph's listing does not show, or not by name yet, stands
+            known = {t: v for t, v in pubs.items() if not any(UNKNOWN in n for n in v)}
+            named = tuple(extra_publishers(self.owners, known))
+            lag = () if named else self._unnamed({t: counts[t] for t in known})
+            self._state = (named or lag, bool(lag))
 
     def _deliver(self):
-        found = self._found
+        found, pending = self._state
         if found != self._told:
-            self._told = found
+            self._told, self.pending = found, pending
             self._on_change(list(found))
 
     def close(self):
         """Stop the thread (before the node is destroyed) and the timer; return None."""
         self._stop.set()
-        self._wake.set()
-        self._thread.join(2.0)
+        self._thread.join(2.0)          # within a period
         self._node.destroy_timer(self._timer)
