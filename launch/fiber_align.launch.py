@@ -68,6 +68,7 @@ from fiber_align.graph.arguments import ARGUMENTS, describe
 from fiber_align.graph.description import dds_environment
 from fiber_align.graph.registry import PACKAGE
 from fiber_align.graph.startup import StartupWatch
+from fiber_align.nodes.ros.owners import refuse_taken
 
 __all__ = ('ARGUMENTS', 'describe', 'generate_launch_description')
 
@@ -76,6 +77,7 @@ def launch_setup(context):
     """Build the graph from the launch arguments; return its Node actions."""
     args = {name: LaunchConfiguration(name).perform(context) for name, *_ in ARGUMENTS}
     g = describe(args)
+    refuse_taken(g)         # another graph of these names: one line, nothing started
     tmp = tempfile.mkdtemp(prefix='fiber_align_launch_')
     params = g.write_params(os.path.join(tmp, 'params.yaml'))
     actions = [RegisterEventHandler(OnShutdown(

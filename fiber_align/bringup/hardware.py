@@ -82,7 +82,7 @@ class HardwareRun(Harness):
         """Start the graph; wait until it is ready to align (the meter reading, IDLE)."""
         self._starting = True
         try:
-            super().start(check_alone=False, ready=self._ready)
+            super().start(ready=self._ready)
         finally:
             self._starting = False
         time.sleep(FLOOR_WAIT_S)          # the sequencer's floor readings (IDLE)

@@ -25,9 +25,11 @@ from fiber_align.bringup.children import Child, wait_all
 from fiber_align.bringup.floor import Floor
 from fiber_align.bringup.observer import BadInput, BringupError, Observer
 from fiber_align.graph.description import dds_environment
+from fiber_align.graph.endpoints import graph_names
 from fiber_align.graph.params import effective, merge_params, PLANT, RECORDER
 from fiber_align.jsonout import json_default
 from fiber_align.nodes.ros.diagnostics import endpoint_node_name
+from fiber_align.nodes.ros.owners import refuse_taken
 
 EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -101,25 +103,22 @@ class Harness:
         #: the recorded and sent counts when the recorder had matched every writer
         self.rec_base = None
 
-    def start(self, check_alone=True, ready=None):
-        """Observe, spawn every process, wait for the nodes, the active drivers, the topics."""
+    def start(self, check_alone=False, ready=None):
+        """
+        Observe, spawn every process, wait for the nodes, the active drivers, the topics.
+
+        :param check_alone: refuse first when another graph owns these names (``bringup``'s
+            main looks before any mode starts: :func:`~fiber_align.nodes.ros.owners.refuse_taken`).
+        """
         t0 = time.monotonic()
         g = self.graph
         timeout = float(self.gp['startup_timeout_s'])
         self.obs = Observer(g.namespace, **self.observe)
         self.obs.stall_s = float(self.gp['stall_timeout_s'])
         self.obs.start_stall_s = float(self.gp['start_stall_timeout_s'])
-        want = set()
-        for p in g.processes:
-            want.update(p.hosted(g.namespace))
-        if check_alone:
-            time.sleep(float(self.gp['discovery_wait_s']))
-            others = sorted(n for n, ns in want & self.obs.node_names())
-            if others:
-                raise BringupError(
-                    'another fiber_align graph runs on ROS_DOMAIN_ID=%s in namespace /%s '
-                    '(its nodes: %s); stop it, or use --namespace or another ROS_DOMAIN_ID'
-                    % (os.environ.get('ROS_DOMAIN_ID', '0'), g.namespace, ', '.join(others)))
+        want = graph_names(g)
+        if check_alone:         # another graph of these names: one line, nothing started
+            refuse_taken(g, float(self.gp['discovery_wait_s']))
         env = dds_environment()
         # the recorder first: it is subscribed before the first sample is published
         for p in sorted(g.processes, key=lambda p: p.name != RECORDER):

@@ -69,7 +69,7 @@ def run_rig(a, g):
     def steps():
         # the align server discovered before the clock starts: a late discovery would
         # otherwise let the lockstep graph idle on for seconds before the command
-        h.start(check_alone=False, ready=lambda: h.obs.client(Trigger, 'align')
+        h.start(ready=lambda: h.obs.client(Trigger, 'align')
                 .wait_for_service(timeout_sec=0.1))
         obs, alive = h.obs, h.alive
         h.run(True)

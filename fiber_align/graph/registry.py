@@ -130,6 +130,12 @@ NODES = {
     # reads the graph's topics (a parameter, graph/live.py), publishes none
     LIVE_VIEW: NodeSpec(LIVE_VIEW, LIVE_VIEW, configs=('live_view.yaml',), area=False),
 }
+#: The topics that carry a command or a drive to an actuator, each with the one node of
+#: an axis meant to publish it: a second publisher (another graph's) is a conflict
+#: (:func:`fiber_align.graph.endpoints.extra_publishers`; the driver holds).
+DRIVES = {t: n for t in ('feedforward_voltage', 'feedback_voltage', 'reference',
+                         'drive_voltage')
+          for n in (COMPENSATOR, CONTROLLER, DRIVER) if t in NODES[n].publishes}
 #: Nodes a composed process can host: ``--nodes`` name -> spec, in build order.
 HOSTABLE = {k: v for k, v in NODES.items() if v.node_class}
 
