@@ -146,7 +146,10 @@ def test_a_second_launch_of_the_same_graph_is_refused_and_the_first_holds(
         print('first graph over %.1f s: %d samples, %.3f..%.3f um' % (
             time.monotonic() - t0, len(ys), min(ys) * 1e6, max(ys) * 1e6))
         assert rc != 0 and took < 10.0, text
-        assert len(lines) == 1 and '/actuator_driver' in lines[0], text
+        # the refusal names the nodes of this graph it found owned (discovery may show
+        # any of them first)
+        named = [n for n in describe({}).nodes if '/%s ' % n in lines[0]] if lines else []
+        assert len(lines) == 1 and named, text
         assert 'process started' not in text and 'Traceback' not in text, text
         assert not descendants(second.pid)
         assert len(ys) > 1000 and all(abs(y - 60e-6) <= 1e-6 for y in ys), \
@@ -178,6 +181,10 @@ def test_bringup_beside_a_running_graph_of_its_names_is_refused(
         assert 'actuator_driver' in lines[0]
     finally:
         stop_launch(proc)
+
+
+#: s: the drives of the last ticks before the hold may arrive this long after the ERROR
+HELD_LAG_S = 0.5
 
 
 @pytest.mark.parametrize('args, axis', [
@@ -214,7 +221,17 @@ def test_a_foreign_drive_publisher_holds_the_driver_until_gone_and_rearmed(
         assert errors, client.since(client.diags, t0)[-5:]
         t_err = errors[0][0]
         # held from the ERROR on (a report's own delay aside) until the node is gone
-        ys, drives = client.since(client.ys, t0), client.since(client.drives, t_err + 0.1, t1)
+        ys = client.since(client.ys, t0)
+        # the drives are stamped on arrival: a loaded executor takes a few of the last
+        # ones before the hold after the ERROR; the held run is the constant tail, which
+        # must begin within HELD_LAG_S of the ERROR and last until the intruder is gone
+        with client.lock:
+            timed = [(t, v) for t, v in client.drives if t_err <= t <= t1]
+        k = len(timed)
+        while k > 0 and timed[k - 1][1] == timed[-1][1]:
+            k -= 1
+        t_held = timed[k][0] if timed else float('inf')
+        drives = [v for _, v in timed[k:]]
         print('%s: %d foreign messages; ERROR after %.2f s; displacement %.3f..%.3f um '
               '(range %.1f..%.1f); drives while held %s; ERROR: %s' % (
                   axis or '1-D', sent, t_err - t0, min(ys) * 1e6, max(ys) * 1e6, lo * 1e6,
@@ -223,7 +240,10 @@ def test_a_foreign_drive_publisher_holds_the_driver_until_gone_and_rearmed(
         assert t_err - t0 < 2.0
         assert 'actuator_driver' in errors[0][2] or 'mdt693b' in errors[0][2]
         assert all(lo <= y <= hi for y in ys), (min(ys), max(ys))
-        assert drives and max(drives) - min(drives) < 1e-9, sorted(set(drives))[:10]
+        print('held from %.3f s after the ERROR (arrival), %d drives' % (
+            t_held - t_err, len(drives)))
+        assert t_held - t_err < HELD_LAG_S and t1 - t_held > 2.0, sorted(set(
+            v for _, v in timed))[:10]
         assert 100.0 not in drives
         # gone: still held until re-armed; ~/enable true re-arms
         driver = '%s/actuator_driver' % axis

@@ -3,7 +3,7 @@
 The plant's cycle health after five driver deactivate/activate cycles (issue 39.7).
 
 A realtime graph (``bringup --scenario sine``, 1 kHz) runs while this test deactivates
-and activates ``actuator_driver`` five times through its ``change_state`` service (2 s
+and activates ``actuator_driver`` five times through its ``change_state`` service (1 s
 inactive, 1 s active each), then leaves it active for 11 s. The plant's ``/diagnostics``
 then: the periods the driver held counted as idle (``idle_periods``), not missed; the
 missed share of the active periods only; and no cycle WARN (its window is the last
@@ -28,7 +28,7 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 BRINGUP = [sys.executable, '-m', 'fiber_align.bringup']
 GOAL = 0.01
-OFF_S, ON_S, CYCLES, THEN_S = 2.0, 1.0, 5, 11.0
+OFF_S, ON_S, CYCLES, THEN_S = 1.0, 1.0, 5, 11.0
 #: lifecycle_msgs Transition ids
 ACTIVATE, DEACTIVATE = 3, 4
 

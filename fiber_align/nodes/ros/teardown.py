@@ -77,6 +77,7 @@ def finish(nodes, stop=None, limit_s=None):
         close = getattr(node, 'close', None)
         if callable(close):
             close()
+    settle(nodes, ACK_S)
     guard = teardown_guard(TEARDOWN_S if limit_s is None else limit_s, stop)
     try:
         contexts = []
@@ -92,6 +93,34 @@ def finish(nodes, stop=None, limit_s=None):
         gc.collect()
     finally:
         guard.cancel()
+
+
+#: s: the longest a process waits for its readers to acknowledge what it published last
+#: (:func:`settle`); a reliable writer destroyed earlier takes its unacknowledged samples
+#: with it, and a recorder then holds one message fewer than the exit report counts
+ACK_S = 0.5
+
+
+def settle(nodes, limit_s):
+    """
+    Wait up to ``limit_s`` (s) in all until every reliable publisher's samples are acked.
+
+    A best-effort publisher returns at once (rclpy's ``wait_for_all_acked``); a reader
+    that is gone or stalled costs at most the bound. Return True if all were acknowledged.
+    """
+    import time
+
+    from rclpy.duration import Duration
+    end = time.monotonic() + float(limit_s)
+    ok = True
+    for node in nodes:
+        for pub in list(getattr(node, 'publishers', ())):
+            left = end - time.monotonic()
+            try:
+                ok = pub.wait_for_all_acked(Duration(seconds=max(0.0, left))) and ok
+            except Exception:           # a publisher already destroyed: nothing to wait for
+                continue
+    return ok
 
 
 #: s: the longest a node process's teardown (nodes, contexts, DDS participants) may take
