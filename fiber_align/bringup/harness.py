@@ -162,8 +162,11 @@ class Harness:
     def run(self, on=True):
         """Start (or hold) every plant's sample clock (``<plant>/run``)."""
         from std_srvs.srv import SetBool
-        if on and self.graph.record and getattr(self.graph, 'axes', None):
-            self.rec_base = self._recorder_base()
+        if on and self.graph.record:
+            if getattr(self.graph, 'axes', None):
+                self.rec_base = self._recorder_base()
+            else:
+                self._recorder_matched()
         for p in self.plants:
             self.obs.call(self.obs.client(SetBool, p + '/run'), SetBool.Request(data=on),
                           5.0 if on else 0.5, self.alive)
@@ -189,15 +192,8 @@ class Harness:
         return ['%s/%s' % (ns.rstrip('/'), n) for p in self.graph.processes
                 for n, ns in p.hosted(self.graph.namespace)]
 
-    def _recorder_base(self):
-        """
-        Wait until the recorder reads every writer of its topics; return the counts then.
-
-        The multi-axis graphs: a volatile message sent before the recorder matched its
-        writer (an activation, the sequencer's first setpoints) reaches no late reader, so
-        "every message in the bag" counts from here (the plants are still held: nothing
-        is published between this count and their start).
-        """
+    def _recorder_matched(self):
+        """Wait until the recorder reads every writer of its topics (bounded)."""
         g, node = self.graph, self.obs.node
         rec = '/%s/%s' % (g.namespace, RECORDER) if g.namespace else '/' + RECORDER
         # the topics it reads in-process (hosted in the composed process) need no match
@@ -212,6 +208,21 @@ class Harness:
                 for t in topics)
         timeout = float(self.gp['startup_timeout_s'])
         self.obs.wait(matched, timeout, self.alive, 'the recorder on every recorded topic')
+        # this node saw the recorder's readers; each writer matches them on its own, a
+        # little later (a first sample sent before that reaches no reader)
+        time.sleep(float(self.gp['recorder_match_s']))
+
+    def _recorder_base(self):
+        """
+        Wait until the recorder reads every writer of its topics; return the counts then.
+
+        The multi-axis graphs: a volatile message sent before the recorder matched its
+        writer (an activation, the sequencer's first setpoints) reaches no late reader, so
+        "every message in the bag" counts from here (the plants are still held: nothing
+        is published between this count and their start).
+        """
+        self._recorder_matched()
+        timeout = float(self.gp['startup_timeout_s'])
         t0 = time.monotonic()
         diag = self.obs.watch.by_status['latest']
         self.obs.wait(lambda: recorder_counts(diag, self.full_nodes, t0) is not None,
