@@ -118,21 +118,20 @@ class SimulatedOpticsNode(Node):
 
     def _station(self, d, seed, optics):
         """Return the station's link: ``optics.*`` and the chip, facet and cure keys (SI)."""
-        over = {k.split('.', 1)[1]: v for k, v in optics.items()}
-        over.update({name: declare(self, d, name, 'chip, facet or cure constant (SI: m, '
-                                   'rad, s, dB; see station.yaml)', read_only=True)
-                     for name in so.CHIP_KEYS}, sample_period_s=self.period_s)
-        link = so.StationLink.from_params(seed=seed, **over)
-        self.measure = lambda t, pos: link.measure(t, pos, self.period_s)
-        return link
+        return self._keyed(d, seed, optics, so.StationLink, so.CHIP_KEYS,
+                           'chip, facet or cure constant (SI: m, rad, s, dB; see station.yaml)')
 
     def _array(self, d, seed, optics):
         """Return the array's link: ``optics.*`` and the geometry, chip and layout keys."""
+        return self._keyed(d, seed, optics, ao.ArrayLink, ao.ARRAY_KEYS, 'array geometry, '
+                           'chip pose or layout (SI: m, rad; see array.yaml)')
+
+    def _keyed(self, d, seed, optics, cls, keys, what):
+        """Return ``cls.from_params`` of ``optics.*`` and the declared ``keys``."""
         over = {k.split('.', 1)[1]: v for k, v in optics.items()}
-        over.update({name: declare(self, d, name, 'array geometry, chip pose or layout (SI: '
-                                   'm, rad; see array.yaml)', read_only=True)
-                     for name in ao.ARRAY_KEYS}, sample_period_s=self.period_s)
-        link = ao.ArrayLink.from_params(seed=seed, **over)
+        over.update({name: declare(self, d, name, what, read_only=True) for name in keys},
+                    sample_period_s=self.period_s)
+        link = cls.from_params(seed=seed, **over)
         self.measure = lambda t, pos: link.measure(t, pos, self.period_s)
         return link
 
