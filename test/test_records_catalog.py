@@ -149,7 +149,7 @@ def test_a_spool_left_by_a_stopped_writer_is_written_by_the_next(tmp_path):
     w.retry_period_s = 0.3
     t0 = time.monotonic()
     assert not w.flush(10.0, until_refused=True)
-    assert time.monotonic() - t0 < 0.3 + 2.0, time.monotonic() - t0
+    assert time.monotonic() - t0 < 5.0, time.monotonic() - t0    # half its bound
     s = w.close()
     assert s['level'] == 'spooling' and s['spooled'] == 6 and 'does not exist' in s['reason']
     folder.mkdir()
