@@ -35,21 +35,9 @@ ros2-tools: $(STAMP)
 demo: $(STAMP)
 	$(PY) -m fiber_align.demo
 
-# Everything: the `ros` tests (rclpy nodes, graphs, any child process; one graph at a
-# time) and, beside them, the pure ones under SCHED_IDLE: they take only CPU time the
-# graphs leave idle (about 1.2 of 2 cores on average), never a realtime thread's. Their
-# output follows the ros tests'; the target fails if either run fails.
-PURE_LOG := $(VENV)/pure-tests.log
+# Everything: the pure tests and the `ros` ones (rclpy nodes, graphs, any child process).
 test: venv
-	@idle=$$(command -v chrt >/dev/null && echo chrt --idle 0 || echo nice -n 19); \
-	$$idle $(PY) -m pytest -q -m "not ros" -p no:cacheprovider \
-	  --basetemp="$${TMPDIR:-/tmp}/fiber_align-pure-$$$$" test > $(PURE_LOG) 2>&1 & pure=$$!; \
-	trap 'kill $$pure 2>/dev/null; wait $$pure 2>/dev/null' INT TERM; \
-	$(PY) -m pytest -q -m ros test; ros=$$?; \
-	wait $$pure; pc=$$?; \
-	echo "== the pure tests (-m 'not ros'), run beside them under SCHED_IDLE:"; \
-	cat $(PURE_LOG); rm -rf "$${TMPDIR:-/tmp}/fiber_align-pure-$$$$"; \
-	test $$ros -eq 0 -a $$pc -eq 0
+	$(PY) -m pytest -q test
 
 # The pure tests only: no rclpy, no process (test/conftest.py fails a test that starts one
 # without the `ros` marker), so no ROS graph and no lock.
