@@ -80,7 +80,8 @@ def run_rig(a, g):
         k = int(round(sm.ALIGN_IDLE_S * rate))
         obs.wait(lambda: clock() >= k, 60.0, alive, 'sample %d' % k)
         k_align, tracking = _align(obs, alive, rate, clock, max_s)
-        k_end = clock() + int(round(sm.LOSS_WINDOW_S * rate)) + 5
+        # from the TRACKING sample: the status can arrive before the streams' samples
+        k_end = max(clock(), tracking['sample']) + int(round(sm.LOSS_WINDOW_S * rate)) + 5
         obs.wait(lambda: clock() >= k_end, 60.0, alive, 'sample %d' % k_end)
         summary.update(align_sample=k_align, tracking_sample=tracking['sample'],
                        time_to_peak_s=(tracking['sample'] - 1 - k_align) / rate,
