@@ -10,8 +10,6 @@ the reserve is gone. Without the guard the same writes raise ``[Errno 28]`` and 
 bag without metadata (checked first, so this test fails where the guard is missing).
 """
 
-import contextlib
-import ctypes
 import os
 import shutil
 
@@ -20,28 +18,12 @@ from rosbags.rosbag2 import Reader, Writer
 
 from fiber_align.analysis.bag import BagReader, storage_plugin, typestore
 from fiber_align.analysis.bag.guard import GuardedBag
+from procs import tmpfs
 
 FS_BYTES = 5 * 1024 * 1024
 #: messages of 1 kB: a 5 MB disk is full after about 5000 (a bound of 100000 ends a bug)
 PAYLOAD = 1024
 BOUND = 100000
-#: umount2(2) flag: detach now, even if something still holds the filesystem
-MNT_DETACH = 2
-
-
-@contextlib.contextmanager
-def tmpfs(path):
-    """Mount a 5 MB tmpfs at ``path`` (mount(2), root), unmount it after."""
-    path.mkdir()
-    libc = ctypes.CDLL(None, use_errno=True)
-    if libc.mount(b'tmpfs', str(path).encode(), b'tmpfs', 0,
-                  b'size=%d' % FS_BYTES) != 0:
-        pytest.fail('a 5 MB tmpfs needs root (mount(2)): %s'
-                    % os.strerror(ctypes.get_errno()))
-    try:
-        yield path
-    finally:
-        libc.umount2(str(path).encode(), MNT_DETACH)
 
 
 def _message(ts, i):
@@ -58,7 +40,7 @@ def _open(bag):
 @pytest.mark.parametrize('flush_every', [0, 50])
 def test_a_full_disk_stops_the_recording_and_leaves_a_readable_bag(tmp_path, flush_every):
     ts = typestore()
-    with tmpfs(tmp_path / 'fs') as fs:
+    with tmpfs(tmp_path / 'fs', FS_BYTES) as fs:
         raw = _open(fs / 'unguarded')
         conn = raw.add_connection('/x', 'std_msgs/msg/String', typestore=ts)
         with pytest.raises(OSError):            # today's recorder: a traceback, no metadata

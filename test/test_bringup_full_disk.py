@@ -12,10 +12,7 @@ Before, the recorder died with FATAL and two tracebacks, ``bringup`` ended the r
 6 s and the bag had no metadata until ``fiber-align bag-repair``.
 """
 
-import contextlib
-import ctypes
 import json
-import os
 import sys
 
 import pytest
@@ -28,28 +25,11 @@ BRINGUP = [sys.executable, '-m', 'fiber_align.bringup']
 ANALYZE = [sys.executable, '-m', 'fiber_align.cli', 'analyze']
 FS_BYTES = 5 * 1024 * 1024
 DURATION_S = 30.0
-#: umount2(2) flag: detach now, even if something still holds the filesystem
-MNT_DETACH = 2
-
-
-@contextlib.contextmanager
-def tmpfs(path):
-    """Mount a 5 MB tmpfs at ``path`` (mount(2), root), unmount it after."""
-    path.mkdir()
-    libc = ctypes.CDLL(None, use_errno=True)
-    if libc.mount(b'tmpfs', str(path).encode(), b'tmpfs', 0,
-                  b'size=%d' % FS_BYTES) != 0:
-        pytest.fail('a 5 MB tmpfs needs root (mount(2)): %s'
-                    % os.strerror(ctypes.get_errno()))
-    try:
-        yield path
-    finally:
-        libc.umount2(str(path).encode(), MNT_DETACH)
 
 
 def test_a_full_disk_stops_the_recording_and_the_run_goes_on(tmp_path):
     summary = tmp_path / 'summary.json'
-    with tmpfs(tmp_path / 'fs') as fs:
+    with procs.tmpfs(tmp_path / 'fs', FS_BYTES) as fs:
         bag = fs / 'bag'
         code, out = procs.run_bounded(BRINGUP + [
             '--scenario', 'sine', '--sync', 'realtime', '--duration', str(DURATION_S),

@@ -20,7 +20,7 @@ import time
 import pytest
 
 from fiber_align.graph.arguments import describe
-from procs import level
+from procs import level, wait_log
 from test_ros2_cli import descendants, ros2_env, spawn, stop_launch  # noqa: F401
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -29,16 +29,6 @@ LAUNCH = ['ros2', 'launch', 'fiber_align', 'fiber_align.launch.py']
 BRINGUP = [sys.executable, '-m', 'fiber_align.bringup', '--quiet']
 #: the foreign node's name (the ERROR must name it)
 INTRUDER = 'intruder_graph_b'
-
-
-def _wait_log(log, text, seconds, proc):
-    """Wait (bounded, s) until ``text`` is in the log or the launch exited."""
-    end = time.monotonic() + seconds
-    while time.monotonic() < end and proc.poll() is None:
-        if text in log.read_text(errors='replace'):
-            return True
-        time.sleep(0.1)
-    return text in log.read_text(errors='replace')
 
 
 class Client:
@@ -143,7 +133,7 @@ def test_a_second_launch_of_the_same_graph_is_refused_and_the_first_holds(
     first = spawn(ros2_env, LAUNCH, log1)
     second = client = None
     try:
-        assert _wait_log(log1, 'startup done', 60.0, first), log1.read_text()[-3000:]
+        assert wait_log(log1, 'startup done', 60.0, first), log1.read_text()[-3000:]
         client = Client('')
         assert client.hold_at(60e-6), client.since(client.ys, 0.0)[-5:]
         t0 = time.monotonic()
@@ -177,7 +167,7 @@ def test_bringup_beside_a_running_graph_of_its_names_is_refused(
     log = tmp_path / 'first.log'
     proc = spawn(ros2_env, first, log)
     try:
-        assert _wait_log(log, 'startup done', 60.0, proc), log.read_text()[-3000:]
+        assert wait_log(log, 'startup done', 60.0, proc), log.read_text()[-3000:]
         t0 = time.monotonic()
         out = subprocess.run(second, env=ros2_env, capture_output=True, text=True,
                              timeout=30.0)
@@ -215,7 +205,7 @@ def test_a_foreign_drive_publisher_holds_the_driver_until_gone_and_rearmed(
     proc = spawn(ros2_env, LAUNCH + args, log)
     client = None
     try:
-        assert _wait_log(log, 'startup done', 60.0, proc), log.read_text()[-3000:]
+        assert wait_log(log, 'startup done', 60.0, proc), log.read_text()[-3000:]
         client = Client(axis)
         if not axis:
             assert client.hold_at(60e-6)
