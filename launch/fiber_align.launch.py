@@ -15,9 +15,13 @@ directory that is removed at shutdown. The processes get the graph's environment
 environment is kept as it is (docs/network.md). ``lifecycle_manager`` brings
 the driver to active; Ctrl-C (SIGINT) stops every process, and the recorder finalises
 its bag. With a scenario, the launch shuts down when the process hosting
-``scenario_runner`` exits (the scenario is over); any other process that exits leaves
-the rest running (the driver's watchdog holds the actuator safe, and the graph recovers
-when the node is back).
+``scenario_runner`` exits (the scenario is over). A process that exits before
+``lifecycle_manager``'s start-up is done ends the launch with its reason in one line and
+exit code 1 (:mod:`fiber_align.graph.startup`); after it, any other process that exits
+leaves the rest running (the driver's watchdog holds the actuator safe, and the graph
+recovers when the node is back). Every value of the params files is checked against the
+range its node declares before any process starts
+(:func:`fiber_align.graph.refusals.check_graph`).
 
 ``rig:=true`` starts the two-axis rig instead (:mod:`fiber_align.graph.rig`: the
 actuator graphs ``/<namespace>/x`` and ``/<namespace>/y``, the optics and the 2-D
@@ -39,7 +43,11 @@ one MDT693B (x and y channels) and a PM100 (:mod:`fiber_align.graph.hardware_rig
 actuator graphs ``/<namespace>/in/x`` .. ``/<namespace>/out/y``, the chip's optics and the
 station sequencer, namespace ``station`` unless given; ``seed`` as ``fiber-align simulate
 --scenario station --seed``; ``record`` records the station's topics); call
-``/station/align`` to align.
+``/station/align`` to align. ``array:=true``: the fiber array (:mod:`fiber_align.graph.
+array`: ``/<namespace>/x``, ``y_left``, ``y_right``, the array's optics publishing the
+outer channels' ``optical_power`` and ``optical_power_n``, the array sequencer; namespace
+``array`` unless given; ``seed`` as ``fiber-align simulate --scenario array --seed``);
+call ``/array/align``.
 
 ``live:=true [live_port:=8765] [live_host:=127.0.0.1]`` (any of the graphs above): the
 Foxglove live view, a process of its own (:mod:`fiber_align.graph.live`, docs/live_view.md).
@@ -52,13 +60,15 @@ import tempfile
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler
 from launch.actions import SetEnvironmentVariable, Shutdown
-from launch.event_handlers import OnShutdown
+from launch.event_handlers import OnProcessExit, OnProcessIO, OnShutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from fiber_align.graph.arguments import ARGUMENTS, describe
 from fiber_align.graph.description import dds_environment
 from fiber_align.graph.registry import PACKAGE
+from fiber_align.graph.startup import StartupWatch
+from fiber_align.nodes.ros.owners import refuse_taken
 
 __all__ = ('ARGUMENTS', 'describe', 'generate_launch_description')
 
@@ -67,6 +77,7 @@ def launch_setup(context):
     """Build the graph from the launch arguments; return its Node actions."""
     args = {name: LaunchConfiguration(name).perform(context) for name, *_ in ARGUMENTS}
     g = describe(args)
+    refuse_taken(g)         # another graph of these names: one line, nothing started
     tmp = tempfile.mkdtemp(prefix='fiber_align_launch_')
     params = g.write_params(os.path.join(tmp, 'params.yaml'))
     actions = [RegisterEventHandler(OnShutdown(
@@ -75,15 +86,43 @@ def launch_setup(context):
     # not set it: the same as under bringup
     actions += [SetEnvironmentVariable(k, v) for k, v in dds_environment().items()
                 if os.environ.get(k) != v]
+    procs = {}
     for p in g.processes:
-        actions.append(Node(
+        node = Node(
             package=PACKAGE, executable=p.executable, name=p.node_name,
             namespace=_namespace(g.namespace if p.namespace is None else p.namespace),
             arguments=list(p.arguments), parameters=[params],
             remappings=list(g.remappings), output='screen',
             on_exit=[Shutdown(reason='%s exited: the scenario is over' % p.name)]
-            if p.ends_graph else None))
-    return actions
+            if p.ends_graph else None)
+        procs[node] = p
+        actions.append(node)
+    return actions + _startup_handlers(procs)
+
+
+def _startup_handlers(procs):
+    """
+    Return the handlers that end the launch when a process exits during start-up.
+
+    Until the manager's start-up is done, a process that exits leaves the others waiting
+    for it: the launch then ends with its reason in one line (raised: ``ros2 launch``
+    logs it, stops every process and exits 1; :class:`StartupWatch`).
+    """
+    watch = StartupWatch()
+
+    def on_output(event):
+        if event.action in procs:
+            watch.output(procs[event.action].name, event.text)
+
+    def on_exit(event, context):
+        p = procs.get(event.action)
+        why = p and watch.exit_reason(p.name, event.returncode, p.ends_graph,
+                                      context.is_shutdown)
+        if why:
+            raise RuntimeError(why)
+
+    return [RegisterEventHandler(OnProcessIO(on_stdout=on_output, on_stderr=on_output)),
+            RegisterEventHandler(OnProcessExit(on_exit=on_exit))]
 
 
 def _namespace(ns):

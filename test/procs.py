@@ -2,9 +2,12 @@
 """Bounded subprocess runs for the integration tests (a hanging test is a failing test)."""
 
 import contextlib
+import ctypes
 import os
 import subprocess
 import time
+
+import pytest
 
 from fiber_align.hardware.process import stop_process
 
@@ -109,3 +112,22 @@ def nodes_on_executor(*factories):
             n.destroy_node()
         ex.shutdown()
         rclpy.try_shutdown()
+
+
+#: umount2(2) flag: detach now, even if something still holds the filesystem
+MNT_DETACH = 2
+
+
+@contextlib.contextmanager
+def tmpfs(path, size_bytes):
+    """Mount a tmpfs of ``size_bytes`` at ``path`` (mount(2), root), unmount it after."""
+    path.mkdir()
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.mount(b'tmpfs', str(path).encode(), b'tmpfs', 0,
+                  b'size=%d' % size_bytes) != 0:
+        pytest.fail('a %g MB tmpfs needs root (mount(2)): %s'
+                    % (size_bytes / 2**20, os.strerror(ctypes.get_errno())))
+    try:
+        yield path
+    finally:
+        libc.umount2(str(path).encode(), MNT_DETACH)

@@ -94,14 +94,24 @@ def test_silent_power_sensor_faults():
     assert 'sensor silent' in b.seq.fault_reason
 
 
-def test_stuck_power_sensor_faults():
+def test_a_constant_dark_reading_is_the_floor_a_frozen_lit_one_faults():
+    """A meter clamped in the dark reads one value: the floor; lit and moving: frozen."""
     seq = sq.Sequencer()
     for k in range(15):
         seq.update(k * 1e-3, 0.0, 3e-10)
     seq.align()
+    y = 0.0
     for k in range(15, 30):
-        seq.update(k * 1e-3, 0.0, 3e-10)
-    assert seq.state == sq.FAULT and 'stuck' in seq.fault_reason
+        y = seq.update(k * 1e-3, y, 3e-10)
+    assert seq.state == sq.SEARCHING and seq.floor == pytest.approx((3e-10, seq.p['dark_floor_w']))
+    assert seq.threshold_w == pytest.approx(3e-10 + 6.0 * 1e-9)
+    t_lit = 30e-3
+    k = 30
+    while seq.state != sq.FAULT and k < 1030:           # lit, one value, the axis moving
+        y = seq.update(k * 1e-3, y, 1e-4)
+        k += 1
+    assert seq.state == sq.FAULT and 'power meter frozen' in seq.fault_reason
+    assert k * 1e-3 - t_lit <= 1.0
 
 
 def test_driver_inactive_flag_and_actuator_that_does_not_move():

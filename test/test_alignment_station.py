@@ -9,7 +9,7 @@ import pytest
 from fiber_align.alignment import station as st
 from fiber_align.alignment import station_search as ss
 from fiber_align.alignment import station_serial as ser
-from fiber_align.alignment.states import FAULT, HELD, IDLE, PEAKING, TRACKING
+from fiber_align.alignment.states import FAULT, HELD, IDLE, PEAKING, SEARCHING, TRACKING
 from fiber_align.simulation import station_scenarios as sc
 from fiber_align.simulation.seeds2d import graph_period_s
 
@@ -179,3 +179,15 @@ def test_what_the_drivers_publish_holds_the_station_and_refuses_align(rig):
     assert b.seq.align()[0]
     b.run_until(b.t + 5.0, lambda x: x.seq.state in (TRACKING, FAULT))
     assert b.seq.state == TRACKING, b.seq.fault_reason
+
+
+def test_a_lit_start_then_a_dark_pattern_walks_a_search_path():
+    """Light at the start skips the walk: a false first light must build one, not crash."""
+    seq = st.Station(period_s=graph_period_s())
+    seq.sp = np.asarray(seq.park, dtype=float).copy()
+    seq._path = None                    # lit at the start (the floor found it bright)
+    seq._false_light()
+    assert seq.state == SEARCHING and seq._phase == seq.SEARCH_PHASE
+    assert seq._path is not None and not seq._path.done
+    ahead = np.asarray(seq._path.advance(20e-6), dtype=float)     # 20 um along the walk
+    assert np.max(np.abs(ahead - seq.sp)) > 1e-6

@@ -69,3 +69,37 @@ def test_every_node_of_bringup_that_offers_parameters_answers_them():
         probe.destroy_node()
         rclpy.try_shutdown(context=ctx)
         obs.destroy()
+
+
+@pytest.mark.ros  # starts rclpy
+def test_every_alignment_state_change_reaches_bringup_in_a_burst():
+    # SEARCHING and PEAKING one update apart reached a lagging depth-1 reader as one: the
+    # lost SEARCHING put a lockstep array run's align one sample late (3 of 6 runs beside
+    # three CPU hogs). 50 changes sent at once, every one is kept, in order.
+    import json
+
+    import rclpy
+    from std_msgs.msg import String
+
+    from fiber_align.nodes.ros.qos import STATE_QOS
+    obs = Observer('obsstate', {})
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, args=[])
+    node = rclpy.create_node('sequencer', namespace='obsstate', context=ctx)
+    try:
+        pub = node.create_publisher(String, 'alignment_state', STATE_QOS)
+        end = time.monotonic() + 10.0
+        while pub.get_subscription_count() < 1 and time.monotonic() < end:
+            time.sleep(0.01)
+        assert pub.get_subscription_count() == 1
+        sent = [{'state': 'PEAKING' if i % 2 else 'SEARCHING', 'sample': i} for i in range(50)]
+        for st in sent:
+            pub.publish(String(data=json.dumps(st)))
+        end = time.monotonic() + 5.0
+        while len(obs.states) < len(sent) and time.monotonic() < end:
+            time.sleep(0.01)
+        assert [s for _, s in obs.states] == sent
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+        obs.destroy()

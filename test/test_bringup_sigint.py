@@ -58,7 +58,7 @@ def test_sigint_mid_scenario_stops_cleanly_and_finalises_the_bag(tmp_path):
     pids = []
     try:
         assert up.wait(60), ''.join(lines)
-        time.sleep(1.0)                      # a few hundred of the 10,000 samples
+        time.sleep(1.5)                      # ~1,000 of the 10,000 samples, the floor probe up
         t0 = time.monotonic()
         proc.send_signal(signal.SIGINT)
         code = proc.wait(timeout=STOP_LIMIT_S + 5)

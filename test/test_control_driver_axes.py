@@ -147,3 +147,51 @@ def test_parameters_and_updates_name_each_axis():
     assert check_axis(limits) is None
     assert 'field limit' in check_axis(dict(limits, v_max=160.0))
     assert 'must exceed' in check_axis(dict(limits, v_min=50.0, v_max=40.0))
+
+
+def test_a_foreign_publisher_holds_every_axis_where_it_is_until_gone_and_rearmed():
+    """Issue 39.1: a second graph's 100 V never reaches the output; re-arming needs both."""
+    drv = DriverAxes(axes('x', 'y'), PERIOD_S)
+    drv.activate()
+    out = feed(drv, 0.0, 0.01, {'x': 30.0, 'y': 40.0})
+    assert out[-2:] == [('x', 30.0), ('y', 40.0)] and not drv.held
+    drv.intrusion('/x/feedforward_voltage: 2 publishers, 1 expected: foreign /intruder')
+    (kind, _, text), = drv.take_events()
+    assert kind == 'foreign' and '/intruder' in text and '30 V, 40 V' in text and drv.held
+    # the inputs (the foreign 100 V among them) are not followed; no watchdog trip
+    out = feed(drv, 0.01, 0.2, {'x': 100.0, 'y': 100.0}) + feed(drv, 0.2, 0.4, {})
+    assert {v for _, v in out} == {30.0, 40.0}
+    assert drv.cores['x'].watchdog_count == 0 and not drv.take_events()
+    # re-armed while it is there: refused, still held
+    drv.enable(True, 0.4)
+    assert drv.take_events()[0][0] == 'foreign' and drv.held
+    drv.intrusion(None)                         # gone: still held until re-armed
+    assert drv.take_events()[0][0] == 'gone' and drv.held
+    assert {v for _, v in feed(drv, 0.4, 0.5, {'x': 100.0, 'y': 100.0})} == {30.0, 40.0}
+    drv.enable(True, 0.5)
+    assert drv.take_events()[0][0] == 'resume' and not drv.held
+    assert feed(drv, 0.5, 0.502, {'x': 50.0, 'y': 60.0})[-2:] == [('x', 50.0), ('y', 60.0)]
+
+
+def test_a_lifecycle_cycle_rearms_after_a_foreign_publisher_is_gone():
+    drv = DriverAxes(axes(''), PERIOD_S)
+    drv.activate()
+    feed(drv, 0.0, 0.01, {'': 20.0})
+    drv.intrusion('/drive_voltage: 2 publishers, 1 expected: foreign /actuator_driver')
+    drv.intrusion(None)
+    drv.deactivate(0.01, False)
+    drv.activate()
+    assert [k for k, _, _ in drv.take_events()] == ['foreign', 'gone', 'resume']
+    assert not drv.held
+
+
+def test_a_second_publisher_not_yet_named_holds_and_is_let_go_when_none_is_foreign():
+    """A restarted node's expired writer: matched twice, then named as the owner alone."""
+    drv = DriverAxes(axes(''), PERIOD_S)
+    drv.activate()
+    feed(drv, 0.0, 0.01, {'': 20.0})
+    drv.intrusion('/feedback_voltage: 2 publishers matched, 1 expected', pending=True)
+    assert drv.held is True and feed(drv, 0.01, 0.02, {'': 90.0})[-1] == ('', 20.0)
+    drv.intrusion(None)                         # named: none foreign; no re-arm needed
+    assert not drv.held and not drv.take_events()
+    assert feed(drv, 0.02, 0.03, {'': 30.0})[-1] == ('', 30.0)

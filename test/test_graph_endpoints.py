@@ -1,7 +1,15 @@
 # SPDX-License-Identifier: Apache-2.0
-"""Publishers of the wrong type on a node's topics are named (graph.endpoints)."""
+"""
+Publishers of the wrong type on a node's topics are named (graph.endpoints).
 
-from fiber_align.graph.endpoints import foreign_publishers, suspect_topics, type_name
+One graph per set of names (issue 39.1): a graph's node names already on the graph, and
+a second publisher of a command or drive topic, are named in one line each.
+"""
+
+from fiber_align.graph.arguments import describe
+from fiber_align.graph.endpoints import (drive_owners, extra_publishers, foreign_publishers,
+                                         graph_names, names_taken, suspect_topics,
+                                         type_name)
 
 
 class Float64:
@@ -51,3 +59,57 @@ def test_only_topics_carrying_another_type_are_suspects():
              ('/other', ['std_msgs/msg/String'])]
     assert suspect_topics(expected, graph) == ['/setpoint']
     assert suspect_topics(expected, []) == []
+
+
+def test_a_graph_s_names_taken_by_another_are_named_in_one_line():
+    """Issue 39.1: the second graph of one set of names refuses with what it found."""
+    g = describe({})
+    want = graph_names(g)
+    assert ('actuator_driver', '/') in want and ('lifecycle_manager', '/') in want
+    assert names_taken(want, [('_ros2cli_daemon_0', '/')], '0') is None
+    line = names_taken(want, sorted(want) + [('other', '/')], '7')
+    assert '\n' not in line and 'ROS_DOMAIN_ID=7' in line
+    assert '/actuator_driver' in line and '(%d of the %d nodes' % (len(want), len(want)) in line
+    # the same graph in another namespace owns other names
+    assert names_taken(graph_names(describe({'namespace': 'left'})), want, '0') is None
+
+
+def test_every_machine_s_names_are_its_processes_hosted_nodes():
+    rig = graph_names(describe({'rig': 'true'}))
+    assert ('actuator_driver', '/rig/x') in rig and ('alignment_sequencer_2d', '/rig') in rig
+    station = graph_names(describe({'station': 'true'}))
+    assert ('actuator_driver', '/station/out/y') in station
+    assert ('mdt693b_driver', '/rig') in graph_names(describe({'rig': 'true',
+                                                               'hardware': 'true'}))
+
+
+def test_drive_topics_name_their_one_owner_per_axis():
+    assert drive_owners('/actuator_driver', ['']) == {
+        'feedforward_voltage': '/hysteresis_compensator',
+        'feedback_voltage': '/fuzzy_pid_controller',
+        'reference': '/hysteresis_compensator', 'drive_voltage': '/actuator_driver'}
+    rig = drive_owners('/rig/mdt693b_driver', ['x', 'y'])
+    assert rig['y/feedforward_voltage'] == '/rig/y/hysteresis_compensator'
+    assert rig['x/drive_voltage'] == '/rig/mdt693b_driver' and len(rig) == 8
+    assert drive_owners('/rig/x/actuator_driver', [''])['reference'] == \
+        '/rig/x/hysteresis_compensator'
+
+
+def test_a_second_publisher_of_a_drive_topic_is_named():
+    owners = {'/feedforward_voltage': '/hysteresis_compensator',
+              '/drive_voltage': '/actuator_driver'}
+    one = {'/feedforward_voltage': ['/hysteresis_compensator'],
+           '/drive_voltage': ['/actuator_driver']}
+    assert extra_publishers(owners, one) == []
+    # one publisher, whoever it is (a test's probe, the open-loop runner): no conflict
+    assert extra_publishers(owners, {'/feedforward_voltage': ['/probe']}) == []
+    assert extra_publishers(owners, dict(one, **{'/feedforward_voltage': [
+        '/hysteresis_compensator', '/intruder']})) == [
+        '/feedforward_voltage: 2 publishers, 1 expected: foreign /intruder (besides '
+        '/hysteresis_compensator)']
+    # the owner's name twice: a restarted owner's expired writer (or another graph of
+    # the same names, refused at its start): not named
+    assert extra_publishers(owners, dict(one, **{'/drive_voltage': [
+        '/actuator_driver', '/actuator_driver']})) == []
+    assert extra_publishers(owners, {'/feedforward_voltage': ['/a', '/b']}) == [
+        '/feedforward_voltage: 2 publishers, 1 expected: foreign /a, /b']

@@ -60,6 +60,6 @@ def test_launch_station_records_aligns_and_stops_cleanly(ros2_env, tmp_path):  #
                       'stl', tracking_s=30.0, stop_s=20.0)
     counts = json.loads((bag / 'recorder_counts.json').read_text(encoding='utf-8'))
     for axis in ('in/x', 'in/y', 'out/x', 'out/y'):
-        for topic in ('displacement', 'setpoint', 'drive_voltage'):
+        for topic in ('displacement', 'reference', 'drive_voltage'):
             assert counts['/stl/%s/%s' % (axis, topic)] > 100, counts
     assert counts['/stl/optical_power'] > 100 and counts['/stl/alignment_state'] >= 4

@@ -128,3 +128,23 @@ def test_topic_backend_realtime_deactivate_ramps_its_drive_to_safe_by_tick():
     volts = [v for _, v in drives]
     assert all(b <= a for a, b in zip(volts, volts[1:])), volts        # a ramp down
     assert s.input('x', True, 53.0, 0.5) == [] and s.tick(0.5)[0] == []   # and it stays
+
+
+def test_a_foreign_publisher_is_an_error_then_a_warn_then_ok_after_the_rearm():
+    """Issue 39.1: the steady status every axis shows while held for a foreign publisher."""
+    s = DriverSession(axes(x='x', y='y'), PERIOD_S, sensorless=True)
+    s.open()
+    s.activate()
+    s.input('x', True, 40.0, 0.0)
+    s.take_reports()
+    text = '/x/feedforward_voltage: 2 publishers, 1 expected: foreign /intruder'
+    s.intrusion(text)
+    reports = s.take_reports()
+    assert [k for k, _, _ in reports] == ['error', 'fail'] and reports[1][1] is None
+    assert text in reports[1][2] and s.held and s.values()['foreign_publishers'] == text
+    assert s.input('x', True, 100.0, 0.1) == [('x', 40.0)]      # held where it is
+    s.intrusion(None)
+    assert [k for k, _, _ in s.take_reports()] == ['info', 'warn'] and s.held
+    s.enable(True, 0.2)
+    assert [k for k, _, _ in s.take_reports()] == ['info', 'ok'] and not s.held
+    assert s.input('x', True, 50.0, 0.3) == [('x', 50.0)]

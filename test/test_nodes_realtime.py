@@ -627,9 +627,10 @@ def test_a_stalled_plant_applies_the_ramp_it_slept_through(graph):
         1e6 * min(ys), cl.around(t_low, log_dir=log_dir))
     assert cl.spin_for(8.0, lambda: cl.settled(t1)), cl.explain(t0, log_dir)
     assert max(cl.ys_since(t1)) <= 90e-6 + 2e-6
-    # the stall cost the run more than its goal (0.1 %) of the periods: a WARN says so
+    # the stall cost the last 10 s more than the goal (0.1 %) of the periods (a late
+    # tick's periods are missed even while the tripped driver holds): a WARN says so
     assert any(t > t1 and n.endswith('simulated_actuator') and lv == WARN
-               and 'of the cycles since the run started (goal <= 0.1 %)' in m
+               and 'of the cycles in the last' in m and '(goal <= 0.1 %)' in m
                for t, n, lv, m in cl.diags), [
         (n, lv, m) for t, n, lv, m in cl.diags if n.endswith('simulated_actuator')][-3:]
 

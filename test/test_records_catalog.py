@@ -144,6 +144,12 @@ def test_a_spool_left_by_a_stopped_writer_is_written_by_the_next(tmp_path):
     for r in [('runs', run)] + [('alignments', a) for a in aligns]:
         w.put(*r)
     assert not w.flush(0.5)
+    # a try that fails during the wait ends it: the rows are in the spool, the CLI's
+    # end does not wait its 10 s for a folder that will not appear
+    w.retry_period_s = 0.3
+    t0 = time.monotonic()
+    assert not w.flush(10.0, until_refused=True)
+    assert time.monotonic() - t0 < 5.0, time.monotonic() - t0    # half its bound
     s = w.close()
     assert s['level'] == 'spooling' and s['spooled'] == 6 and 'does not exist' in s['reason']
     folder.mkdir()

@@ -73,6 +73,8 @@ class Machine:
         self.p = p
         self._last = {'p': None, 'y': None}     # time of the last reading of each (s)
         self._prev_pos = None
+        #: the power reading that has not changed: (W, since s, positions m, moved m)
+        self._frozen = None
         self.state = IDLE
         self.fault_reason = ''
         self.events = []
@@ -97,6 +99,10 @@ class Machine:
             return False, why
         self.fault_reason = ''
         self._resumed = False
+        if self.state != IDLE:
+            # the IDLE readings were taken at the park position, at rest: from anywhere
+            # else (TRACKING, HELD, FAULT, a re-plug) the floor is measured afresh
+            self._idle_buf = []
         self._enter(SEARCHING)
         self._start_search()
         return True, 'alignment started'
@@ -189,7 +195,7 @@ class Machine:
         self._driver_up = not down
         if self.state in ACTIVE and down:
             self._hold(self.drivers.reason, down)
-        if self.state in ACTIVE and self._silent_or_stuck(t, pos):
+        if self.state in ACTIVE and self._silent_or_stuck(t, pos, pw):
             return self.setpoint
         if pos is None:
             pos = self._prev_pos if self._prev_pos is not None else self.sp.copy()
@@ -236,6 +242,7 @@ class Machine:
     def _search_again(self, why):
         self._log('%s: searching again' % why)
         self._resumed = True                # align and switch replace this resume
+        self._idle_buf = []                 # not at the park position: a fresh floor
         self._enter(SEARCHING)
         self._start_search()
 
@@ -247,8 +254,8 @@ class Machine:
             self._fault(self._tracker.loss.fault)
         return sp
 
-    def _silent_or_stuck(self, t, pos):
-        """Return True (and fault) when a reading is missing or an axis does not follow."""
+    def _silent_or_stuck(self, t, pos, pw):
+        """Return True (and fault) when a reading is missing or frozen, or an axis is stuck."""
         p = self.p
         t0 = self._state_t if self._state_t is not None else t
         for key, what in (('p', 'optical power'), ('y', 'displacement')):
@@ -259,6 +266,10 @@ class Machine:
                 return True
         if pos is None:
             return False
+        frozen = self._meter_frozen(t, pos, pw)
+        if frozen:
+            self._fault(frozen)
+            return True
         err = np.abs(pos - self.sp)
         if np.any(err > p['follow_error_m']):
             if self._follow_since is None:
@@ -273,6 +284,33 @@ class Machine:
         else:
             self._follow_since = None
         return False
+
+    def _meter_frozen(self, t, pos, pw):
+        """
+        Return why the power meter is frozen (text), or '' while its reading can be live.
+
+        A constant reading is normal in the dark (a meter that clamps at its floor, a
+        quantised reading): at or below ``dark_floor_w`` or the first-light threshold it is
+        never suspect. With light present the reading cannot stay the same to the last bit
+        while the axes move: more than ``settle_tolerance_m`` from where it last changed,
+        for longer than ``meter_frozen_timeout_s`` (s), the meter is frozen.
+        """
+        fr, p = self._frozen, self.p
+        dark = max(p['dark_floor_w'], self.threshold_w or 0.0)
+        if pw is None:
+            return ''
+        if fr is None or pw != fr[0] or pw <= dark:
+            self._frozen = (pw, t, pos.copy(), 0.0)
+            return ''
+        moved = max(fr[3], float(np.max(np.abs(pos - fr[2]))))
+        self._frozen = fr[:3] + (moved,)
+        if moved > p['settle_tolerance_m'] and t - fr[1] > p['meter_frozen_timeout_s']:
+            return ('power meter frozen: the optical power reading stays at %.6g W (%.1f dBm, '
+                    'light present) for %.0f ms while %s moved %.2f um: the meter does not '
+                    'measure; check the power meter and its link'
+                    % (pw, dbm(pw), (t - fr[1]) * 1e3,
+                       'the actuator' if len(pos) == 1 else 'the axes', moved * 1e6))
+        return ''
 
     # ---- SEARCHING: the floor at rest ------------------------------------------------
     def _measure_floor(self, rest, pw):
@@ -290,10 +328,13 @@ class Machine:
             return None
         f = np.asarray(self._floor_buf[-n:])
         mean, std = float(f.mean()), float(f.std(ddof=1))
-        self.floor = (mean, std)
         if np.ptp(f) <= 1e-9 * abs(mean):
-            self._fault('sensor silent: optical power reading is stuck at %.3g W' % mean)
-            return None
+            # a constant floor is the meter's (a clamp, a quantised reading), not a dead
+            # sensor: no noise can be seen below its level, so the level stands for it
+            # (at least dark_floor_w); a frozen meter shows where light is: _meter_frozen
+            std = max(abs(mean), p['dark_floor_w'])
+            self._log('constant reading %.3g W at rest: the meter\'s floor or resolution' % mean)
+        self.floor = (mean, std)
         if mean > p['floor_max_w']:
             self.threshold_w = p['floor_max_w']
             self._log('light present at the start (%.1f dBm)' % dbm(mean))
@@ -307,6 +348,8 @@ class Machine:
         self._resumed = self._resumed and state in (SEARCHING, PEAKING)
         self._state_t = self._t
         self._follow_since = None
+        if state not in ACTIVE:
+            self._frozen = None             # a frozen reading is judged while active only
         if state == PEAKING:
             self.peak_samples = 0
             self.iterations = 0

@@ -12,7 +12,7 @@ import numpy as np
 
 from fiber_align.alignment.hold import um
 from fiber_align.alignment.machine import dbm
-from fiber_align.alignment.states import PEAKING, TRACKING
+from fiber_align.alignment.states import PEAKING, SEARCHING, TRACKING
 from fiber_align.alignment.tracking import Tracker
 
 #: Share of the realtime path's rate the search walks at, at most: the rest is room for
@@ -89,6 +89,7 @@ class MultiAxis:
             if bright:
                 self.floor = (0.0, p['floor_max_w'] / max(p['threshold_sigma'], 1.0))
                 self.first_light_t = t
+                self._path = None           # lit at the start: no walk (yet)
                 self._start_peaking(pos)
                 return
             self._path = self.search_path(pos)
@@ -120,6 +121,15 @@ class MultiAxis:
                 self._fault(self._no_light_text())
             return
         self.sp = np.asarray(self._path.advance(self.search_speed * self.dt), dtype=float)
+
+    def _false_light(self):
+        """Nothing lit around the first-light point: a noise spike; walk on (same path)."""
+        self._log('no light around the first-light point: noise, searching on')
+        self.state = SEARCHING
+        self.events.append((self._t, SEARCHING, 'resumed'))
+        self._phase, self._confirm, self._best = self.SEARCH_PHASE, 0, (0.0, self.sp.copy())
+        if getattr(self, '_path', None) is None:     # it was lit at the start: no walk yet
+            self._path = self.search_path(self.sp)
 
     # ---- PEAKING -------------------------------------------------------------------
     def _start_peaking(self, center):

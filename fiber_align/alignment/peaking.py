@@ -67,16 +67,38 @@ class Peaking:
         self._first_sweep = True
         self._setpoint = max(self._setpoint, y)
 
-    def _start_local(self, center):
-        """Begin a local sweep over ``center +- repeak_span_m``."""
+    def _start_local(self, center, span=None):
+        """Begin a local sweep over ``center +- span`` (m; None: ``repeak_span_m``)."""
         p = self.p
-        lo = max(center - p['repeak_span_m'], p['range_min_m'])
-        self._sweep_end = min(center + p['repeak_span_m'], p['range_max_m'])
+        if span is None:
+            span, self._widened = p['repeak_span_m'], 0
+        lo = max(center - span, p['range_min_m'])
+        self._sweep_end = min(center + span, p['range_max_m'])
         self._sweep_speed = p['repeak_speed_m_per_s']
         self._samples = []
         self._first_sweep, self._local_center = False, center
         self._goal = lo
         self._phase = 'goto_sweep'
+
+    def _widen(self, yy):
+        """
+        Sweep again twice as wide, or search again: a local sweep (over ``yy``, m) had no peak.
+
+        The held or last aligned point need not match the fiber any more (a re-plugged
+        bimorph starts from rest, its feedforward's memory does not): after
+        ``repeak_widen_max`` wider sweeps the search starts again instead of a FAULT.
+        """
+        p, center = self.p, self._local_center
+        n = getattr(self, '_widened', 0)
+        what = 'no peak in the %d samples over %.1f..%.1f um' % (
+            len(yy), yy.min() * 1e6, yy.max() * 1e6)
+        if n >= int(p['repeak_widen_max']):
+            self._search_again(what)
+            return
+        span = p['repeak_span_m'] * 2.0 ** (n + 1)
+        self._log('%s: sweeping again over %.2f +- %.1f um' % (what, center * 1e6, span * 1e6))
+        self._start_local(center, span)
+        self._widened = n + 1
 
     def _settled(self, y):
         if abs(y - self._goal) < self.p['settle_tolerance_m']:
@@ -169,6 +191,9 @@ class Peaking:
         tol = p['range_tolerance_m']
         x0 = None if fit is None else fit[0]
         if fit is None or x0 > hi + tol or x0 < lo - tol:
+            if not self._first_sweep:
+                self._widen(yy)
+                return
             best = yy[int(pp.argmax())]
             where = '' if x0 is None else 'peak estimated at %.1f um, ' % (x0 * 1e6)
             if (x0 is not None and x0 > hi) or (

@@ -70,10 +70,11 @@ KEYS = (
     'peak_min_fit_samples', 'power_lag_s', 'range_tolerance_m',
     'settle_tolerance_m', 'settle_samples', 'settle_timeout_s',
     'verify_samples', 'verify_tolerance_db', 'max_refits',
-    'repeak_span_m', 'repeak_speed_m_per_s', 'switch_ramp_time_s',
+    'repeak_span_m', 'repeak_speed_m_per_s', 'repeak_widen_max', 'switch_ramp_time_s',
     'dither_amplitude_m', 'dither_frequency_hz', 'tracking_bandwidth_rad_s',
     'gradient_time_s', 'track_loss_db', 'track_loss_timeout_s',
-    'sensor_timeout_s', 'follow_error_m', 'follow_timeout_s',
+    'sensor_timeout_s', 'dark_floor_w', 'meter_frozen_timeout_s', 'follow_error_m',
+    'follow_timeout_s',
     'release_tolerance_m', 'release_timeout_s', 'driver_down_timeout_s',
 )
 
@@ -197,6 +198,13 @@ class Sequencer(Machine, Peaking):
         if self._phase == 'start':
             self._setpoint = p['range_min_m']
             self._floor_buf = list(self._idle_buf)
+            # the search starts at the start of travel, its floor is measured there: from
+            # anywhere else (align while TRACKING, HELD, after a re-plug) it goes there first
+            far = abs(y - p['range_min_m']) >= p['release_tolerance_m']
+            self._phase = 'to_start' if far else 'floor'
+        if self._phase == 'to_start':
+            if not (self._rest and abs(y - p['range_min_m']) < p['release_tolerance_m']):
+                return
             self._phase = 'floor'
         if self._phase == 'floor':
             bright = self._measure_floor(self._rest, pw)

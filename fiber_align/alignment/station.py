@@ -37,7 +37,7 @@ from fiber_align.alignment import station_search as ss
 from fiber_align.alignment.driver_state import DriverState
 from fiber_align.alignment.machine import check_params, dbm, Machine
 from fiber_align.alignment.multiaxis import MultiAxis
-from fiber_align.alignment.states import PEAKING, SEARCHING, TRACKING
+from fiber_align.alignment.states import PEAKING, TRACKING
 from fiber_align.alignment.station_peak import AXES4, JointPeakMixin
 from fiber_align.config import load_params
 
@@ -147,12 +147,3 @@ class Station(MultiAxis, Machine, JointPeakMixin):
                     threshold_w=self.threshold_w, hold_reason=self.hold_reason,
                     peak_samples=self.peak_samples,
                     search_samples=self.search_samples, iterations=self.iterations)
-
-    def _false_light(self):
-        """Nothing lit around the first-light point: a noise spike; walk on (same path)."""
-        self._log('no light around the first-light point: noise, searching on')
-        self.state = SEARCHING
-        self.events.append((self._t, SEARCHING, 'resumed'))
-        self._phase = 'search'
-        self._confirm = 0
-        self._best = (0.0, self.sp.copy())

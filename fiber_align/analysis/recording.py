@@ -7,10 +7,13 @@ Every node reports ``sent.<topic>`` (messages published) and ``bag_recorder`` re
 on ``/diagnostics``. The recorder holds what the nodes sent once, in reports made after
 the graph stopped publishing, every recorded count is at least the matching sent count.
 Pure: the callers keep the newest report of each node, ``{node: {key: value, '_t':
-monotonic s of arrival}}``.
+monotonic s of arrival}}``. A recorder whose disk filled up (``stopped_early`` on its
+report) holds all it ever will: nothing is left to wait for.
 """
 
 RECORDER = 'bag_recorder'
+#: The recorder's value, once a write failed (a full disk): the one line saying so.
+STOPPED_EARLY = 'stopped_early'
 #: Its setpoints are recorded as the compensator's ``reference``, not by name.
 NOT_RECORDED = ('scenario_runner',)
 
@@ -46,6 +49,8 @@ def recorder_short(diag, since, names=None):
     rec = diag.get(RECORDER, {})
     if rec.get('_t', 0.0) <= since:
         return None
+    if rec.get(STOPPED_EARLY):
+        return {}                       # a full disk: the bag holds all it ever will
     got = {k.rsplit('/', 1)[-1]: int(v) for k, v in rec.items() if k.startswith('recorded.')}
     if names is None:
         names = [n for n, d in diag.items()
@@ -62,6 +67,16 @@ def recorder_short(diag, since, names=None):
             if topic in got and got[topic] < int(float(v)):
                 short[topic] = (got[topic], int(float(v)))
     return short
+
+
+def recorder_stopped(diag):
+    """
+    Return the recorder's line when its recording stopped early (a full disk), or None.
+
+    :param diag: node (or full status name) -> its newest ``/diagnostics`` values.
+    """
+    return next((v.get(STOPPED_EARLY) for k, v in diag.items()
+                 if k.rsplit('/', 1)[-1] == RECORDER and v.get(STOPPED_EARLY)), None)
 
 
 def recorder_missing(diag, since, names=None):
@@ -116,6 +131,8 @@ def recorder_counts(diag, nodes, since=-1.0):
     rec = next((v for k, v in diag.items() if k.rsplit('/', 1)[-1] == RECORDER), {})
     if rec.get('_t', 0.0) <= since:
         return None
+    if rec.get(STOPPED_EARLY):
+        return {}                       # a full disk: the bag holds all it ever will
     got = {k[len('recorded.'):]: int(float(v)) for k, v in rec.items()
            if k.startswith('recorded.')}
     sent = {}

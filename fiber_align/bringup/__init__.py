@@ -37,6 +37,8 @@ from fiber_align.bringup.rig import run_rig
 from fiber_align.bringup.run import Bringup
 from fiber_align.config import ConfigError
 from fiber_align.graph.description import dds_environment
+from fiber_align.graph.endpoints import NamesTaken
+from fiber_align.nodes.ros.owners import refuse_taken
 
 
 def main(args=None):
@@ -48,15 +50,16 @@ def main(args=None):
     os.environ.update(dds_environment())
     a = parse_args(args)
     try:
+        refuse_taken(graph(a)[0])   # another graph of these names: one line, nothing started
         if a.hardware:
             code = hardware.run(a)
-        elif a.rig or a.station:
+        elif a.rig or a.station or a.array:
             code = run_rig(a, graph(a)[0])
         else:
             code = Bringup(a, *graph(a)).run()
     except (ConfigError, ValueError) as exc:
         print('bringup: error: %s' % exc, file=sys.stderr, flush=True)
-        code = 2
+        code = 1 if isinstance(exc, NamesTaken) else 2
     except KeyboardInterrupt:
         interrupt.handled()
         code = 130

@@ -62,6 +62,7 @@ OPTIONS = {
     'model_file': ('--model', dict(metavar='FILE')), 'record': ('--record', dict(metavar='DIR')),
     'scenario': ('--scenario', {}), 'rig': ('--rig', dict(action='store_true')),
     'station': ('--station', dict(action='store_true')), 'seed': ('--seed', dict(type=int)),
+    'array': ('--array', dict(action='store_true')),
     'hardware': ('--hardware', dict(action='store_true')), 'port': ('--port', {}),
     'visa_resource': ('--visa-resource', {}), 'live': ('--live', dict(action='store_true')),
     'live_port': ('--live-port', dict(type=int, metavar='PORT')),
@@ -73,6 +74,7 @@ NOTES = {
     'scenario': '; bringup runs it to its end (align: then --cycles switch cycles)',
     'rig': '; align2d, in lockstep compared with fiber-align simulate --scenario align2d',
     'station': '; align, in lockstep compared with fiber-align simulate --scenario station',
+    'array': '; align, in lockstep compared with fiber-align simulate --scenario array',
     'hardware': '; align, --cycles, --hold; with --rig both axes on one MDT693B',
 }
 
@@ -126,6 +128,8 @@ def parse_args(argv):
     hw.add_argument('--emulate', action='store_true', help='with --hardware: start '
                     '`fiber-align emulate` and use its serial_link and visa_resource')
     hw.add_argument('--slot', type=float, metavar='M', help='--emulate: slot position (m)')
+    hw.add_argument('--meter-floor', type=float, default=None, metavar='W',
+                    help='--emulate: the PM100 clamps its readings at this floor (W)')
     hw.add_argument('--hold', type=float, default=None, metavar='S',
                     help='--hardware: hold TRACKING this long (s) after the cycles; '
                          'default: until Ctrl-C')
@@ -133,6 +137,8 @@ def parse_args(argv):
     # the launch arguments' combinations are describe()'s to check; these are bringup's
     if not a.hardware and (a.emulate or a.slot is not None or a.hold is not None):
         ap.error('--emulate, --slot and --hold need --hardware')
+    if a.meter_floor is not None and not a.emulate:
+        ap.error('--meter-floor needs --hardware --emulate')
     if a.slot is not None and a.rig:
         ap.error('--slot is not available with --rig (--seed picks the emulated target)')
     if a.emulate and (a.port or a.visa_resource):
@@ -166,7 +172,7 @@ def graph(a, **given):
 
     :raises GraphError: a bad option, params file or ``-p`` (exit code 2).
     """
-    one_axis = not (a.rig or a.station or a.hardware)
+    one_axis = not (a.rig or a.station or a.array or a.hardware)
     bad = [opt for attr, opt in ONE_AXIS_OPTIONS if getattr(a, attr) and not one_axis]
     if bad:
         raise GraphError('%s: only on the simulated 1-D graph' % ', '.join(bad))
@@ -179,7 +185,7 @@ def graph(a, **given):
         ov[RECORDER] = {'storage': a.storage}
     ov = parse_params(a.param, ov)
     args = arguments(a, **given)
-    if a.rig or a.station:
+    if a.rig or a.station or a.array:
         ov[PLANT] = dict(ov.get(PLANT, {}), autostart=False)
     g = describe(args, ov)
     if not one_axis or g.scenario == 'none':

@@ -82,7 +82,7 @@ class HardwareRun(Harness):
         """Start the graph; wait until it is ready to align (the meter reading, IDLE)."""
         self._starting = True
         try:
-            super().start(check_alone=False, ready=self._ready)
+            super().start(ready=self._ready)
         finally:
             self._starting = False
         time.sleep(FLOOR_WAIT_S)          # the sequencer's floor readings (IDLE)
@@ -220,6 +220,8 @@ def run(args):
                 extra += ['--rig', '--target-x', repr(tx), '--target-y', repr(ty)]
             if args.slot is not None:
                 extra += ['--slot', repr(float(args.slot))]
+            if args.meter_floor is not None:
+                extra += ['--meter-floor', repr(float(args.meter_floor))]
             parts['emu'], info = start_emulator(extra, quiet=args.quiet,
                                                 priority=emulator_priority())
             port, resource = info['serial_link'], info['visa_resource']

@@ -18,15 +18,18 @@ import tempfile
 import time
 
 from fiber_align.analysis import run_summary as sm
-from fiber_align.analysis.recording import recorder_counts, recorder_short, recorder_short_full
+from fiber_align.analysis.recording import (recorder_counts, recorder_short, recorder_short_full,
+                                            recorder_stopped)
 from fiber_align.bringup import interrupt
 from fiber_align.bringup.children import Child, wait_all
 from fiber_align.bringup.floor import Floor
 from fiber_align.bringup.observer import BadInput, BringupError, Observer
 from fiber_align.graph.description import dds_environment
+from fiber_align.graph.endpoints import graph_names
 from fiber_align.graph.params import effective, merge_params, PLANT, RECORDER
 from fiber_align.jsonout import json_default
 from fiber_align.nodes.ros.diagnostics import endpoint_node_name
+from fiber_align.nodes.ros.owners import refuse_taken
 
 EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -100,25 +103,22 @@ class Harness:
         #: the recorded and sent counts when the recorder had matched every writer
         self.rec_base = None
 
-    def start(self, check_alone=True, ready=None):
-        """Observe, spawn every process, wait for the nodes, the active drivers, the topics."""
+    def start(self, check_alone=False, ready=None):
+        """
+        Observe, spawn every process, wait for the nodes, the active drivers, the topics.
+
+        :param check_alone: refuse first when another graph owns these names (``bringup``'s
+            main looks before any mode starts: :func:`~fiber_align.nodes.ros.owners.refuse_taken`).
+        """
         t0 = time.monotonic()
         g = self.graph
         timeout = float(self.gp['startup_timeout_s'])
         self.obs = Observer(g.namespace, **self.observe)
         self.obs.stall_s = float(self.gp['stall_timeout_s'])
         self.obs.start_stall_s = float(self.gp['start_stall_timeout_s'])
-        want = set()
-        for p in g.processes:
-            want.update(p.hosted(g.namespace))
-        if check_alone:
-            time.sleep(float(self.gp['discovery_wait_s']))
-            others = sorted(n for n, ns in want & self.obs.node_names())
-            if others:
-                raise BringupError(
-                    'another fiber_align graph runs on ROS_DOMAIN_ID=%s in namespace /%s '
-                    '(its nodes: %s); stop it, or use --namespace or another ROS_DOMAIN_ID'
-                    % (os.environ.get('ROS_DOMAIN_ID', '0'), g.namespace, ', '.join(others)))
+        want = graph_names(g)
+        if check_alone:         # another graph of these names: one line, nothing started
+            refuse_taken(g, float(self.gp['discovery_wait_s']))
         env = dds_environment()
         # the recorder first: it is subscribed before the first sample is published
         for p in sorted(g.processes, key=lambda p: p.name != RECORDER):
@@ -162,8 +162,11 @@ class Harness:
     def run(self, on=True):
         """Start (or hold) every plant's sample clock (``<plant>/run``)."""
         from std_srvs.srv import SetBool
-        if on and self.graph.record and getattr(self.graph, 'axes', None):
-            self.rec_base = self._recorder_base()
+        if on and self.graph.record:
+            if getattr(self.graph, 'axes', None):
+                self.rec_base = self._recorder_base()
+            else:
+                self._recorder_matched()
         for p in self.plants:
             self.obs.call(self.obs.client(SetBool, p + '/run'), SetBool.Request(data=on),
                           5.0 if on else 0.5, self.alive)
@@ -189,15 +192,8 @@ class Harness:
         return ['%s/%s' % (ns.rstrip('/'), n) for p in self.graph.processes
                 for n, ns in p.hosted(self.graph.namespace)]
 
-    def _recorder_base(self):
-        """
-        Wait until the recorder reads every writer of its topics; return the counts then.
-
-        The multi-axis graphs: a volatile message sent before the recorder matched its
-        writer (an activation, the sequencer's first setpoints) reaches no late reader, so
-        "every message in the bag" counts from here (the plants are still held: nothing
-        is published between this count and their start).
-        """
+    def _recorder_matched(self):
+        """Wait until the recorder reads every writer of its topics (bounded)."""
         g, node = self.graph, self.obs.node
         rec = '/%s/%s' % (g.namespace, RECORDER) if g.namespace else '/' + RECORDER
         # the topics it reads in-process (hosted in the composed process) need no match
@@ -212,6 +208,21 @@ class Harness:
                 for t in topics)
         timeout = float(self.gp['startup_timeout_s'])
         self.obs.wait(matched, timeout, self.alive, 'the recorder on every recorded topic')
+        # this node saw the recorder's readers; each writer matches them on its own, a
+        # little later (a first sample sent before that reaches no reader)
+        time.sleep(float(self.gp['recorder_match_s']))
+
+    def _recorder_base(self):
+        """
+        Wait until the recorder reads every writer of its topics; return the counts then.
+
+        The multi-axis graphs: a volatile message sent before the recorder matched its
+        writer (an activation, the sequencer's first setpoints) reaches no late reader, so
+        "every message in the bag" counts from here (the plants are still held: nothing
+        is published between this count and their start).
+        """
+        self._recorder_matched()
+        timeout = float(self.gp['startup_timeout_s'])
         t0 = time.monotonic()
         diag = self.obs.watch.by_status['latest']
         self.obs.wait(lambda: recorder_counts(diag, self.full_nodes, t0) is not None,
@@ -249,6 +260,11 @@ class Harness:
                 except BringupError:
                     pass
             time.sleep(0.1)   # in-flight messages reach their subscribers
+        stopped = recorder_stopped(self.obs.watch.by_status['latest']) if self.obs else None
+        if stopped:                     # a full disk: the run went on, its bag ends early
+            s['recording_stopped_early'] = stopped
+            if self.quiet:              # else the recorder's own line was relayed
+                print('bringup: %s' % stopped, flush=True)
         if rec and rec[0].alive() and self.obs is not None:
             # the graph is held: the recorder works through its backlog before the
             # publishers go (a writer that exits takes its undelivered samples with it)

@@ -25,7 +25,7 @@ from rclpy.executors import SingleThreadedExecutor
 from fiber_align.analysis.recording import diag_entry
 from fiber_align.analysis.run_summary import worst_cycles
 from fiber_align.control.trajectory import stamp_ns
-from fiber_align.nodes.ros.qos import DIAG_QOS, LATCHED_QOS, sample_pub_qos
+from fiber_align.nodes.ros.qos import DIAG_QOS, LATCHED_QOS, sample_pub_qos, STATE_QOS
 
 
 class BringupError(RuntimeError):
@@ -163,7 +163,7 @@ class Observer:
         for key, topic in streams.items():
             typ = JointState if topic.endswith('displacement') else Float64
             self.node.create_subscription(typ, topic, self._adder(key), qos)
-        self.node.create_subscription(String, 'alignment_state', self._on_state, LATCHED_QOS)
+        self.node.create_subscription(String, 'alignment_state', self._on_state, STATE_QOS)
         #: monotonic s at which the scenario runner said ``done`` (``None``: not yet)
         self.runner_done_at = None
         self.node.create_subscription(String, 'scenario_state', self._on_runner,
@@ -310,7 +310,11 @@ class Observer:
         if not res.success:
             what = name if data is None else '%s %s' % (name, 'on' if data else 'off')
             raise Refused('%s refused: %s' % (what, res.message))
-        return self.event(n)
+        k = self.event(n)
+        with self.lock:         # lockstep: the sequencer's own count is the truth
+            st = self.states[n][1] if len(self.states) > n else {}
+        return int(st['align_sample']) if (self.lockstep and name == 'align'
+                                           and st.get('align_sample') is not None) else k
 
     def set_text(self, node, name, value, alive=lambda: None, timeout=10.0):
         """Set the text parameter ``name`` of ``node`` (relative), as ``ros2 param set``."""

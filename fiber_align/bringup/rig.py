@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-``bringup --rig``, ``--station``: start a multi-axis graph, align, stop.
+``bringup --rig``, ``--station``, ``--array``: start a multi-axis graph, align, stop.
 
 The plants start held until every driver is active; then ``align`` after
 ``ALIGN_IDLE_S`` of samples, TRACKING within ``ALIGN_MAX_S`` (the station: its search
@@ -16,6 +16,7 @@ from fiber_align.analysis.axes_summary import axis_figures, print_report
 from fiber_align.bringup.harness import Harness, session
 from fiber_align.bringup.observer import BringupError
 from fiber_align.graph.registry import STATION_AXES as AXES4
+from fiber_align.simulation import array_scenarios as asc
 from fiber_align.simulation import station_scenarios as sc
 
 #: Streams recorded per sample: name -> topic. The setpoints as the loop accepted them
@@ -27,6 +28,12 @@ STREAMS = {'mx': 'x/displacement', 'my': 'y/displacement', 'p': 'optical_power',
 STATION_STREAMS = dict([('m' + k, a + '/displacement') for k, a in zip(sc.AXIS_KEYS, AXES4)]
                        + [('r' + k, a + '/reference') for k, a in zip(sc.AXIS_KEYS, AXES4)]
                        + [('p', 'optical_power')])
+#: The array's (``bringup --array``): :class:`fiber_align.simulation.array_scenarios.
+#: ArrayBench`'s trace columns, the outer channels' readings ``p_1`` and ``p_n``.
+_AB = asc.ArrayBench
+ARRAY_STREAMS = dict([(k, a + '/displacement') for k, a in zip(_AB.MEASURED, _AB.POSITION)]
+                     + [(k, a + '/reference') for k, a in zip(_AB.SETPOINT, _AB.POSITION)]
+                     + list(zip(_AB.POWERS, ('optical_power', 'optical_power_n'))))
 
 
 #: What differs between the multi-axis graphs, by their scenario: the per-sample streams,
@@ -34,7 +41,8 @@ STATION_STREAMS = dict([('m' + k, a + '/displacement') for k, a in zip(sc.AXIS_K
 #: bounded by the sequencer's own search timeout (+ 2 s, as offline; the station's search
 #: may walk its whole square) or by ``ALIGN_MAX_S``.
 KINDS = {'align2d': (STREAMS, sm.compare_offline, False),
-         'station': (STATION_STREAMS, sm.compare_offline_station, True)}
+         'station': (STATION_STREAMS, sm.compare_offline_station, True),
+         'array': (ARRAY_STREAMS, sm.compare_offline_array, True)}
 
 
 def arrays(obs, streams=STREAMS):
@@ -61,7 +69,7 @@ def run_rig(a, g):
     def steps():
         # the align server discovered before the clock starts: a late discovery would
         # otherwise let the lockstep graph idle on for seconds before the command
-        h.start(check_alone=False, ready=lambda: h.obs.client(Trigger, 'align')
+        h.start(ready=lambda: h.obs.client(Trigger, 'align')
                 .wait_for_service(timeout_sec=0.1))
         obs, alive = h.obs, h.alive
         h.run(True)
@@ -76,7 +84,8 @@ def run_rig(a, g):
             a.part, next(parts)), alive)) if a.part else (lambda: None)
         part()
         k_align, tracking = _align(obs, alive, rate, clock, max_s)
-        k_end = clock() + int(round(sm.LOSS_WINDOW_S * rate)) + 5
+        # from the TRACKING sample: the status can arrive before the streams' samples
+        k_end = max(clock(), tracking['sample']) + int(round(sm.LOSS_WINDOW_S * rate)) + 5
         obs.wait(lambda: clock() >= k_end, 60.0, alive, 'sample %d' % k_end)
         summary.update(align_sample=k_align, tracking_sample=tracking['sample'],
                        time_to_peak_s=(tracking['sample'] - 1 - k_align) / rate,
@@ -113,7 +122,8 @@ def run_rig(a, g):
         s = h.stop(code == 130)
         summary['children'] = {n: c['exit_code'] for n, c in s.get('children', {}).items()}
         summary['processes'] = s.get('processes', {})
-        for k in ('recorded', 'recorder_short', 'recorder_catch_up_s'):
+        for k in ('recorded', 'recorder_short', 'recorder_catch_up_s',
+                  'recording_stopped_early'):
             if k in s:
                 summary[k] = s[k]
         if a.trace and h.obs is not None:

@@ -66,7 +66,7 @@ class Bringup:
         for attempt in range(retries + 1):
             self.h = self._harness()
             try:
-                self.h.start(check_alone=attempt == 0)
+                self.h.start()
                 print('bringup: graph up in %.2f s (%s, %g Hz, %s, %s)' % (
                     self.h.summary['startup_s'], self.sync, self.rate, self.graph.controller,
                     'composed' if self.graph.composed else 'multi-process'), flush=True)

@@ -99,24 +99,28 @@ class CycleStats:
         return out
 
 
-def loop_summary(lat, periods, missed, skipped, samples):
+def loop_summary(lat, periods, missed, skipped, samples, idle=0):
     """
     Return the realtime loop statistics of a run (the plant's, for the summary).
 
     :param lat: the sample-to-drive latencies since the statistics started, a
         :class:`LatencyHistogram`.
-    :param periods: sample periods counted.
+    :param periods: sample periods since the statistics started.
     :param missed: ticks with no new drive.
     :param skipped: periods skipped by late ticks.
     :param samples: samples published.
-    :returns: dict with ``samples``, ``periods``, ``latency_n``, ``missed_cycles``
-        (``missed_no_drive`` plus ``missed_late_tick``), ``missed_share`` (1), and
+    :param idle: periods in which the loop was not meant to run (the driver held its
+        output: inactive, disabled, tripped): neither counted nor missed.
+    :returns: dict with ``samples``, ``periods`` (the counted ones: ``idle_periods`` not
+        among them), ``latency_n``, ``missed_cycles`` (``missed_no_drive`` plus
+        ``missed_late_tick``), ``missed_share`` (1, of the counted periods), and
         ``latency_p50_s``, ``latency_p99_s``, ``latency_max_s`` (s) when there is one.
     """
     total = missed + skipped
-    out = {'samples': int(samples), 'periods': int(periods), 'latency_n': int(lat.n),
-           'missed_cycles': int(total), 'missed_no_drive': int(missed),
-           'missed_late_tick': int(skipped),
+    periods = max(0, int(periods) - int(idle))
+    out = {'samples': int(samples), 'periods': periods, 'idle_periods': int(idle),
+           'latency_n': int(lat.n), 'missed_cycles': int(total),
+           'missed_no_drive': int(missed), 'missed_late_tick': int(skipped),
            'missed_share': float(total) / periods if periods else 0.0}
     if lat.n:
         p50, p99 = lat.percentiles((50, 99))
@@ -210,19 +214,65 @@ class LatencyHistogram:
         return out
 
 
+#: s: the cycle WARN follows the missed share of this recent window (:class:`RecentShare`)
+RECENT_S = 10.0
+
+
+class RecentShare:
+    """
+    The missed share of the recent window, from a run's cumulative counts (pure).
+
+    A WARN on the run-wide share stayed for the rest of a run after one bad stretch (five
+    driver cycles: 37 % missed, WARN to the end); the share of the last ``window_s``
+    seconds clears once the loop is healthy again. The window reaches back to the
+    newest report at least ``window_s`` old (so it spans ``window_s`` plus at most one
+    report period); statistics that restart (counts going down) start it again.
+
+    :param window_s: the window (s).
+    """
+
+    def __init__(self, window_s=RECENT_S):
+        """Start with no report."""
+        self.window_s = float(window_s)
+        self.points = collections.deque()
+
+    def update(self, t_s, periods, missed):
+        """
+        Take the run's counts at ``t_s`` (monotonic s); return the window's figures.
+
+        :param periods: periods counted since the statistics started; :param missed:
+            those missed (:func:`loop_summary`'s ``periods``, ``missed_cycles``).
+        :returns: dict: ``periods``, ``missed``, ``missed_share`` (1), ``seconds`` (s)
+            of the window.
+        """
+        pts = self.points
+        if pts and (periods < pts[-1][1] or missed < pts[-1][2]):
+            pts.clear()
+        pts.append((float(t_s), int(periods), int(missed)))
+        while len(pts) > 1 and pts[-1][0] - pts[1][0] >= self.window_s:
+            pts.popleft()
+        t0, p0, m0 = pts[0]
+        dp, dm = int(periods) - p0, int(missed) - m0
+        return {'periods': dp, 'missed': dm, 'missed_share': dm / dp if dp else 0.0,
+                'seconds': float(t_s) - t0}
+
+
 def cycle_warning(figures, goal_share):
     """
-    Return the WARN text of a run that missed more than ``goal_share`` of its periods.
+    Return the WARN text of a loop that missed more than ``goal_share`` of its periods.
 
-    :param figures: :func:`loop_summary`'s dict (``missed_share``, ``periods``).
+    :param figures: :meth:`RecentShare.update`'s dict (``missed_share``, ``periods``,
+        ``seconds``: the recent window), or :func:`loop_summary`'s (the whole run).
     :param goal_share: the share allowed (1); <= 0: never a warning.
     :returns: the text, or ``None`` (within the goal, or nothing counted yet).
     """
     share = figures.get('missed_share')
     if goal_share <= 0 or not figures.get('periods') or share is None or share <= goal_share:
         return None
-    return 'missed %.3g %% of the cycles since the run started (goal <= %.3g %%)' % (
-        100 * share, 100 * goal_share)
+    when = ('in the last %.0f s' % figures['seconds']) if 'seconds' in figures \
+        else 'since the run started'
+    return 'missed %.3g %% of the cycles %s (goal <= %.3g %%)' % (
+        100 * share, when, 100 * goal_share)
 
 
 class DeadlineGrid:

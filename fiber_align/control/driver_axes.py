@@ -8,14 +8,16 @@ latch, ramp to the safe voltage) and its
 driver's policy over them is here, once: the output follows the inputs only while the
 driver is active and enabled; a watchdog trip of any axis holds every axis (each ramps
 to its own safe voltage until every input is fresh again: a two-axis alignment with one
-axis frozen is no alignment); ``held`` (``drive_held``) is one value for every axis. For
+axis frozen is no alignment); a second publisher on a command or drive topic (another
+graph's, :meth:`DriverAxes.intrusion`) holds every axis where it is until it is gone and
+the operator re-arms; ``held`` (``drive_held``) is one value for every axis. For
 one axis this is the 1-D driver's behaviour unchanged. Lockstep pairs the i-th
 feedforward with the i-th feedback of each axis.
 
 The node calls it with the clock readings (monotonic s) and message values (V) and
 publishes what it returns: drives ``[(axis, V)]`` and events ``(kind, axis, text)``
-(:attr:`DriverAxes.events`: ``trip`` and ``latch`` are errors, ``back`` and ``rearm``
-information). SI units (V, s, V/s).
+(:attr:`DriverAxes.events`: ``trip``, ``latch`` and ``foreign`` are errors, ``back``,
+``rearm``, ``gone`` and ``resume`` information). SI units (V, s, V/s).
 """
 
 from fiber_align.config import ConfigError
@@ -101,6 +103,8 @@ class DriverAxes:
         self.steps = {a: DriverStep(c, self.period_s, note) for a, c in self.cores.items()}
         self.active = False
         self.enabled = True
+        self.foreign = None             # the foreign publishers seen last (text), or None
+        self.blocked = False            # held for them until gone and re-armed
         self.events = []                # (kind, axis, text) for the node to report
         self.last = {a: None for a in self.cores}       # the drive returned last (V)
         self._queues = {a: ([], []) for a in self.cores}    # lockstep ff, fb
@@ -109,7 +113,7 @@ class DriverAxes:
     @property
     def held(self):
         """Return True while the output does not follow the inputs (``drive_held``)."""
-        return not (self.active and self.enabled) or self.tripped()
+        return not (self.active and self.enabled) or bool(self.blocked) or self.tripped()
 
     def tripped(self, but=None):
         """Return True while an axis (other than ``but``) is tripped or latched."""
@@ -124,6 +128,47 @@ class DriverAxes:
                 self.events.append(('rearm', a, 'watchdog latch re-armed by activate'))
             c.restart_watchdog()        # the inactive time is no loss of input
         self.active = True
+        self._rearm('a lifecycle deactivate/activate')
+
+    def intrusion(self, text, pending=False):
+        """
+        Take the newest check of the command and drive topics' publishers.
+
+        A second publisher (``text`` names it) holds every output where it is (the inputs
+        are not followed, the watchdog does not run) until it is gone (``text`` None)
+        and the operator re-arms (:meth:`enable` true, :meth:`activate`). ``pending``: a
+        second one matched but not named yet: held, and let go without a re-arm when
+        the names show none foreign (a restarted node's expired writer).
+        """
+        was, self.foreign = self.foreign, text
+        if text and pending:
+            self.blocked = self.blocked or 'pending'
+        elif not text and self.blocked == 'pending':
+            self.blocked = False
+            for c in self.cores.values():
+                c.restart_watchdog()    # the held time is no loss of input
+        elif text and text != was:
+            self.blocked = True
+            self.events.append(('foreign', '', 'second publisher on a command or drive '
+                                'topic: %s; every output held at %s until it is gone and '
+                                '~/enable true or a lifecycle deactivate/activate' % (
+                                    text, ', '.join('%.4g V' % c.v for c in
+                                                    self.cores.values()))))
+        elif was and not text and self.blocked:
+            self.events.append(('gone', '', 'the foreign publisher is gone; output held '
+                                'until ~/enable true or a lifecycle deactivate/activate'))
+
+    def _rearm(self, how):
+        if not self.blocked:
+            return
+        if self.foreign or self.blocked == 'pending':
+            self.events.append(('foreign', '', 'not re-armed by %s: still %s' % (
+                how, self.foreign)))
+            return
+        self.blocked = False
+        for c in self.cores.values():
+            c.restart_watchdog()        # the held time is no loss of input
+        self.events.append(('resume', '', 're-armed by %s: following the inputs' % how))
 
     def deactivate(self, now, lockstep):
         """Follow no more; return the drives: lockstep the safe voltages, else a ramp."""
@@ -161,6 +206,8 @@ class DriverAxes:
         rearmed = [a for a, c in self.cores.items() if on and (c.latched or c.trip_times)]
         for a in rearmed:
             self.cores[a].rearm()
+        if on:
+            self._rearm('~/enable true')
         return rearmed
 
     def set_limits(self, axis, new):
@@ -223,6 +270,8 @@ class DriverAxes:
             return []       # inactive: the output ramps to, and stays at, the safe voltage
         if not self.enabled:
             return self._out([(axis, core.ramp_safe(t))])
+        if self.blocked:        # a foreign publisher: hold the output where it is
+            return self._out([(axis, core.v)])
         was = core.tripped
         if len(self.cores) > 1 and self.tripped(but=axis):
             # another axis tripped: this one's input is fresh, but it holds (ramps to safe)
@@ -250,6 +299,8 @@ class DriverAxes:
                 if c.v != c.safe or (self.active and c.t_last_out is None):
                     out.append((a, c.ramp_safe(t)))
             return self._out(out)
+        if self.blocked:        # held where it is: no input is followed, none is due
+            return []
         tripped = []
         for a, c in self.cores.items():
             before, was_at = c.watchdog_count, c.v

@@ -5,17 +5,19 @@ From launch arguments to a graph, once: :func:`describe` (pure: no rclpy).
 ``ros2 launch fiber_align fiber_align.launch.py name:=value ...`` and ``bringup`` (its
 options turned into these arguments, :func:`fiber_align.bringup.cli.arguments`) both
 call :func:`describe`. The machine (the 1-D graph, the two-axis rig, the coupled
-station, the sensorless hardware bench, the rig on hardware) is chosen by data: the
-``rig``, ``station`` and ``hardware`` switches select a row of :data:`MACHINES`, which
-names its builder, its default namespace and the arguments it takes; an argument given
-to a machine that does not take it is refused in one line. ``live`` adds the live view
-to any of them (:func:`fiber_align.graph.live.with_live`), ``catalog`` the run
-catalogue's node (:func:`fiber_align.graph.catalog.with_catalog`; on by default).
+station, the fiber array, the sensorless hardware bench, the rig on hardware) is chosen by
+data: the ``rig``, ``station``, ``array`` and ``hardware`` switches select a row of
+:data:`MACHINES`, which names its builder, its default namespace and the arguments it
+takes; an argument given to a machine that does not take it is refused in one line.
+``live`` adds the live view to any of them (:func:`fiber_align.graph.live.with_live`),
+``catalog`` the run catalogue's node (:func:`fiber_align.graph.catalog.with_catalog`; on
+by default).
 """
 
 from dataclasses import dataclass
 from typing import Callable, Tuple
 
+from fiber_align.graph.array import ARRAY_NAMESPACE, build_array
 from fiber_align.graph.catalog import with_catalog
 from fiber_align.graph.description import build, parse_bool
 from fiber_align.graph.hardware import build_hardware
@@ -24,6 +26,7 @@ from fiber_align.graph.live import check_endpoint, live_settings, with_live
 from fiber_align.graph.params import GraphError, PLANT
 from fiber_align.control.factory import CONTROLLERS
 from fiber_align.graph.params import SYNC_MODES
+from fiber_align.graph.refusals import check_graph
 from fiber_align.graph.registry import DEFAULT_COMPOSED, SCENARIOS
 from fiber_align.graph.rig import build_rig, check_seed, RIG_NAMESPACE
 from fiber_align.graph.station import build_station, STATION_NAMESPACE
@@ -32,7 +35,7 @@ from fiber_align.graph.station import build_station, STATION_NAMESPACE
 #: them, ``bringup``'s options are named after them.
 ARGUMENTS = (
     ('namespace', '', 'namespace of every node ("" = none; the rig: rig, the station: '
-     'station)', None),
+     'station, the array: array)', None),
     ('composed', str(DEFAULT_COMPOSED).lower(),
      'true: the control nodes in one control_graph process; false: one process per node',
      ['true', 'false']),
@@ -50,8 +53,11 @@ ARGUMENTS = (
      'instead of the 1-D graph', ['true', 'false']),
     ('station', 'false', 'true: the coupled station (/station/in/x .. /station/out/y, the '
      "chip's optics, the station sequencer) instead of the 1-D graph", ['true', 'false']),
-    ('seed', '', 'rig, station: run seed (plant, detector seeds and target or facets, as '
-     'the offline align2d and station; "" = 0); the 1-D graph: the plant\'s noise seed '
+    ('array', 'false', 'true: the fiber array (/array/x, /array/y_left, /array/y_right, '
+     "the array's optics, the array sequencer) instead of the 1-D graph", ['true', 'false']),
+    ('seed', '', 'rig, station, array: run seed (plant, detector seeds and target, facets '
+     'or chip, as the offline align2d, station and array; "" = 0); the 1-D graph: the '
+     'plant\'s noise seed '
      '("" = config/plant.yaml)', None),
     ('hardware', 'false', 'true: the sensorless bench (MDT693B + PM100) instead of the '
      'simulated actuator', ['true', 'false']),
@@ -66,7 +72,7 @@ ARGUMENTS = (
      'docs/records.md)', None),
 )
 #: The switches that choose the machine, in the order of :data:`MACHINES`' keys.
-SWITCHES = ('rig', 'station', 'hardware')
+SWITCHES = ('rig', 'station', 'array', 'hardware')
 #: The live view's arguments (every machine), in :func:`with_live`'s order.
 LIVE_ARGS = ('live', 'live_port', 'live_host')
 #: The run catalogue's argument (every machine, :func:`with_catalog`).
@@ -99,17 +105,21 @@ class Machine:
 #: The arguments of the simulated loop, and of the devices.
 SIMULATED = ('sync_mode', 'controller')
 HARDWARE = ('port', 'visa_resource')
-#: (rig, station, hardware) -> the machine they choose.
+#: (rig, station, array, hardware) -> the machine they choose.
 MACHINES = {
-    (False, False, False): Machine(build, SIMULATED + ('model_file', 'record', 'scenario'),
-                                   'the simulated 1-D graph', seed='plant'),
-    (True, False, False): Machine(build_rig, SIMULATED, 'rig:=true', RIG_NAMESPACE, 'run'),
-    (False, True, False): Machine(build_station, SIMULATED + ('record',), 'station:=true',
-                                  STATION_NAMESPACE, 'run'),
-    (False, False, True): Machine(build_hardware, HARDWARE + ('model_file', 'record'),
-                                  'hardware:=true'),
-    (True, False, True): Machine(build_hardware_rig, HARDWARE, 'rig:=true hardware:=true',
-                                 RIG_NAMESPACE),
+    (False, False, False, False): Machine(build, SIMULATED + ('model_file', 'record',
+                                                              'scenario'),
+                                          'the simulated 1-D graph', seed='plant'),
+    (True, False, False, False): Machine(build_rig, SIMULATED, 'rig:=true', RIG_NAMESPACE,
+                                         'run'),
+    (False, True, False, False): Machine(build_station, SIMULATED + ('record',),
+                                         'station:=true', STATION_NAMESPACE, 'run'),
+    (False, False, True, False): Machine(build_array, SIMULATED + ('record',), 'array:=true',
+                                         ARRAY_NAMESPACE, 'run'),
+    (False, False, False, True): Machine(build_hardware, HARDWARE + ('model_file', 'record'),
+                                         'hardware:=true'),
+    (True, False, False, True): Machine(build_hardware_rig, HARDWARE,
+                                        'rig:=true hardware:=true', RIG_NAMESPACE),
 }
 
 
@@ -118,8 +128,9 @@ def machine(arguments):
     on = tuple(parse_bool(k, arguments.get(k) or False) for k in SWITCHES)
     if on in MACHINES:
         return MACHINES[on]
-    return _refuse(['%s:=true' % k for k, v in zip(SWITCHES, on) if v and k != 'station'],
-                   'station:=true')
+    main = 'array' if on[SWITCHES.index('array')] else 'station'
+    return _refuse(['%s:=true' % k for k, v in zip(SWITCHES, on) if v and k != main],
+                   main + ':=true')
 
 
 def _refuse(given, chosen):
@@ -136,8 +147,10 @@ def describe(arguments, overrides=None):
         them, or Python values; a missing one is its default, ``''`` "as the files say").
     :param overrides: ``{node or '/**': {name: value}}`` applied last (``bringup -p`` and
         its options), checked against the shipped files.
-    :raises GraphError: a bad value, an argument the machine does not take, a live view
-        port in use (one line, before any process starts).
+    :raises GraphError: a bad value (out of the range its node declares, a drive limit
+        beyond the field limits or the amplifier's:
+        :func:`~fiber_align.graph.refusals.check_graph`), an argument the machine does
+        not take, a live view port in use (one line, before any process starts).
     """
     args = {k: v for k, v in dict(arguments).items() if v not in (None, '', (), [])}
     m = machine(args)
@@ -156,6 +169,7 @@ def describe(arguments, overrides=None):
     g = with_live(m.build(overrides=over, **kw), *[args.get(k, '') for k in LIVE_ARGS])
     # last: its parameters are the whole graph's; the live view does not show its topics
     g = with_catalog(g, args.get('catalog', ''), m.build in (build_hardware, build_hardware_rig))
+    check_graph(g)              # every declared range, the drive limits: before any start
     served = live_settings(g)
     if served:                  # a port in use: one line before any process starts
         check_endpoint(*served)

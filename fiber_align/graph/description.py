@@ -50,6 +50,7 @@ from fiber_align.control.factory import CONTROLLERS
 from fiber_align.graph.params import (
     check_user, COMPENSATOR, CONTROLLER, DRIVER, effective, GraphError, LIFECYCLE_MANAGER,
     merge_params, PLANT, RECORDER, SCENARIO_RUNNER, SEQUENCER, SYNC_MODES)
+from fiber_align.graph.ranges import range_refusal
 from fiber_align.graph.registry import (
     AREA_FILES, COMPOSED_EXECUTABLE, DEFAULT_COMPOSED, GRAPH_FILE, NODES, OPTIONAL_FILES,
     provided_topics, REMAPPINGS, SCENARIOS)
@@ -378,6 +379,9 @@ def build(namespace='', composed=None, sync_mode='', controller='', params_file=
                    SCENARIOS)
     nodes = control_nodes(scen)
     if SCENARIO_RUNNER in nodes:    # the setpoints clamped to the plant's reach, as offline
+        why = range_refusal(PLANT, effective(merged, PLANT, ns))    # a plant it can build
+        if why:
+            raise GraphError(why)
         over.setdefault(SCENARIO_RUNNER, {}).setdefault('reach_m', plant_reach_m(
             merge_params(files, over)))
     if composed:

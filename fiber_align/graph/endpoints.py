@@ -8,6 +8,17 @@ names them, so a node can put them on ``/diagnostics`` (a WARN) instead of waiti
 silence.
 """
 
+from fiber_align.graph.params import DRIVER, GraphError
+from fiber_align.graph.registry import DRIVES
+
+
+#: The name the graph's listing gives a publisher whose node it does not know yet.
+UNKNOWN = '_NODE_NAME_UNKNOWN_'
+
+
+class NamesTaken(GraphError):
+    """Another graph owns a graph's node names (:func:`names_taken`): nothing may start."""
+
 
 def type_name(msg_type):
     """
@@ -52,3 +63,89 @@ def foreign_publishers(expected, publishers):
                 out.add('%s: %s publishes %s, read here as %s (never delivered)'
                         % (topic, node, got, want))
     return sorted(out)
+
+
+def node_fqn(name, namespace):
+    """Return the fully qualified name of node ``name`` in ``namespace`` (``/rig/x``, ``/``)."""
+    return '%s/%s' % (namespace.rstrip('/'), name)
+
+
+def graph_names(graph):
+    """
+    Return the ``(name, namespace)`` of every node a graph description starts.
+
+    :param graph: any graph of :mod:`fiber_align.graph` (its processes' hosted nodes).
+    """
+    return {h for p in graph.processes for h in p.hosted(graph.namespace)}
+
+
+def names_taken(expected, listing, domain):
+    """
+    Return one line when nodes of the graph's names are on the graph already, else None.
+
+    Two graphs of one set of names in one domain share every topic and service: the
+    second's commands and lifecycle calls reach the first's nodes. So the second starts
+    none of its nodes.
+
+    :param expected: the ``(name, namespace)`` pairs the graph starts (:func:`graph_names`).
+    :param listing: ``(name, namespace)`` pairs on the graph (rclpy's
+        ``get_node_names_and_namespaces``).
+    :param domain: the ``ROS_DOMAIN_ID`` looked in (for the line).
+    """
+    taken = sorted(node_fqn(n, ns) for n, ns in set(expected) & set(map(tuple, listing)))
+    if not taken:
+        return None
+    return ('another graph owns these names on ROS_DOMAIN_ID=%s: %s (%d of the %d nodes '
+            'of this graph); nothing started: stop it, or start this one in another '
+            'namespace or ROS_DOMAIN_ID' % (domain, ', '.join(taken), len(taken),
+                                            len(set(expected))))
+
+
+def extra_publishers(owners, publishers):
+    """
+    Return one line per topic that has more than its one publisher, naming the others.
+
+    A command or drive topic has one publisher in a graph (:data:`~.registry.DRIVES`):
+    a second one (another graph's controller, compensator or driver, a client) mixes its
+    values into the loop's. A second one of the owner's own name is not named: it is a
+    restarted owner's writer whose process died (DDS keeps it until its lease ends), or
+    another graph of the same names, which its start refuses (:func:`names_taken`).
+
+    :param owners: ``{topic: node}``: the node meant to publish each topic (fully
+        qualified).
+    :param publishers: ``{topic: [node, ...]}``: the publishers on the graph (fully
+        qualified names; a name twice: two nodes of that name).
+    :returns: sorted lines such as ``"/feedforward_voltage: 2 publishers, 1 expected:
+        foreign /intruder (besides /hysteresis_compensator)"``.
+    """
+    out = []
+    for topic, owner in owners.items():
+        got = sorted(publishers.get(topic, ()))
+        others = [n for n in got if n != owner]
+        if len(got) <= 1 or not others:
+            continue
+        note = ' (besides %s)' % owner if len(others) < len(got) else ''
+        out.append('%s: %d publishers, 1 expected: foreign %s%s'
+                   % (topic, len(got), ', '.join(others), note))
+    return sorted(out)
+
+
+def drive_owners(driver, axes):
+    """
+    Return ``{topic: owner}`` of the command and drive topics of a driver's axes.
+
+    :param driver: the driver's fully qualified name (``/actuator_driver``,
+        ``/rig/mdt693b_driver``).
+    :param axes: its axes (``''``: the one unnamed axis; ``x``: topics ``x/...``).
+    :returns: relative topic names (as the driver resolves them) -> the fully qualified
+        name of the node meant to publish each (:data:`~.registry.DRIVES`; the drive: the
+        driver itself).
+    """
+    ns = driver.rpartition('/')[0]
+    out = {}
+    for a in axes:
+        base = '/'.join(x for x in (ns, a) if x)
+        for topic, node in DRIVES.items():
+            out['%s/%s' % (a, topic) if a else topic] = \
+                driver if node == DRIVER else '%s/%s' % (base, node)
+    return out

@@ -34,14 +34,17 @@ SYNC_MODES = ('realtime', 'lockstep')
 LIFECYCLE_NODES = (DRIVER,)
 #: The nodes of one actuator's control loop (they share its rate, sync mode, setpoints).
 LOOP_NODES = (PLANT, COMPENSATOR, CONTROLLER, DRIVER, SCENARIO_RUNNER, SEQUENCER)
-#: The nodes of several axes: the rig's and the station's sequencer and optics, the
+#: The nodes of several axes: the rig's, the station's and the array's sequencer and optics, the
 #: rig's amplifier. They run at the loops' rate, in their sync mode.
 SEQUENCER_2D = 'alignment_sequencer_2d'
 OPTICS_2D = 'simulated_optics_2d'
 STATION_SEQUENCER = 'station_sequencer'
 STATION_OPTICS = 'simulated_station_optics'
+ARRAY_SEQUENCER = 'array_sequencer'
+ARRAY_OPTICS = 'simulated_array_optics'
 AMPLIFIER = 'mdt693b_driver'
-AXES_NODES = (SEQUENCER_2D, OPTICS_2D, STATION_SEQUENCER, STATION_OPTICS, AMPLIFIER)
+AXES_NODES = (SEQUENCER_2D, OPTICS_2D, STATION_SEQUENCER, STATION_OPTICS, ARRAY_SEQUENCER,
+              ARRAY_OPTICS, AMPLIFIER)
 #: Reference shaping and the design model: the compensator's shaper and the controller's
 #: reference model must be built from the same values (the composite loop's two halves).
 SHAPING_KEYS = ('shaping', 'shaping_omega_n_rad_s', 'shaping_damping_ratio',
@@ -56,7 +59,8 @@ SHARED = dict(
     [(k, LOOP_NODES + AXES_NODES + (RUN_CATALOG,)) for k in ('rate_hz', 'sync_mode')]
     + [(k, LOOP_NODES) for k in ('controller', 'setpoint_min_m', 'setpoint_max_m',
                                  'realtime_setpoint_accel_m_per_s2')]
-    + [('realtime_setpoint_rate_m_per_s', LOOP_NODES + (SEQUENCER_2D, STATION_SEQUENCER))]
+    + [('realtime_setpoint_rate_m_per_s', LOOP_NODES + (SEQUENCER_2D, STATION_SEQUENCER,
+                                                        ARRAY_SEQUENCER))]
     + [(k, (COMPENSATOR, CONTROLLER)) for k in SHAPING_KEYS]
     # no displacement sensor (the hardware graphs, graph/hardware.py, graph/hardware_rig.py)
     + [('sensorless', (COMPENSATOR, DRIVER, SEQUENCER, SEQUENCER_2D, AMPLIFIER))])

@@ -56,6 +56,10 @@ class NodeSpec:
 
 #: The coupled station's axes (namespaces below the station's: input x-y, output x-y).
 STATION_AXES = ('in/x', 'in/y', 'out/x', 'out/y')
+#: The fiber array's actuators (namespaces below the array's: x, and y under each end).
+ARRAY_AXES = ('x', 'y_left', 'y_right')
+#: The array's measured channels (1 and N): the topic of each one's reading (W).
+ARRAY_POWERS = ('optical_power', 'optical_power_n')
 #: Every node of the graphs, keyed by its ``control_graph --nodes`` name (its executable).
 #: Hostable nodes are built, and so served in-process, in this order: the plant, then the
 #: setpoint sources (their answer to a sample reaches the compensator and the controller
@@ -92,6 +96,15 @@ NODES = {
         'station_sequencer', 'alignment_sequencer', 'StationSequencerNode', ('station.yaml',),
         area=False, publishes=tuple('%s/setpoint' % a for a in STATION_AXES),
         subscribes=('optical_power',)),
+    # the fiber array (graph/array.py): three actuators x, y_left, y_right
+    'simulated_array_optics': NodeSpec(
+        'simulated_array_optics', 'simulated_optics', 'ArrayOpticsNode', ('array.yaml',),
+        area=False, publishes=ARRAY_POWERS,
+        subscribes=tuple('%s/tip_position' % a for a in ARRAY_AXES)),
+    'array_sequencer': NodeSpec(
+        'array_sequencer', 'alignment_sequencer', 'ArraySequencerNode', ('array.yaml',),
+        area=False, publishes=tuple('%s/setpoint' % a for a in ARRAY_AXES),
+        subscribes=ARRAY_POWERS),
     COMPENSATOR: NodeSpec(COMPENSATOR, COMPENSATOR, 'HysteresisCompensatorNode',
                           ('compensator.yaml', 'models/compensator_model.yaml'),
                           publishes=('feedforward_voltage', 'reference'),
@@ -120,6 +133,12 @@ NODES = {
     RUN_CATALOG: NodeSpec(RUN_CATALOG, RUN_CATALOG, configs=('records.yaml',), area=False,
                           subscribes=('alignment_state', 'optical_power')),
 }
+#: The topics that carry a command or a drive to an actuator, each with the one node of
+#: an axis meant to publish it: a second publisher (another graph's) is a conflict
+#: (:func:`fiber_align.graph.endpoints.extra_publishers`; the driver holds).
+DRIVES = {t: n for t in ('feedforward_voltage', 'feedback_voltage', 'reference',
+                         'drive_voltage')
+          for n in (COMPENSATOR, CONTROLLER, DRIVER) if t in NODES[n].publishes}
 #: Nodes a composed process can host: ``--nodes`` name -> spec, in build order.
 HOSTABLE = {k: v for k, v in NODES.items() if v.node_class}
 

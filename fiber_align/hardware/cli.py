@@ -18,6 +18,7 @@ import time
 
 from fiber_align import lifeline
 from fiber_align.hardware.bench import emulated
+from fiber_align.hardware.mdt693b import LIMIT_SWITCHES_V
 
 
 def register(subparsers):
@@ -39,6 +40,10 @@ def register(subparsers):
     p.add_argument('--pm100-port', metavar='PORT', help='TCP port, 0 = free one')
     p.add_argument('--link-dir', metavar='DIR', help='directory of the serial symlink')
     p.add_argument('--fiber-broken', action='store_true', help='no light anywhere')
+    p.add_argument('--meter-floor', metavar='W', help='the PM100 clamps its readings at '
+                   'this floor (W): a constant reading in the dark; default 0 (none)')
+    p.add_argument('--meter-quantum', metavar='W', help='the PM100 rounds its readings '
+                   'down to multiples of this (W): a quantised reading; default 0 (none)')
     p.add_argument('--rig', action='store_true', help='the two-axis rig: bimorphs on '
                    'channels x and y (--x-channel, --y-channel), 2-D optics')
     p.add_argument('--target-x', metavar='M', help='rig: output core x (m), default '
@@ -94,6 +99,10 @@ def options(args):
                          % args.x_channel)
     if args.fiber_broken:
         optics['fiber_broken'] = True
+    for opt, key, text in (('--meter-floor', 'floor_w', args.meter_floor),
+                           ('--meter-quantum', 'quantum_w', args.meter_quantum)):
+        if text is not None:
+            optics[key] = _number(opt, text, 0.0, 1e-3)
     if args.model is not None:
         if args.model not in ('MDT693B', 'MDT694B'):
             raise ValueError('--model must be MDT693B or MDT694B, got %r' % args.model)
@@ -102,7 +111,7 @@ def options(args):
             raise ValueError('--rig needs two channels; the MDT694B has x only')
     if args.v_limit is not None:
         v = _number('--v-limit', args.v_limit)
-        if v not in (75.0, 100.0, 150.0):
+        if v not in LIMIT_SWITCHES_V:
             raise ValueError('--v-limit must be 75, 100 or 150 (the switch), got %r'
                              % args.v_limit)
         emu['v_limit'] = v

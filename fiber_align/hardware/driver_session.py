@@ -19,6 +19,8 @@ from fiber_align.hardware import errors as er
 from fiber_align.hardware.mdt693b_channels import check_channels
 from fiber_align.hardware.mdt693b_session import DeviceSession
 
+#: The steady status an event of the axes leaves (``drive_held`` for a foreign publisher).
+STEADY = {'back': 'ok', 'foreign': 'fail', 'gone': 'warn', 'resume': 'ok'}
 #: What each backend's output is while the driver is unconfigured.
 IDLE_OUTPUT = {'topic': '0 V', 'mdt693b': 'untouched'}
 
@@ -143,6 +145,12 @@ class DriverSession:
                                  'cleared)'))
             if not self.driver.cores[a].tripped:
                 self.reports.append(('ok', a, 'active' if self.driver.active else 'inactive'))
+        self._events()                  # a hold for a foreign publisher re-armed, or not
+
+    def intrusion(self, text, pending=False):
+        """Take the newest check of the topics' publishers (:meth:`DriverAxes.intrusion`)."""
+        self.driver.intrusion(text, pending)
+        self._events()
 
     def tick(self, now):
         """
@@ -169,10 +177,11 @@ class DriverSession:
 
     def _events(self):
         for kind, a, text in self.driver.take_events():
-            error = kind in ('trip', 'latch')
+            error = kind in ('trip', 'latch', 'foreign')
             self.reports.append(('error' if error else 'info', a, text))
-            if kind == 'back':
-                self.reports.append(('ok', a, 'active'))
+            if kind in STEADY:      # the foreign publishers' state is every axis's
+                self.reports.append((STEADY[kind], None if kind != 'back' else a,
+                                     text if kind != 'back' else 'active'))
 
     @property
     def held(self):
@@ -188,7 +197,8 @@ class DriverSession:
         """Return the diagnostics values of the device (``axis`` None) or of ``axis``."""
         if axis is None:
             return dict(self.dev.values(), active=self.driver.active,
-                        enabled=self.driver.enabled, errors=self.lost or '')
+                        enabled=self.driver.enabled, errors=self.lost or '',
+                        foreign_publishers=self.driver.foreign or '')
         return dict(self.driver.values(axis), **self.dev.values(axis))
 
 

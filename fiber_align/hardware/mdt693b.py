@@ -35,6 +35,8 @@ from fiber_align.hardware import errors as er
 
 CHANNELS = ('x', 'y', 'z')
 DEVICE = 'MDT693B'
+#: The settings of the rear-panel output limit switch (V): ``vlimit?`` answers one.
+LIMIT_SWITCHES_V = (75.0, 100.0, 150.0)
 _NUMBER = re.compile(r'\[\s*([-+0-9.eE]+)\s*\]')
 
 

@@ -213,10 +213,14 @@ class PlantClock:
         """Restart the realtime statistics ``warmup`` samples from now (0: at once)."""
         self.dac.stats_from = self.k + int(warmup)
         self.lat = LatencyHistogram()
-        self.dac.missed = self.dac.skipped = 0
+        self.dac.missed = self.dac.skipped = self.dac.idle = 0
 
     def latency_stats(self):
         """Return the realtime loop statistics since :meth:`reset_stats` (loop_summary)."""
         dac = self.dac
         return loop_summary(self.lat, max(0, self.k - dac.stats_from), dac.missed,
-                            dac.skipped, self.k + 1 if self.started else 0)
+                            dac.skipped, self.k + 1 if self.started else 0, dac.idle)
+
+    def on_held(self, msg):
+        """Take the driver's ``drive_held`` (realtime: its periods are idle, not missed)."""
+        self.dac.held = bool(msg.data)

@@ -27,6 +27,7 @@ from fiber_align.hardware.mdt693b_session import backend_defaults, DEVICE_KEYS, 
 from fiber_align.nodes.ros import bus as b
 from fiber_align.nodes.ros.diagnostics import ERROR, Health, LEVELS
 from fiber_align.nodes.ros.lifecycle import guard_change_state
+from fiber_align.nodes.ros.owners import watch_drives
 from fiber_align.nodes.ros.params import (check_parameters, declare, declare_graph_values,
                                           declare_rows, flatten_defaults, node_defaults,
                                           PRIORITY)
@@ -62,7 +63,7 @@ class ActuatorDriverNode(LifecycleNode):
         if why:
             raise ConfigError('%s: %s' % (self.get_name(), why))
         self.add_on_set_parameters_callback(self._on_set)
-        self.s = self._timer = self._srv = self.held = None
+        self.s = self._timer = self._srv = self.held = self.watch = None
         self.pubs, self.subs, self.sent, self._ticks, self._off = {}, [], {}, 0, set()
         self.enabled, self.refused_transitions = True, 0
         self.pub_held = [b.Pub(self, Bool, topic(a, 'drive_held'), LATCHED_QOS, bus,
@@ -97,8 +98,9 @@ class ActuatorDriverNode(LifecycleNode):
         self.pubs = {(a, n): b.Pub(self, Float64, topic(a, n), pq, self.bus, slack=self.slack)
                      for a in self.axes for n in outs}
         self.msgs = {a: Float64() for a in self.axes}
+        self.watch = watch_drives(self, self.axes, self._on_foreign)    # off this thread
         self.subs = [b.subscription(self, Float64, topic(a, n), lambda m, a=a, ff=ff:
-                                    self._on_input(a, ff, m.data), sq, self.bus)
+                                    self._on_input(a, ff, m.data), sq, self.bus, self.watch.events)
                      for a in self.axes for n, ff in INPUTS if ff or not self.sensorless]
         self._srv = self.create_service(SetBool, '~/enable', self._on_enable)
         if not self.lockstep:
@@ -128,8 +130,7 @@ class ActuatorDriverNode(LifecycleNode):
 
     def on_shutdown(self, state):
         """Ramp the device to the safe voltages, then tear down."""
-        self.close()
-        return self._teardown()
+        return self.close() or self._teardown()
 
     def on_error(self, state):
         """Close a lost device and end unconfigured (a later configure reconnects)."""
@@ -137,6 +138,7 @@ class ActuatorDriverNode(LifecycleNode):
                                'reconnects' % (self.s and self.s.lost or 'a transition failed')))
 
     def _teardown(self, *reports):
+        self.watch = self.watch and self.watch.close()
         self._report([])                                # the session's last words
         self.s = self.s and self.s.close()
         [b.unsubscribe(self, sub) for sub in self.subs]
@@ -155,8 +157,7 @@ class ActuatorDriverNode(LifecycleNode):
 
     def destroy_node(self):
         """Ramp and close the device (:meth:`close`), then destroy the node."""
-        self.close()
-        return super().destroy_node()
+        return self.close() or super().destroy_node()
 
     def _on_input(self, axis, ff, v):
         if self.s is not None:
@@ -173,8 +174,7 @@ class ActuatorDriverNode(LifecycleNode):
             self.pubs[a, name].publish(msg)
             self.sent[a, name] = self.sent.get((a, name), 0) + 1
 
-    def _on_tick(self):
-        """Every period: the device (lost? read-backs) and every axis's watchdog."""
+    def _on_tick(self):             # every period: the device, every axis's watchdog
         if self.s is None:
             return
         drives, readbacks, lost = self.s.tick(time.monotonic())
@@ -182,12 +182,11 @@ class ActuatorDriverNode(LifecycleNode):
         self._drive(readbacks.items(), 'drive_voltage_readback')
         self.s.reports and self._report([], 'device lost' if lost else 'watchdog')
         if lost:      # the transition returns ERROR (s.lost): on_error closes the port
-            self.trigger_deactivate() if self.s.driver.active else self.trigger_cleanup()
+            return self.trigger_deactivate() if self.s.driver.active else self.trigger_cleanup()
         self._ticks += 1
         self._ticks % 20 or self._values()
 
-    def _report(self, reports, held_reason=None):
-        """Log and show the session's reports (then ``reports``); publish a changed held."""
+    def _report(self, reports, held_reason=None):   # the session's reports, then these
         for kind, a, text in (self.s.take_reports() if self.s else []) + reports:
             targets = set(self.status.values()) | {self.health} if a is None else \
                 {self.status.get(a, self.health)}
@@ -203,8 +202,7 @@ class ActuatorDriverNode(LifecycleNode):
             [pub.publish(Bool(data=held)) for pub in self.pub_held]
             self.get_logger().info('drive_held %s (%s)' % (str(held).lower(), held_reason))
 
-    def _on_enable(self, request, response):
-        """Enable (true) or disable (false: ramp every axis to its safe voltage)."""
+    def _on_enable(self, request, response):    # false: every axis ramps to its safe voltage
         self.enabled = bool(request.data)
         self.s and self.s.enable(self.enabled, time.monotonic())
         response.success, response.message = True, 'output %s' % (
@@ -212,8 +210,7 @@ class ActuatorDriverNode(LifecycleNode):
         self._report([('info', None, response.message)], 'enable %s' % self.enabled)
         return response
 
-    def _on_set(self, params):
-        """Accept live updates of the limits when in range and consistent on every axis."""
+    def _on_set(self, params):      # limits in range and consistent on every axis
         res = check_parameters(params, self.ranges)
         new, why = limit_updates(self.axes, {p.name: p.value for p in params}, self._params) \
             if res.successful else ({}, None)
@@ -224,13 +221,16 @@ class ActuatorDriverNode(LifecycleNode):
             self._protections(new)
         return res
 
-    def _protections(self, new=None):
-        """Report each protection the limits turn off: a WARN in the log and on /diagnostics."""
+    def _protections(self, new=None):   # each one the limits turn off: a WARN, log and diag
         off = protections_off_texts(self._params(a, (new or {}).get(a)) for a in self.axes)
         [self.get_logger().warning('protection off: %s' % t) for t in set(off) - self._off]
         self._off = set(off)
         self.health.condition('protections', 'protection off: %s' % '; '.join(off) if off
                               else None)
+
+    def _on_foreign(self, lines):   # a second publisher of a command or drive topic: hold
+        self.s.intrusion('; '.join(lines) or None, self.watch.pending)
+        self._report([], 'foreign publisher')
 
     def _values(self):
         self.health.set_values(**self.s.values())

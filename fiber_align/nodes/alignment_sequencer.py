@@ -7,7 +7,8 @@ per node in the params files; the differences are data: :mod:`fiber_align.graph.
 Relative names, SI units, ``<a>/`` an axis's namespace (none in 1-D):
 
 - sub ``<a>/displacement`` (sensor_msgs/JointState, m, stamp t_k), ``optical_power``
-  (std_msgs/Float64, W); pub ``<a>/setpoint`` (std_msgs/Float64, m), one each per update;
+  (std_msgs/Float64, W; the array's also ``optical_power_n``); pub ``<a>/setpoint``
+  (std_msgs/Float64, m), one each per update;
 - pub ``alignment_state`` (std_msgs/String, JSON status), latched, on every change of
   state or fault; ``/diagnostics``: OK, WARN in HELD, ERROR in FAULT;
 - srv ``align``, ``release`` (std_srvs/Trigger), ``switch`` (std_srvs/SetBool);
@@ -86,8 +87,10 @@ class AlignmentSequencerNode(Node):
             else:
                 subscription(self, JointState, p + 'displacement',
                              lambda msg, i=i: self._on_position(i, msg), qos, bus)
-        subscription(self, Float64, 'optical_power', self._on_reading if self.sensorless
-                     else self._on_power, REALTIME_QOS if self.sensorless else qos, bus)
+        for j, topic in enumerate(m.powers):        # paired by index, as the positions
+            subscription(self, Float64, topic, self._on_reading if self.sensorless else (
+                lambda msg, j=j: self._on_power(j, msg)), REALTIME_QOS if self.sensorless
+                else qos, bus)
         self.pub_state, self.n_state, self._last, self.part = self.create_publisher(
             String, 'alignment_state', STATE_QOS), 0, None, declare_part(self, d)
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, DIAG_QOS)
@@ -97,7 +100,7 @@ class AlignmentSequencerNode(Node):
             r, self.seq.switch(bool(q.data))))
         self.health = Health(self, g['diagnostics_period_s'], slack=slack_of(bus),
                              sender=sender_of(bus))
-        self.q, self.q_p = [[] for _ in pre], []    # lockstep: (stamp s, m) and W not used
+        self.q, self.q_p = [[] for _ in pre], [[] for _ in m.powers]    # (s, m) and W
         self.latest = [None] * len(pre)     # realtime: the newest reading of each axis (m)
         self.n, self.align_sample, self.t_last, self.p_last = 0, None, None, None
         self._watch_drivers(bus)
@@ -165,15 +168,15 @@ class AlignmentSequencerNode(Node):
             return
         self.latest[i] = x
         if i == 0:
-            p, self.q_p = (self.q_p or [None])[-1], []
+            p, self.q_p = [(q or [None])[-1] for q in self.q_p], [[] for _ in self.q_p]
             self._step(t, list(self.latest), p)
 
-    def _on_power(self, msg):
-        self.q_p.append(float(msg.data))
+    def _on_power(self, j, msg):
+        self.q_p[j].append(float(msg.data))
         if self.lockstep:
             self._pair()
         else:
-            del self.q_p[:-1]
+            del self.q_p[j][:-1]
 
     def _on_reading(self, msg):
         """Sensorless: one step per reading (W) at the commanded positions (m)."""
@@ -182,19 +185,19 @@ class AlignmentSequencerNode(Node):
                                                             MAX_GAP_PERIODS * self.period_s)
         self._wall = w
         self._step(self._t, [s if r is None else r for r, s in
-                             zip(self.ref, self.m.setpoints(self.seq))], float(msg.data))
+                             zip(self.ref, self.m.setpoints(self.seq))], [float(msg.data)])
 
     def _pair(self):
         q = self.q
-        while all(q) and (self.q_p or len(q[0]) > POWER_QUEUE_LIMIT):   # else no power
+        while all(q) and (all(self.q_p) or len(q[0]) > POWER_QUEUE_LIMIT):  # else no power
             got = [a.pop(0) for a in q]
             self._step(self.n * self.period_s if self.m.counted else got[0][0],
-                       [x for _, x in got], self.q_p.pop(0) if self.q_p else None)
+                       [x for _, x in got], [w.pop(0) if w else None for w in self.q_p])
 
     def _step(self, t, pos, p):
         r = self.m.update(self.seq, t, [v if v is not None and math.isfinite(v) else None
                                         for v in pos], p)
-        self.n, self.t_last, self.p_last = self.n + 1, t, p
+        self.n, self.t_last, self.p_last = self.n + 1, t, (p or [None])[0]   # W, channel 1
         for pub, v in zip(self.pub_sp, r):
             pub.publish(Float64(data=float(v)))
         self._publish_state()
@@ -228,16 +231,12 @@ class AlignmentSequencerNode(Node):
         return dict({p + 'setpoint': self.n for p in self.pre}, alignment_state=self.n_state)
 
 
-class RigSequencerNode(AlignmentSequencerNode):
-    """The node ``alignment_sequencer_2d`` (``machine`` rig) as ``control_graph`` hosts it."""
-
-    NAME = 'alignment_sequencer_2d'
-
-
-class StationSequencerNode(AlignmentSequencerNode):
-    """The node ``station_sequencer`` (``machine`` station) as ``control_graph`` hosts it."""
-
-    NAME = 'station_sequencer'
+#: The nodes of the other machines as ``control_graph`` hosts them (their ``NAME``).
+RigSequencerNode, StationSequencerNode, ArraySequencerNode = (
+    type(c, (AlignmentSequencerNode,), dict(NAME=n, __doc__='The node ``%s``.' % n))
+    for c, n in (('RigSequencerNode', 'alignment_sequencer_2d'),
+                 ('StationSequencerNode', 'station_sequencer'),
+                 ('ArraySequencerNode', 'array_sequencer')))
 
 
 def main(args=None):

@@ -9,14 +9,14 @@ with the publishers' QoS. In-process (hosted in ``control_graph`` on its
 :class:`~fiber_align.nodes.ros.bus.LocalBus`) a topic a node of the process publishes is
 taken from the bus as the message object and its CDR made here
 (:mod:`fiber_align.nodes.ros.cdr`); nothing of it goes through DDS. Lost messages,
-incompatible QoS, the finalised bag after any stop and the crash safety of the mcap chunks
-(``fiber-align bag-repair``): docs/ros_interface.md.
+incompatible QoS, the finalised bag after any stop or a full disk (``analysis.bag.guard``)
+and the crash safety of the mcap chunks (``fiber-align bag-repair``): docs/ros_interface.md.
 """
 
 from datetime import datetime
-import json
 import os
 import sys
+import threading
 import time
 
 import rclpy
@@ -25,14 +25,18 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from fiber_align import lifeline
 from fiber_align.analysis import bag as bagio
+from fiber_align.analysis.bag.guard import GuardedBag, write_json
+from fiber_align.analysis.recording import STOPPED_EARLY
 from fiber_align.config import ConfigError
+from fiber_align.graph.ranges import RECORDER_RANGES
 from fiber_align.graph.registry import NODES
 from fiber_align.nodes._msgtypes import message_class
 from fiber_align.graph.endpoints import type_name
 from fiber_align.nodes.ros.bus import LocalSub, sender_of, slack_of
 from fiber_align.nodes.ros.cdr import encoder
-from fiber_align.nodes.ros.diagnostics import Health, OK, WARN
-from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults, PRIORITY
+from fiber_align.nodes.ros.diagnostics import ERROR, Health, OK, WARN
+from fiber_align.nodes.ros.params import declare, declare_graph_values, declare_row
+from fiber_align.nodes.ros.params import node_defaults, PRIORITY
 from fiber_align.nodes.ros.runtime import run_node
 
 #: the registry's entry of this node: its name and params files
@@ -63,14 +67,11 @@ class BagRecorder(Node):
                           choices=('mcap', 'sqlite3'))
         declare(self, d, 'topics', 'topics to record (relative names resolve in the '
                 'namespace)', read_only=ro)
-        period = declare(self, d, 'discovery_period_s', 'topic discovery period (s)',
-                         0.01, 60.0, ro)
-        self.depth = declare(self, d, 'queue_depth', 'reader history per topic '
-                             '(messages)', 1, 10_000_000, ro)
+        period = declare_row(self, d, RECORDER_RANGES, 'discovery_period_s', ro)
+        self.depth = declare_row(self, d, RECORDER_RANGES, 'queue_depth', ro)
         self.counts_file = declare(self, d, 'counts_file', 'write recorder_events.json '
                                    'next to the bag (bool)', read_only=ro)
-        declare(self, d, 'flush_period_s', 'period of mcap chunk flushes (s)', 0.01,
-                60.0, ro)
+        declare_row(self, d, RECORDER_RANGES, 'flush_period_s', ro)
         declare_graph_values(self, d, 'diagnostics_period_s', *PRIORITY)
         gp = self.get_parameter
         self.wanted = [self.resolve_topic_name(t) for t in gp('topics').value]
@@ -82,7 +83,8 @@ class BagRecorder(Node):
         self.writer = Writer(self.output, version=9,
                              storage_plugin=bagio.storage_plugin(storage))
         self.writer.open()
-        self.closed = False
+        self.bag = GuardedBag(self.writer)     # a full disk: the bag closed readable
+        self.closed, self.finisher = False, None
         self.subs = {}
         self.conns = {}
         self.counts = {}
@@ -145,7 +147,7 @@ class BagRecorder(Node):
                 continue
             try:
                 cls = message_class(msgtype)
-                conn = self.writer.add_connection(topic, msgtype, typestore=self.typestore)
+                conn = self.bag.add_connection(topic, msgtype, typestore=self.typestore)
             except Exception as exc:  # noqa: BLE001 - unknown type: skip it, say so
                 self.get_logger().warning('cannot record %s (%s): %s' % (topic, msgtype, exc))
                 self.subs[topic] = None
@@ -161,14 +163,33 @@ class BagRecorder(Node):
             self.get_logger().info('subscribed to %s (%s)' % (topic, msgtype))
 
     def _callback(self, topic, conn):
-        write = self.writer.write
+        write = self.bag.write
 
         def cb(data):
             if self.closed:
                 return
-            write(conn, time.time_ns(), data)
+            if not write(conn, time.time_ns(), data):
+                return self.stopped_early()
             self.counts[topic] += 1
         return cb
+
+    def stopped_early(self):
+        """Stop recording after a failed write (a full disk): one line; the graph runs on."""
+        if self.closed:
+            return
+        self.closed = True              # no more writes; _finish closes the bag
+        self.get_logger().error(self.bag.stopped)
+        for sub in self.subs.values():
+            if sub is not None:
+                self.destroy_subscription(sub)
+        self.subs = {t: None for t in self.subs}
+        for rec in self.local.values():
+            rec.destroy()
+        if self.bus is None:
+            return self._finish()
+        # the bag's summary is written off a composed process's control thread
+        self.finisher = threading.Thread(target=self._finish, name='bag_finish')
+        self.finisher.start()
 
     def _on_lost(self, topic):
         def cb(info):
@@ -193,24 +214,20 @@ class BagRecorder(Node):
             self.flush()
 
     def flush(self):
-        """Close the pending mcap chunk and hand the file's buffer to the OS."""
-        if self.closed:
-            return
-        storage = getattr(self.writer, 'storage', None)
-        chunk = getattr(storage, 'chunk', None)
-        if chunk is not None and chunk.bio.tell() and hasattr(storage, 'close_chunk'):
-            storage.close_chunk()
-        bio = getattr(storage, 'bio', None)
-        if bio is not None:
-            bio.flush()
+        """Write the pending mcap chunk to the file (a failure: :meth:`stopped_early`)."""
+        if not self.closed and not self.bag.flush():
+            self.stopped_early()
 
     def _diag_values(self):
         """Report counts, lost and incompatible-QoS events on ``/diagnostics``."""
-        bad = self.lost or self.incompatible
+        bad, stopped = self.lost or self.incompatible, self.bag.stopped
         slow = ['%s (%s)' % (r.topic, r.encode.fallback) for r in self.local.values()
                 if r.encode is not None and r.encode.fallback]
-        self.health.summary(WARN if bad else OK, 'lost %d message(s), %d incompatible QoS' % (
-            self.lost, self.incompatible) if bad else 'recording %s' % self.output)
+        self.health.summary(ERROR if stopped else WARN if bad else OK, stopped or (
+            'lost %d message(s), %d incompatible QoS' % (self.lost, self.incompatible)
+            if bad else 'recording %s' % self.output))
+        if stopped:                     # a full disk: the graph runs on, its bag ends here
+            self.health.set_values(**{STOPPED_EARLY: stopped})
         if slow:
             # still every message, at rclpy's cost: worth knowing, not an error
             self.health.set_values(cdr_fallback='; '.join(slow))
@@ -227,21 +244,28 @@ class BagRecorder(Node):
 
     def close(self):
         """Finalise the bag (idempotent); log and return the message counts per topic."""
+        if self.finisher is not None:
+            self.finisher.join()
         if self.closed:
             return self.counts
         self.closed = True
         for rec in self.local.values():
             rec.destroy()
-        self.writer.close()
+        return self._finish()
+
+    def _finish(self):
+        """Close the bag, log the counts and write the counts files; return the counts."""
+        why = self.bag.close()
+        if self.bag.stopped:
+            self.counts.update(self.bag.counts())   # the bag's: a cut chunk is not in it
         msg = ', '.join('%s: %d' % kv for kv in sorted(self.counts.items())) or 'no topics'
-        self.get_logger().info('bag %s closed; messages per topic: %s' % (self.output, msg))
-        if self.counts_file:
-            with open(os.path.join(self.output, 'recorder_counts.json'), 'w',
-                      encoding='utf-8') as f:
-                json.dump(self.counts, f, indent=1, sort_keys=True)
-            with open(os.path.join(self.output, 'recorder_events.json'), 'w',
-                      encoding='utf-8') as f:
-                json.dump({'lost': self.lost, 'incompatible_qos': self.incompatible}, f)
+        self.get_logger().info('bag %s closed%s; messages per topic: %s' % (
+            self.output, (' (%s)' % why) if why else '', msg))
+        why = self.counts_file and write_json(self.output, {
+            'recorder_counts.json': self.counts,
+            'recorder_events.json': {'lost': self.lost, 'incompatible_qos': self.incompatible}})
+        if why:                         # the disk that stopped the recording
+            self.get_logger().warning('no recorder_counts.json: %s' % why)
         return self.counts
 
 
@@ -268,14 +292,15 @@ class _Local:
         # written at once, a few microseconds; so is the chunk close when due: its cost
         # grows with the chunk, so it is kept small and regular (deferred to a later
         # slack it only grew)
-        rec.writer.write(self.conn, time.time_ns(), self.encode(msg))
+        if not rec.bag.write(self.conn, time.time_ns(), self.encode(msg)):
+            return rec.stopped_early()
         rec.counts[self.topic] += 1
         rec.flush_due()
 
     def connect(self):
         """Add the bag connection (once, on the first write)."""
-        self.conn = self.rec.writer.add_connection(self.topic, self.msgtype,
-                                                   typestore=self.rec.typestore)
+        self.conn = self.rec.bag.add_connection(self.topic, self.msgtype,
+                                                typestore=self.rec.typestore)
         self.rec.get_logger().info('recording %s (%s) in-process'
                                    % (self.topic, self.msgtype))
 

@@ -32,11 +32,12 @@ from fiber_align.control.realtime import ControllerStep, extend_lead
 from fiber_align.control.trajectory import stamp_ns
 from fiber_align.graph import checks
 from fiber_align.graph.params import SHARED
+from fiber_align.graph.ranges import CONTROLLER_RANGES
 from fiber_align.graph.registry import NODES
 from fiber_align.nodes.ros.bus import Pub, subscription
 from fiber_align.nodes.ros.diagnostics import OK
 from fiber_align.nodes.ros.loop_io import GRAPH, LoopIO
-from fiber_align.nodes.ros.params import declare, node_defaults
+from fiber_align.nodes.ros.params import declare, declare_row, node_defaults
 from fiber_align.nodes.ros.qos import LOCKSTEP_QOS, REFERENCE_LATCHED_QOS
 from fiber_align.nodes.ros.qos import sample_pub_qos, sample_qos
 from fiber_align.nodes.ros.runtime import run_node
@@ -63,9 +64,8 @@ class FuzzyPidControllerNode(Node):
         g, self.shaping = io.g, io.shaping
         self.mode, self.rate_hz, self.lockstep = g['controller'], io.rate_hz, io.lockstep
         self.sp = io.sp
-        self.state_every = declare(self, d, 'controller_state_every',
-                                   'publish controller_state every N samples (1); 0: off',
-                                   0, 1000000)
+        self.state_every = declare_row(self, d, CONTROLLER_RANGES, 'controller_state_every',
+                                       False)
         own = GRAPH + ('controller_state_every',)
         core = {k: v for k, v in d.items() if k not in own and k not in SHARED}
         self.core_names = []

@@ -44,12 +44,13 @@ from fiber_align.control.factory import build_feedforward
 from fiber_align.control.realtime import CompensatorStep, extend_lead
 from fiber_align.control.trajectory import stamp_ns
 from fiber_align.graph import checks
+from fiber_align.graph.ranges import COMPENSATOR_RANGES
 from fiber_align.graph.registry import NODES
 from fiber_align.hysteresis.pi import PIModel
 from fiber_align.nodes.ros.bus import Pub, subscription
 from fiber_align.nodes.ros.diagnostics import OK
 from fiber_align.nodes.ros.loop_io import LoopIO
-from fiber_align.nodes.ros.params import declare, node_defaults
+from fiber_align.nodes.ros.params import declare, declare_row, node_defaults
 from fiber_align.nodes.ros.qos import CONTROL_QOS, LOCKSTEP_QOS, REALTIME_QOS
 from fiber_align.nodes.ros.qos import sample_pub_qos, SETPOINT_QOS
 from fiber_align.nodes.ros.runtime import run_node
@@ -82,8 +83,7 @@ class HysteresisCompensatorNode(Node):
         if why:
             raise ConfigError('hysteresis_compensator: %s' % why)
         self.add_on_set_parameters_callback(self._on_set)
-        self.open_loop_gain = declare(self, d, 'open_loop_gain_v_per_m',
-                                      'linear feedforward gain (V/m)', 0.0, 1e9, True)
+        self.open_loop_gain = declare_row(self, d, COMPENSATOR_RANGES, 'open_loop_gain_v_per_m')
         self.pub = Pub(self, Float64, 'feedforward_voltage', sample_pub_qos(self.lockstep),
                        bus, slack=io.slack)
         # the accepted setpoint for the controller (one consumer of ``setpoint``); realtime

@@ -26,11 +26,12 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
+from fiber_align.graph.ranges import MANAGER_RANGES
 from fiber_align.graph.registry import NODES
 from fiber_align.nodes.ros.diagnostics import ERROR, Health, OK
 from fiber_align.nodes.ros.lifecycle import call_bounded
 from fiber_align.nodes.ros.params import (
-    declare, declare_graph_values, descriptor, node_defaults)
+    declare, declare_graph_values, declare_row, descriptor, node_defaults)
 from fiber_align.nodes.ros.runtime import run_node
 
 #: the registry's entry of this node: its name and params files
@@ -55,8 +56,7 @@ class LifecycleManager(Node):
                 'order (relative or absolute names; as nav2_lifecycle_manager)',
                 read_only=True)
         declare(self, d, 'autostart', 'run the start-up sequence at once', read_only=True)
-        declare(self, d, 'service_timeout_s', 'bound on each wait for lifecycle services '
-                'and on each call (s)', 0.1, 3600.0)
+        declare_row(self, d, MANAGER_RANGES, 'service_timeout_s', False)
         declare_graph_values(self, d, 'diagnostics_period_s')
         self.managed = self._node_names()
         self.states = {n: 'unknown' for n in self.managed}

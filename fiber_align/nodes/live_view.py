@@ -20,6 +20,7 @@ from rclpy.node import Node
 from fiber_align.analysis import liveview as lv
 from fiber_align.analysis import powermap
 from fiber_align.config import ConfigError, load_params
+from fiber_align.graph.ranges import LIVE_VIEW_MAP, LIVE_VIEW_RANGES
 from fiber_align.graph.registry import NODES
 from fiber_align.nodes._msgtypes import message_class
 from fiber_align.nodes.ros.params import declare, node_defaults
@@ -34,25 +35,8 @@ RANGE_KEYS = ('range_x_min_m', 'range_x_max_m', 'range_y_min_m', 'range_y_max_m'
 #: The rig's topics the map is made of (relative names).
 MAP_TOPICS = ('x/displacement', 'y/displacement', 'optical_power')
 
-PARAMS = {  # name: (description, low, high)
-    'host': ('address to listen on (127.0.0.1: this machine only; 0.0.0.0: every '
-             'interface)', None, None),
-    'port': ('TCP port of ws://host:port', 1, 65535),
-    'topics': ('topics served as ROS 2 channels (relative names resolve in the '
-               'namespace)', None, None),
-    'state_topics': ('topics served message by message (the others: decimated)', None,
-                     None),
-    'extra_topics': ('further topics served when something publishes them', None, None),
-    'ui_rate_hz': ('largest rate of each per-sample channel (Hz)', 0.1, 1000.0),
-    'discovery_period_s': ('period of the look for new publishers (s)', 0.01, 60.0),
-    'power_map': ('serve the 2-D power map of the search (the rig; bool)', None, None),
-    'power_map_cell_m': ('power map cell side (m)', 1e-9, 1e-3),
-    'power_map_period_s': ('period of the power map (s)', 0.01, 60.0),
-    'power_map_queue_depth': ('messages queued per map topic between two looks', 1,
-                              100000),
-    'message_backlog': ('messages queued per client (oldest dropped)', 1, 1000000),
-    'niceness': ('CPU niceness added to the process (os.nice; 0: none)', 0, 19),
-}
+#: name: (description, low, high), read-only (the graph checks the same table)
+PARAMS = LIVE_VIEW_RANGES
 
 
 class _Listener:
@@ -109,7 +93,7 @@ class LiveViewNode(Node):
         p = {name: declare(self, d, name, text, lo, hi, True)
              for name, (text, lo, hi) in PARAMS.items()}
         for k in RANGE_KEYS:
-            p[k] = declare(self, d, k, 'power map range (m)', -1e-2, 1e-2, True)
+            p[k] = declare(self, d, k, *LIVE_VIEW_MAP, True)
         self.p = p
         if p['niceness']:
             os.nice(int(p['niceness']))

@@ -26,6 +26,7 @@ from rclpy.node import Node
 from std_msgs.msg import Float64
 
 from fiber_align.config import load_params
+from fiber_align.graph.ranges import POWER_METER_RANGES
 from fiber_align.hardware import errors as er
 from fiber_align.hardware.pm100 import PM100
 from fiber_align.nodes.ros.diagnostics import ERROR, OK, STALE
@@ -33,16 +34,8 @@ from fiber_align.nodes.ros.params import declare
 from fiber_align.nodes.ros.qos import DIAG_QOS
 from fiber_align.nodes.ros.runtime import run_node
 
-PARAMS = {  # name: (description, low, high); all read-only
-    'resource': ('VISA resource (TCPIP::host::port::SOCKET, ASRL..., USB0::...)', None, None),
-    'visa_backend': ('pyvisa backend (@py = pyvisa-py)', None, None),
-    'averaging_count': ('SENS:AVER:COUN (samples of ~3 ms each)', 1, 10000),
-    'wavelength_m': ('wavelength correction (m), sent in nm', 200e-9, 20e-6),
-    'rate_hz': ('largest reading rate (Hz)', 0.1, 1000.0),
-    'timeout_s': ('bound on every query (s); no reply = meter lost', 0.01, 10.0),
-    'reconnect_period_s': ('time between reconnection attempts (s)', 0.05, 60.0),
-    'diagnostics_period_s': ('period of /diagnostics (s)', 0.05, 60.0),
-}
+#: name: (description, low, high); all read-only (the graph checks the same table)
+PARAMS = POWER_METER_RANGES
 
 
 class PowerMeterNode(Node):

@@ -22,7 +22,7 @@ from fiber_align.alignment.record import RunRecord
 from fiber_align.graph.registry import NODES
 from fiber_align.nodes.ros.diagnostics import Health, OK, WARN
 from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults
-from fiber_align.nodes.ros.qos import DIAG_QOS, REALTIME_QOS, STATE_LOG_QOS
+from fiber_align.nodes.ros.qos import DIAG_QOS, REALTIME_QOS, STATE_QOS
 from fiber_align.nodes.ros.runtime import run_node
 from fiber_align.nodes.ros.teardown import say
 from fiber_align.records.writer import CatalogWriter
@@ -58,7 +58,7 @@ class RunCatalogNode(Node):
         self.rec = RunRecord(dict(p, sync_mode=g['sync_mode']), 1.0 / float(g['rate_hz']))
         self.closed, self.n_rows, self.n_status, self._said = False, 0, 0, ''
         self._put('runs', self.rec.start_row())
-        self.create_subscription(String, 'alignment_state', self._on_state, STATE_LOG_QOS)
+        self.create_subscription(String, 'alignment_state', self._on_state, STATE_QOS)
         self.create_subscription(Float64, 'optical_power', lambda msg: self.rec.log.on_power(
             float(msg.data)), REALTIME_QOS)
         self.create_subscription(DiagnosticArray, '/diagnostics', lambda msg: [

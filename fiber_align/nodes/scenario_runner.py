@@ -42,9 +42,11 @@ from std_msgs.msg import Float64, String
 from fiber_align.analysis.recording import diag_entry, recorder_missing, recorder_short
 from fiber_align.config import ConfigError
 from fiber_align.control.trajectory import stamp_ns
+from fiber_align.graph.ranges import SCENARIO_RANGES
 from fiber_align.graph.registry import NODES
 from fiber_align.nodes.ros.bus import Pub, subscription
-from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults
+from fiber_align.nodes.ros.params import declare, declare_graph_values, declare_row
+from fiber_align.nodes.ros.params import node_defaults
 from fiber_align.nodes.ros.qos import DIAG_QOS, LATCHED_QOS, sample_pub_qos, sample_qos
 from fiber_align.nodes.ros.runtime import run_node
 from fiber_align.simulation import scenarios
@@ -74,10 +76,8 @@ class ScenarioRunnerNode(Node):
         if self.name_ == 'none':
             raise ConfigError('scenario_runner: scenario none runs no runner; choose one '
                               'of %s' % ', '.join(SCENARIOS))
-        dur = declare(self, d, 'duration_s', 'length (s of sample time); 0: the '
-                      "scenario's own", 0.0, 1e6, True)
-        reach = declare(self, d, 'reach_m', 'largest reachable displacement (m); 0: '
-                        'unknown', 0.0, 1e-2, True)
+        dur = declare_row(self, d, SCENARIO_RANGES, 'duration_s')
+        reach = declare_row(self, d, SCENARIO_RANGES, 'reach_m')
         g = declare_graph_values(self, d, 'setpoint_min_m', 'setpoint_max_m', 'sync_mode',
                                  'rate_hz')
         self.exit_when_done = declare(self, d, 'exit_when_done', 'end the process when '
@@ -85,8 +85,7 @@ class ScenarioRunnerNode(Node):
         self.wait_recorder = declare(self, d, 'wait_for_recorder', 'at the end, wait for '
                                      'bag_recorder to hold what was sent (bool)',
                                      read_only=True)
-        self.recorder_wait_s = declare(self, d, 'recorder_wait_s', 'longest such wait (s)',
-                                       0.0, 600.0, True)
+        self.recorder_wait_s = declare_row(self, d, SCENARIO_RANGES, 'recorder_wait_s')
         self.lockstep = g['sync_mode'] == 'lockstep'
         self.period_s = 1.0 / g['rate_hz']
         self.source = Source(self.name_, *setpoint_range(g['setpoint_min_m'],

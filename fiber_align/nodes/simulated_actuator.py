@@ -29,22 +29,25 @@ missed cycles: its ``latency_stats()`` and ``cycle.*`` on ``/diagnostics``.
 """
 
 import sys
+import time
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64
+from std_msgs.msg import Bool, Float64
 from std_srvs.srv import SetBool
 
-from fiber_align.control.cycle import cycle_warning, CycleStats
+from fiber_align.control.cycle import cycle_warning, CycleStats, RecentShare
+from fiber_align.graph.ranges import PLANT_RANGES
 from fiber_align.graph.registry import NODES
 from fiber_align.nodes._plant_clock import PlantClock
 from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import Health
 from fiber_align.nodes.ros.params import check_parameters, declare, declare_graph_values
+from fiber_align.nodes.ros.params import declare_row
 from fiber_align.nodes.ros.params import flatten_defaults, node_defaults, PRIORITY
-from fiber_align.nodes.ros.qos import CLOCK_QOS, DAC_QOS, LOCKSTEP_QOS
+from fiber_align.nodes.ros.qos import CLOCK_QOS, DAC_QOS, LATCHED_QOS, LOCKSTEP_QOS
 from fiber_align.nodes.ros.qos import sample_pub_qos
 from fiber_align.nodes.ros.runtime import run_node
 from fiber_align.plant.actuator import KINDS, SimulatedActuator
@@ -53,6 +56,8 @@ from fiber_align.plant.optics import OpticalLink
 #: the registry's entry of this node: its name and params files
 SPEC = NODES['simulated_actuator']
 JOINT_NAME = 'bimorph_tip'
+#: The values a running plant takes (its other parameters are read-only).
+LIVE = ('lockstep_timeout_s', 'optical_power_every', 'cycle_goal_missed_share')
 PLANT_KEYS = ('rate_hz', 'hysteresis', 'omega_n_rad_s', 'damping_ratio', 'v_min', 'v_max',
               'slew_rate_v_per_s', 'noise_rms_m', 'resolution_m', 'seed')
 
@@ -70,35 +75,20 @@ class SimulatedActuatorNode(Node):
         self.rate_hz, self.sync_mode = g['rate_hz'], g['sync_mode']
         declare(self, d, 'hysteresis', 'true hysteresis law of the plant', read_only=ro,
                 choices=KINDS)
-        for name, text, lo, hi in (
-                ('omega_n_rad_s', 'first bending mode (rad/s); <= 0: design model', -1.0, 1e6),
-                ('damping_ratio', 'modal damping ratio (1)', 0.0, 0.999),
-                ('v_min', 'amplifier lower limit (V)', -200.0, 200.0),
-                ('v_max', 'amplifier upper limit (V)', -200.0, 200.0),
-                ('slew_rate_v_per_s', 'amplifier slew limit (V/s); <= 0: none', -1.0, 1e12),
-                ('noise_rms_m', 'sensor noise (m RMS)', 0.0, 1e-3),
-                ('resolution_m', 'sensor resolution (m)', 0.0, 1e-3),
-                ('seed', 'sensor noise seed', 0, 2 ** 31 - 1)):
-            declare(self, d, name, text, lo, hi, ro)
-        self.cycle_goal = declare(self, d, 'cycle_goal_missed_share',
-                                  'realtime: a run that misses more than this share of its '
-                                  'periods is a WARN on /diagnostics (1); 0: no warning',
-                                  0.0, 1.0)
-        self.timeout_s = declare(self, d, 'lockstep_timeout_s',
-                                 'lockstep: warn when no drive within this time (s)',
-                                 0.001, 3600.0)
+        for name in ('omega_n_rad_s', 'damping_ratio', 'v_min', 'v_max', 'slew_rate_v_per_s',
+                     'noise_rms_m', 'resolution_m', 'seed'):
+            declare_row(self, d, PLANT_RANGES, name, ro)
+        self.cycle_goal = declare_row(self, d, PLANT_RANGES, 'cycle_goal_missed_share', False)
+        self.timeout_s = declare_row(self, d, PLANT_RANGES, 'lockstep_timeout_s', False)
         start = {'autostart': declare(self, d, 'autostart', 'start the clock without ~/run',
                                       read_only=ro),
                  'start_after_reader': declare(
                      self, d, 'start_after_reader', 'realtime: start the clock once this '
                      'node subscribes to displacement and drive_voltage (a name in this '
                      'namespace or a full one, /ns/name; "" = none)', read_only=ro),
-                 'start_wait_s': declare(self, d, 'start_wait_s', 'bound of that wait (s, '
-                                         'wall)', 0.0, 3600.0, ro)}
+                 'start_wait_s': declare_row(self, d, PLANT_RANGES, 'start_wait_s', ro)}
         diag_period = g['diagnostics_period_s']
-        self.power_every = declare(self, d, 'optical_power_every',
-                                   'publish optical_power every N samples (1); 0: off '
-                                   '(the alignment sequencer needs 1)', 0, 1000000)
+        self.power_every = declare_row(self, d, PLANT_RANGES, 'optical_power_every', False)
         self.add_on_set_parameters_callback(self._on_set)
         params = {k: self.get_parameter(k).value for k in PLANT_KEYS}
         self.plant = SimulatedActuator.from_params(params)
@@ -120,8 +110,7 @@ class SimulatedActuatorNode(Node):
                         'graph: its first plant only)', read_only=ro)
         self.pub_clock = self.create_publisher(ClockMsg, '/clock', CLOCK_QOS) \
             if clock and self.sync_mode == 'lockstep' else None
-        self.tip_every = declare(self, d, 'tip_position_every', 'publish tip_position (true '
-                                 'tip position, m) every N samples; 0: off', 0, 1000000, ro)
+        self.tip_every = declare_row(self, d, PLANT_RANGES, 'tip_position_every', ro)
         self.pub_tip = Pub(self, JointState, 'tip_position', pub_qos, bus) \
             if self.tip_every else None
         self._js = JointState(name=[JOINT_NAME], position=[0.0], velocity=[0.0])
@@ -139,6 +128,9 @@ class SimulatedActuatorNode(Node):
         if self.sync_mode == 'realtime':
             self.create_timer(diag_period, lambda: self.slack.submit(self._update_values),
                               clock=Clock(clock_type=ClockType.STEADY_TIME))
+            # the driver's hold: periods the loop is not meant to run are not missed
+            subscription(self, Bool, 'drive_held', self.clock.on_held, LATCHED_QOS, bus)
+            self.recent = RecentShare()     # the cycle WARN: the recent window's share
         subscription(self, Float64, 'drive_voltage', self.clock.on_drive,
                      LOCKSTEP_QOS if self.sync_mode == 'lockstep' else DAC_QOS, bus)
         self.create_service(SetBool, '~/run', self.clock.on_run)
@@ -150,9 +142,7 @@ class SimulatedActuatorNode(Node):
     # -- parameters -----------------------------------------------------------------
     def _on_set(self, params):
         """Check live updates (``lockstep_timeout_s``, ``optical_power_every``, the goal)."""
-        res = check_parameters(params, {'lockstep_timeout_s': (0.001, 3600.0),
-                                        'optical_power_every': (0, 1000000),
-                                        'cycle_goal_missed_share': (0.0, 1.0)})
+        res = check_parameters(params, {k: PLANT_RANGES[k][1:] for k in LIVE})
         if res.successful:
             for p in params:
                 if p.name == 'lockstep_timeout_s':
@@ -208,8 +198,10 @@ class SimulatedActuatorNode(Node):
                 'lockstep_holds': c.holds}
         if self.sync_mode == 'realtime':
             stats = c.latency_stats()
-            vals.update(stats)
-            self.health.condition('cycles', cycle_warning(stats, self.cycle_goal),
+            recent = self.recent.update(time.monotonic(), stats['periods'],
+                                        stats['missed_cycles'])
+            vals.update(stats, recent_missed_share=recent['missed_share'])
+            self.health.condition('cycles', cycle_warning(recent, self.cycle_goal),
                                   publish=False)
         vals.update({'sent.displacement': self.n_disp, 'sent.optical_power': self.n_power,
                      'sent.clock': self.n_clock})

@@ -4,8 +4,10 @@
 
 One executable for every link, chosen by the read-only parameter ``link`` (the params
 files set it per node: ``simulated_optics_2d`` rig, ``simulated_station_optics``
-station). The rig's link is :class:`fiber_align.plant.optics2d.OpticalLink2D` (the
-Gaussian overlap of an (x, y) offset, the moving target); the station's
+station, ``simulated_array_optics`` array: :class:`fiber_align.plant.array_optics.
+ArrayLink`, the outer channels' readings on ``optical_power`` and ``optical_power_n``).
+The rig's link is :class:`fiber_align.plant.optics2d.OpticalLink2D` (the Gaussian overlap
+of an (x, y) offset, the moving target); the station's
 :class:`fiber_align.plant.station_optics.StationLink` (the input and output facets, the
 chip's loss, the cure's pull); both with the detector of the 1-D model. Runs in the
 machine's namespace (``/rig``, ``/station``); topics (relative names, SI units):
@@ -32,18 +34,22 @@ rig's ``target.*`` (``config/optics2d.yaml``) or the station's chip, facet and c
 import math
 import sys
 
+import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from fiber_align.control.trajectory import stamp_to_s
-from fiber_align.graph.registry import STATION_AXES
+from fiber_align.graph.ranges import OPTICS_RANGES
+from fiber_align.graph.registry import ARRAY_AXES, ARRAY_POWERS, STATION_AXES
 from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import Health, OK
-from fiber_align.nodes.ros.params import declare, declare_graph_values, flatten_defaults
+from fiber_align.nodes.ros.params import declare, declare_graph_values, declare_row
+from fiber_align.nodes.ros.params import flatten_defaults
 from fiber_align.nodes.ros.params import node_defaults, PRIORITY
 from fiber_align.nodes.ros.qos import sample_pub_qos, sample_qos
 from fiber_align.nodes.ros.runtime import run_node
+from fiber_align.plant import array_optics as ao
 from fiber_align.plant import optics as op, optics2d as o2, station_optics as so
 
 #: Each link: its axes (namespaces below the node's, in the order of the positions),
@@ -51,6 +57,7 @@ from fiber_align.plant import optics as op, optics2d as o2, station_optics as so
 LINKS = {
     'rig': (('x', 'y'), o2.CONFIG_FILE, o2.LINK_KEYS + o2.DETECTOR_KEYS),
     'station': (STATION_AXES, so.CONFIG_FILE, so.SOURCE_KEYS + so.DETECTOR_KEYS),
+    'array': (ARRAY_AXES, ao.CONFIG_FILE, ao.SOURCE_KEYS + so.DETECTOR_KEYS),
 }
 
 
@@ -76,12 +83,14 @@ class SimulatedOpticsNode(Node):
         g = declare_graph_values(self, d, 'sync_mode', 'diagnostics_period_s', 'rate_hz',
                                  *PRIORITY)
         self.lockstep, self.period_s = g['sync_mode'] == 'lockstep', 1.0 / g['rate_hz']
-        seed = int(declare(self, d, 'seed', 'detector noise seed', 0, 2 ** 31 - 1, True))
+        seed = int(declare_row(self, d, OPTICS_RANGES, 'seed'))
         optics = {name: declare(self, d, name, 'optics constant (SI, see optics.yaml)',
                                 read_only=True)
                   for name in sorted(k for k in d if k.startswith('optics.'))}
         self.link = getattr(self, '_' + self.link_name)(d, seed, optics)
-        self.pub = Pub(self, Float64, 'optical_power', sample_pub_qos(self.lockstep), bus)
+        self.topics = ARRAY_POWERS if self.link_name == 'array' else ARRAY_POWERS[:1]
+        self.pubs = [Pub(self, Float64, topic, sample_pub_qos(self.lockstep), bus)
+                     for topic in self.topics]
         qos = sample_qos(self.lockstep)
         self.q = [[] for _ in axes]             # lockstep: positions not yet read (m)
         self.latest = [None] * len(axes)        # realtime: the newest position (m)
@@ -91,7 +100,8 @@ class SimulatedOpticsNode(Node):
         self.health = Health(self, g['diagnostics_period_s'], slack=slack_of(bus),
                              sender=sender_of(bus))
         self.n = 0
-        self._msg = Float64()
+        # one message per topic: the DDS copy is written off this thread, after the loop
+        self._msgs = [Float64() for _ in self.pubs]
         self.health.summary(OK, 'ready')
         self.get_logger().info('%s optics ready (%s)' % (self.link_name, g['sync_mode']))
 
@@ -108,11 +118,20 @@ class SimulatedOpticsNode(Node):
 
     def _station(self, d, seed, optics):
         """Return the station's link: ``optics.*`` and the chip, facet and cure keys (SI)."""
+        return self._keyed(d, seed, optics, so.StationLink, so.CHIP_KEYS,
+                           'chip, facet or cure constant (SI: m, rad, s, dB; see station.yaml)')
+
+    def _array(self, d, seed, optics):
+        """Return the array's link: ``optics.*`` and the geometry, chip and layout keys."""
+        return self._keyed(d, seed, optics, ao.ArrayLink, ao.ARRAY_KEYS, 'array geometry, '
+                           'chip pose or layout (SI: m, rad; see array.yaml)')
+
+    def _keyed(self, d, seed, optics, cls, keys, what):
+        """Return ``cls.from_params`` of ``optics.*`` and the declared ``keys``."""
         over = {k.split('.', 1)[1]: v for k, v in optics.items()}
-        over.update({name: declare(self, d, name, 'chip, facet or cure constant (SI: m, '
-                                   'rad, s, dB; see station.yaml)', read_only=True)
-                     for name in so.CHIP_KEYS}, sample_period_s=self.period_s)
-        link = so.StationLink.from_params(seed=seed, **over)
+        over.update({name: declare(self, d, name, what, read_only=True) for name in keys},
+                    sample_period_s=self.period_s)
+        link = cls.from_params(seed=seed, **over)
         self.measure = lambda t, pos: link.measure(t, pos, self.period_s)
         return link
 
@@ -136,22 +155,30 @@ class SimulatedOpticsNode(Node):
             why = 'tip positions %r m: not all numbers, no reading' % (tuple(pos),)
             self.get_logger().warning(why)
             self.health.warn(why)
-            self._msg.data = math.nan
+            values = [math.nan] * len(self.pubs)
         else:
-            self._msg.data = float(self.measure(t_s, pos))
-        self.pub.publish(self._msg)
+            values = list(np.atleast_1d(self.measure(t_s, pos)))
+        for pub, msg, v in zip(self.pubs, self._msgs, values):
+            msg.data = float(v)
+            pub.publish(msg)
         self.n += 1
-        self.health.set_values(samples=self.n, optical_power_w=self._msg.data)
+        self.health.set_values(samples=self.n, optical_power_w=float(values[0]))
 
     def sent_counts(self):
         """Return published message counts per topic."""
-        return {'optical_power': self.n}
+        return {topic: self.n for topic in self.topics}
 
 
 class StationOpticsNode(SimulatedOpticsNode):
     """The node ``simulated_station_optics`` (``link`` station) as ``control_graph`` hosts it."""
 
     NAME = 'simulated_station_optics'
+
+
+class ArrayOpticsNode(SimulatedOpticsNode):
+    """The node ``simulated_array_optics`` (``link`` array) as ``control_graph`` hosts it."""
+
+    NAME = 'simulated_array_optics'
 
 
 def main(args=None):

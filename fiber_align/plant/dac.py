@@ -84,6 +84,10 @@ class DacClock:
         self.stats_from = 0             # first sample counted in the statistics
         self.missed = 0                 # ticks without a new drive
         self.skipped = 0                # periods skipped by late ticks
+        #: the driver holds its output (inactive, disabled, tripped): the loop is not
+        #: meant to run, a tick without a drive is idle, neither counted nor missed
+        self.held = False
+        self.idle = 0                   # ticks while held
 
     def write(self, v):
         """Take a drive (V) written to the DAC."""
@@ -115,7 +119,11 @@ class DacClock:
                 return None             # a stall: its drives may still be on their way
             self.waited = 0
             if k >= self.stats_from:
-                if self.drives_in_period == 0 and self.n_drive > 0:
+                # held: no drive is due, the period is idle; a late tick's periods are
+                # the plant's own loss (a stall that made the driver trip too)
+                if self.held:
+                    self.idle += 1
+                elif self.drives_in_period == 0 and self.n_drive > 0:
                     self.missed += 1
                 self.skipped += steps - 1
             self.plant.step(self.u_latched)

@@ -37,7 +37,7 @@ from fiber_align.config import load_params
 from fiber_align.plant import optics as op
 
 DETECTOR_KEYS = ('noise_floor_w', 'rin_db', 'averaging_time_s', 'saturation_w',
-                 'sample_period_s')
+                 'sample_period_s', 'floor_w', 'quantum_w')
 
 
 def overlap(w1_m, w2_m, gap_m=0.0, wavelength_m=1.55e-6, index=1.0):

@@ -149,7 +149,8 @@ class Detector:
     """Photodetector: noise floor, relative intensity noise, averaging low-pass, saturation."""
 
     def __init__(self, noise_floor_w=1e-10, rin_db=0.02, averaging_time_s=0.5e-3,
-                 saturation_w=10e-3, sample_period_s=1e-3, seed=0):
+                 saturation_w=10e-3, sample_period_s=1e-3, seed=0, floor_w=0.0,
+                 quantum_w=0.0):
         """
         Set the detector up.
 
@@ -159,15 +160,21 @@ class Detector:
         :param saturation_w: largest reading (W).
         :param sample_period_s: default time between readings (s).
         :param seed: seed of the noise generator.
+        :param floor_w: the meter's clamp (W): a reading below it reads as it (a meter
+            that reports a constant floor in the dark); 0 = none.
+        :param quantum_w: the meter's resolution (W): readings are rounded down to a
+            multiple of it (a quantised reading); 0 = none.
         """
-        if noise_floor_w < 0 or rin_db < 0 or averaging_time_s < 0 or saturation_w <= 0:
-            raise ValueError('detector noise, averaging and saturation must be >= 0 (> 0 '
-                             'for saturation_w)')
+        if min(noise_floor_w, rin_db, averaging_time_s, floor_w, quantum_w) < 0 or \
+                saturation_w <= 0:
+            raise ValueError('detector noise, averaging, floor, quantum and saturation must '
+                             'be >= 0 (> 0 for saturation_w)')
         self.noise_floor_w = float(noise_floor_w)
         self.rin_db = float(rin_db)
         self.averaging_time_s = float(averaging_time_s)
         self.saturation_w = float(saturation_w)
         self.sample_period_s = float(sample_period_s)
+        self.floor_w, self.quantum_w = float(floor_w), float(quantum_w)
         self.rng = np.random.default_rng(seed)
         self._state = None
 
@@ -195,7 +202,13 @@ class Detector:
         else:
             a = 1.0 - math.exp(-dt / self.averaging_time_s)
             self._state += a * (raw - self._state)
-        return min(self._state, self.saturation_w)
+        return self.meter_reading(min(self._state, self.saturation_w))
+
+    def meter_reading(self, p_w):
+        """Return what the meter shows of ``p_w`` (W): quantised, clamped at ``floor_w``."""
+        if self.quantum_w > 0:
+            p_w = math.floor(p_w / self.quantum_w) * self.quantum_w
+        return max(p_w, self.floor_w)
 
     def measure_array(self, p_true_w, dt_s=None):
         """Return readings (W) for an array of true powers sampled every ``dt_s`` (s)."""
@@ -228,7 +241,7 @@ class OpticalLink:
                    'slot_position_m', 'slot_drift_m_per_s', 'slot_vibration_amplitude_m',
                    'slot_vibration_frequency_hz', 'fiber_broken')
         known_d = ('noise_floor_w', 'rin_db', 'averaging_time_s', 'saturation_w',
-                   'sample_period_s')
+                   'sample_period_s', 'floor_w', 'quantum_w')
         unknown = sorted(set(p) - set(known_c) - set(known_d))
         if unknown:
             raise ValueError('unknown optics parameter(s): %s (known: %s)'

@@ -68,6 +68,7 @@ class CatalogWriter:
         self._spooled = 0
         self._counts = dict(written=0, dropped=0)
         self._reason = ''
+        self._refused_at = -float('inf')    # monotonic s of the last failed try
         self._db = None
         self._last_try = -float('inf')
         self._idle = threading.Event()
@@ -109,15 +110,27 @@ class CatalogWriter:
                         queued=self._queue.qsize(), spooled=self._spooled + len(self._held),
                         **self._counts)
 
-    def flush(self, timeout_s):
-        """Wait up to ``timeout_s`` (s) until every row is written; tell whether it is."""
+    def flush(self, timeout_s, until_refused=False):
+        """
+        Wait up to ``timeout_s`` (s) until every row is written; tell whether it is.
+
+        ``until_refused``: also stop waiting once every row is out of the queue (written
+        or in the spool) and a try of the catalogue made during this wait failed: a
+        missing folder or a refused login will not heal in the next seconds, and the
+        rows wait safely in the spool for the next writer.
+        """
         if self.off:
             return True
-        t_end = time.monotonic() + timeout_s
+        start = time.monotonic()
+        t_end = start + timeout_s
         while time.monotonic() < t_end:
             s = self.state()
             if s['level'] == 'ok' and s['queued'] == 0 and self._idle.is_set():
                 return True
+            with self._lock:
+                refused = self._refused_at > start
+            if until_refused and refused and s['queued'] == 0 and not self._held:
+                return False
             time.sleep(0.02)
         return False
 
@@ -203,6 +216,7 @@ class CatalogWriter:
     def _set_reason(self, text):
         with self._lock:
             self._reason = text
+            self._refused_at = time.monotonic()
 
     # --- the spool file ---
     def _to_spool(self, rows):

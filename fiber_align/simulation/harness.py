@@ -89,14 +89,13 @@ class Bench:
     """
 
     POSITION = MEASURED = SETPOINT = TARGET = ()
+    POWERS = ('p',)             # the trace's readings: ``sense`` returns one, or a tuple
     JOINT = False
     GOAL = dict(loss_db=0.05, time_s=None, samples=None)
     ALIGN_MAX_S = 1.0
     #: how :func:`align_bench` reports the best point: one key per axis, or one key (a list)
     WHERE = 'target_m'
-    #: the trace's columns: what the sequencer saw and set, and the truth
-    FIELDS = ('t', 'p')
-    TRUTH = ('p_true', 'p_max')
+    FIELDS, TRUTH = ('t', 'p'), ('p_true', 'p_max')     # the trace's: seen and set; truth
 
     #: the machine's rig, ``RIG(kind, period_s, seed)``, and link, ``LINK.from_params(...)``
     RIG = LINK = None
@@ -121,7 +120,7 @@ class Bench:
     def __init_subclass__(cls, **kw):
         """Derive a machine's ``FIELDS`` and ``TRUTH`` from its column names."""
         super().__init_subclass__(**kw)
-        cls.FIELDS = ('t',) + cls.MEASURED + cls.SETPOINT + ('p',)
+        cls.FIELDS = ('t',) + cls.MEASURED + cls.SETPOINT + cls.POWERS
         cls.TRUTH = cls.POSITION + ('p_true', 'p_max') + cls.TARGET
 
     def __init__(self, rig, link, seq, record=False):
@@ -171,7 +170,7 @@ class Bench:
         if self.rows is not None:
             p_true, p_max, target = self.truth(t, pos)
             for k, v in zip(self.FIELDS + self.TRUTH,
-                            (t, *m, *r, p, *pos, p_true, p_max, *target)):
+                            (t, *m, *r, *np.atleast_1d(p), *pos, p_true, p_max, *target)):
                 self.rows[k].append(float(v))
             self.states.append(self.seq.state)
         self.last = (t, pos, p)

@@ -21,10 +21,11 @@ import math
 NAMES = ('step', 'sine', 'triangle', 'staircase', 'hysteresis-experiment')
 TRACKING = NAMES[:4]
 #: The alignment scenarios of every machine (:mod:`fiber_align.simulation.harness`): the
-#: one-axis machine, the x-y rig, the coupled station.
+#: one-axis machine, the x-y rig, the coupled station, the fiber array.
 MACHINE_SCENARIOS = {'one': ('align', 'switch', 'track'),
                      'rig': ('align2d', 'track2d', 'switch2d'),
-                     'station': ('station', 'cure')}
+                     'station': ('station', 'cure'),
+                     'array': ('array',)}
 ALIGNMENT = tuple(n for names in MACHINE_SCENARIOS.values() for n in names)
 #: What the 1-D graph's ``scenario`` argument takes (``none``: no runner).
 GRAPH = ('none',) + NAMES + ('align',)

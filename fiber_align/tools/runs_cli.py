@@ -211,8 +211,9 @@ def recorder(args):
     Return ``(on_result, finish)`` for ``simulate --catalog``, or None without it.
 
     ``on_result(result)`` queues the run's and its alignments' rows; ``finish()`` waits
-    up to :data:`FLUSH_S` for them and writes one line on stderr if they wait in the
-    spool (the run's exit code stands).
+    up to :data:`FLUSH_S` for them (less once a try of the catalogue failed: they are
+    in the spool then) and writes one line on stderr if they wait in the spool (the
+    run's exit code stands).
     """
     if args.catalog is None:
         if args.part is not None:
@@ -246,7 +247,7 @@ def recorder(args):
 
     def finish():
         start = time.monotonic()
-        writer.flush(FLUSH_S)
+        writer.flush(FLUSH_S, until_refused=True)
         s = writer.close(max(0.1, FLUSH_S - (time.monotonic() - start)))
         if s['level'] != 'ok':
             print('fiber-align simulate: warning: run %s not in the catalogue yet: %s (%d '

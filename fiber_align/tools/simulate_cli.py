@@ -9,8 +9,8 @@ from fiber_align.control.factory import CONTROLLERS
 from fiber_align.jsonout import json_clean
 from fiber_align.control.fuzzy import FuzzyInference
 from fiber_align.plant.actuator import KINDS as PLANTS
-from fiber_align.simulation import (alignment2d_scenarios, alignment_scenarios, scenarios,
-                                    simulate, station_scenarios)
+from fiber_align.simulation import (alignment2d_scenarios, alignment_scenarios,
+                                    array_scenarios, scenarios, simulate, station_scenarios)
 from fiber_align.tools import runs_cli
 from fiber_align.tools.common import UsageError
 
@@ -21,7 +21,8 @@ def register(sub):
     p.add_argument('--scenario', default='step',
                    help='%s; %s run the alignment sequencer; %s the two-axis sequencer and '
                         'its hill-climb baseline; %s the coupled input/output station and '
-                        'its serial baseline (fiber_align.simulation.harness)'
+                        'its serial baseline; %s the fiber array in x, y and roll and its '
+                        'serial baseline (fiber_align.simulation.harness)'
                         % tuple(' | '.join(n) for n in (scenarios.NAMES,) + tuple(
                             scenarios.MACHINE_SCENARIOS.values())))
     p.add_argument('--controller', default='composite',
@@ -61,10 +62,12 @@ def register(sub):
 
 
 ALIGN_SCENARIOS = scenarios.MACHINE_SCENARIOS['one']
-STATION_SCENARIOS = scenarios.MACHINE_SCENARIOS['station']
+STATION_SCENARIOS = (scenarios.MACHINE_SCENARIOS['station']
+                     + scenarios.MACHINE_SCENARIOS['array'])
 #: The machine of every alignment scenario (its module's ``run_cli``).
 MACHINES = {name: module for module in (alignment_scenarios, alignment2d_scenarios,
-                                        station_scenarios) for name in module.SCENARIOS}
+                                        station_scenarios, array_scenarios)
+            for name in module.SCENARIOS}
 
 
 def _check_alignment_args(args):

@@ -4,9 +4,11 @@ Parameters of the fiber_align nodes: defaults, descriptors, declarations and che
 
 Defaults come from the ROS params files under ``config/`` only, through
 :func:`node_defaults` (the graph's one merge law). Each node declares its parameters
-from one table; a graph-wide value (:data:`GRAPH_VALUES`: ``rate_hz``, ``sync_mode``,
+from its table of :mod:`fiber_align.graph.ranges` (:func:`declare_row`), which the graph
+checks a params file against before any process starts; a graph-wide value
+(:data:`~fiber_align.graph.ranges.GRAPH_VALUES`: ``rate_hz``, ``sync_mode``,
 ``controller``, the setpoint limits, ...) is declared by :func:`declare_graph_values`,
-read-only, with its range written once here. Units are SI (m, m/s, V, s, Hz, W).
+read-only. Units are SI (m, m/s, V, s, Hz, W).
 """
 
 import math
@@ -15,53 +17,20 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rcl_interfaces.msg import SetParametersResult
 
 from fiber_align.config import config_path, ConfigError, flatten
-from fiber_align.control.factory import CONTROLLERS
 from fiber_align.control.shaping import KINDS as SHAPING_KINDS
-from fiber_align.control.trajectory import REALTIME_SETPOINT_RATE_M_PER_S
 from fiber_align.design import design_dynamics, load_actuator
 from fiber_align.graph.description import AREA_FILES, GRAPH_FILE
-from fiber_align.graph.params import effective, merge_params, normalize, SYNC_MODES
+from fiber_align.graph.params import effective, merge_params, normalize
+from fiber_align.graph.ranges import GRAPH_VALUES, SHAPING, si_range
 
 
-#: The graph-wide values: name -> (description, low, high, choices, fallback). Every
-#: node that uses one declares it read-only through :func:`declare_graph_values`; the
-#: fallback (``None``: none) serves a value the params files may not set.
-GRAPH_VALUES = {
-    'rate_hz': ('control rate (Hz)', 1.0, 20000.0, None, None),
-    'sync_mode': ('sample pairing: index (lockstep) or latest (realtime)', None, None,
-                  SYNC_MODES, None),
-    'controller': ('control law (as in fiber-align simulate)', None, None, CONTROLLERS,
-                   None),
-    'sensorless': ('no displacement sensor: step once per setpoint, drive the '
-                   'feedforward alone (bool)', None, None, None, None),
-    'diagnostics_period_s': ('/diagnostics period (s)', 0.01, 60.0, None, None),
-    'setpoint_min_m': ('lowest accepted setpoint (m)', -1e-3, 1e-3, None, None),
-    'setpoint_max_m': ('highest accepted setpoint (m)', -1e-3, 1e-3, None, None),
-    'realtime_setpoint_rate_m_per_s': (
-        'realtime: rate limit of the setpoint trajectory (m/s); <= 0: none', -1.0, 10.0,
-        None, REALTIME_SETPOINT_RATE_M_PER_S),
-    'realtime_setpoint_accel_m_per_s2': (
-        'realtime: acceleration limit of the setpoint trajectory (m/s^2); <= 0: none', -1.0,
-        1e4, None, None),
-    'cpu_idle_poll': ('with realtime_priority: hold /dev/cpu_dma_latency at 0 us while the '
-                      'process runs, so idle CPUs poll instead of halting (bool; needs '
-                      'root; refused: a WARN)', None, None, None, None),
-    'lock_memory': ('with realtime_priority: lock the process memory in RAM (mlockall; '
-                    'bool)', None, None, None, None),
-    'realtime_priority': ('SCHED_FIFO priority of the executor thread (1..99); 0: normal '
-                          'scheduling (needs root or an rtprio limit; refused: a WARN)', 0,
-                          99, None, None),
-    'publish_thread': ('realtime, composed: DDS publishes made by a thread of their own, '
-                       'off the control thread (bool; docs/realtime.md)', None, None, None,
-                       None),
-}
 #: The process-wide scheduling values a node of the control loop declares.
 PRIORITY = ('cpu_idle_poll', 'lock_memory', 'publish_thread', 'realtime_priority')
 
 
 def declare_graph_values(node, defaults, *names):
     """
-    Declare the graph-wide values ``names`` read-only (:data:`GRAPH_VALUES`).
+    Declare the graph-wide values ``names`` read-only (``graph.ranges.GRAPH_VALUES``).
 
     :returns: ``{name: value}`` of ``names`` (SI).
     """
@@ -160,6 +129,18 @@ def declare_part(node, defaults):
         power_w=None if power_w is None else float(power_w))
 
 
+def declare_row(node, defaults, table, name, read_only=True, choices=None):
+    """
+    Declare ``name`` with its description and range from ``table``; return its value.
+
+    :param table: a node's table of :mod:`fiber_align.graph.ranges`,
+        ``{name: (description, low, high)}`` (SI): the ranges the graph checks a params
+        file against before any process starts.
+    """
+    text, lo, hi = table[name]
+    return declare(node, defaults, name, text, lo, hi, read_only, choices)
+
+
 def declare_rows(node, rows):
     """
     Declare a table of parameters; return the ranges of the writable ones.
@@ -212,31 +193,20 @@ def declare_shaping(node, defaults):
     out = {'shaping': declare(node, defaults, 'shaping',
                               'resonance suppression of the reference', read_only=True,
                               choices=SHAPING_KINDS)}
-    for name, text, lo, hi in (
-            ('shaping_omega_n_rad_s', 'mode to suppress (rad/s); <= 0: the design model',
-             -1.0, 1e6),
-            ('shaping_damping_ratio', 'damping ratio of that mode (1)', 0.0, 0.999),
-            ('delay_compensation_max_accel_m_per_s2',
-             'growth limit of the predicted reference rate (m/s^2)', 0.0, 1e6),
+    for name in SHAPING:
+        out[name] = declare_row(node, defaults, SHAPING, name)
+    for name, text in (
             ('delay_compensation', 'predict smooth references over the shaper delay plus '
-             'one period (bool)', None, None),
+             'one period (bool)'),
             ('design_file', 'actuator design params file (a name in config/ or a path) '
-             'of the design model: mode frequency and gain', None, None)):
-        out[name] = declare(node, defaults, name, text, lo, hi, True)
+             'of the design model: mode frequency and gain')):
+        out[name] = declare(node, defaults, name, text, read_only=True)
     return out
 
 
 def design_model(shaping):
     """Return ``(omega_n_rad_s, alpha_m_per_v)`` of the design file in ``shaping``."""
     return design_dynamics(load_actuator(shaping['design_file']))
-
-
-#: Unit and allowed range of a parameter, by the end of its name (SI; checked in order).
-SI_SUFFIXES = (
-    ('_m_per_s', 'm/s', -1.0, 1.0), ('_rad_s', 'rad/s', 0.0, 1e7), ('_hz', 'Hz', 0.0, 1e6),
-    ('_db', 'dB', -300.0, 300.0), ('_w', 'W', 0.0, 100.0), ('_m', 'm', -1e-2, 1e-2),
-    ('_s', 's', 0.0, 3600.0), ('_samples', 'samples', 0, 10_000_000),
-    ('_sigma', 'standard deviations', 0.0, 1e6), ('_refits', 'count', 0, 1000))
 
 
 def declare_si(node, defaults, name, what, read_only=True):
@@ -248,9 +218,8 @@ def declare_si(node, defaults, name, what, read_only=True):
 
     :param what: whose parameter it is, for the description (e.g. ``'sequencer'``).
     """
-    for suffix, unit, lo, hi in SI_SUFFIXES:
-        if name.endswith(suffix) and not isinstance(defaults.get(name), bool):
-            return declare(node, defaults, name, '%s parameter (%s)' % (what, unit), lo, hi,
-                           read_only)
+    row = si_range(name, defaults.get(name), what)
+    if row:
+        return declare(node, defaults, name, *row, read_only)
     return declare(node, defaults, name, '%s parameter (see its params file)' % what,
                    read_only=read_only)

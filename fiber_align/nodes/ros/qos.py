@@ -59,10 +59,13 @@ DAC_QOS = profile(SAMPLE_DEPTH, False, False)
 #: realtime ``reference``): a late joiner (a restarted node) gets the present state.
 LATCHED_QOS = profile(1, True, True)
 REFERENCE_LATCHED_QOS = LATCHED_QOS
-STATE_QOS = LATCHED_QOS
-#: A reader of every status (the run catalogue's): as :data:`STATE_QOS`, but deep (a
-#: lockstep PEAKING then TRACKING come faster than an executor takes them).
-STATE_LOG_QOS = profile(100, True, True)
+#: ``alignment_state``: latched, and deep: two changes one update apart (SEARCHING then
+#: PEAKING) reached a depth-1 reader that lagged as one, and the lost SEARCHING put a
+#: lockstep run's ``align`` one sample late (a loaded machine: 3 of 6 array runs). A reader
+#: that wants only the present keeps depth 1 (the live view); one that wants every change
+#: (bringup, the recorder) takes this depth too. 100 changes: far more than a run makes
+#: between two reads.
+STATE_QOS = profile(100, True, True)
 #: The user's ``setpoint``: reliable, volatile, deep (every setpoint is checked, so each
 #: bad one is reported); a default rclpy or ``ros2 topic pub`` publisher matches it.
 SETPOINT_QOS = profile(SAMPLE_DEPTH, True, False)

@@ -3,9 +3,9 @@
 The rcl and rcutils calls of the sender thread, bound by ``ctypes`` (the GIL released).
 
 :class:`Rcl` binds ``rcl_publish``, the matched-reader count, ``rcutils_log`` and the
-graph's topic listing from the ``librcl.so`` rclpy loaded; :class:`MessageType` makes the
-C message of a Python one as rclpy's ``publish`` does. Used by
-:mod:`fiber_align.nodes.ros.sender` only.
+graph's topic listing and publisher counts from the ``librcl.so`` rclpy loaded;
+:class:`MessageType` makes the C message of a Python one as rclpy's ``publish`` does.
+Used by :mod:`fiber_align.nodes.ros.sender` and :mod:`fiber_align.nodes.ros.owners`.
 """
 
 import ctypes
@@ -27,6 +27,10 @@ class Rcl:
         self.count = lib.rcl_publisher_get_subscription_count
         self.count.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_size_t)]
         self.count.restype = ctypes.c_int
+        self.count_publishers = lib.rcl_count_publishers
+        self.count_publishers.argtypes = [ctypes.c_void_p, ctypes.c_char_p,
+                                          ctypes.POINTER(ctypes.c_size_t)]
+        self.count_publishers.restype = ctypes.c_int
         ut = ctypes.CDLL(paths[0].replace('/librcl.so', '/librcutils.so'))
         self.reset_error = ut.rcutils_reset_error
         self.reset_error.argtypes = []

@@ -1,18 +1,15 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-The end of a fiber_align node process: its exit reports, the close and bounded teardown.
+The end of a node process (:func:`finish`): exit reports, close, acks, bounded teardown.
 
-:func:`finish` prints each node's exit report (:func:`report_sent`), closes every node
-with a ``close()`` (a bag finalised, a device ramped to its safe voltage) before any
-node is destroyed, then tears the middleware down within a bound
-(:func:`teardown_guard`). :func:`say` writes every line a node writes at its stop, which
-a dead launcher's pipe must not end. Used by :mod:`fiber_align.nodes.ros.runtime`.
+:func:`say` writes every line a node writes at its stop: a dead launcher's pipe ends none.
 """
 
 import faulthandler
 import json
 import os
 import sys
+import time
 
 #: Exit report prefix of the line ``FIBER_ALIGN_SENT {json}`` (bringup collects them).
 SENT_PREFIX = 'FIBER_ALIGN_SENT '
@@ -77,6 +74,7 @@ def finish(nodes, stop=None, limit_s=None):
         close = getattr(node, 'close', None)
         if callable(close):
             close()
+    settle(nodes, ACK_S)
     guard = teardown_guard(TEARDOWN_S if limit_s is None else limit_s, stop)
     try:
         contexts = []
@@ -92,6 +90,19 @@ def finish(nodes, stop=None, limit_s=None):
         gc.collect()
     finally:
         guard.cancel()
+
+
+#: s: the longest a process waits for its readers' acknowledgements (:func:`settle`): a
+#: reliable writer destroyed first takes its unacknowledged samples with it
+ACK_S = 0.5
+
+
+def settle(nodes, limit_s):
+    """Wait up to ``limit_s`` (s) in all until each reliable publisher's samples are acked."""
+    from rclpy.duration import Duration
+    end = time.monotonic() + float(limit_s)
+    for pub in [p for n in nodes for p in getattr(n, 'publishers', ())]:
+        pub.wait_for_all_acked(Duration(seconds=max(0.0, end - time.monotonic())))
 
 
 #: s: the longest a node process's teardown (nodes, contexts, DDS participants) may take
@@ -162,7 +173,6 @@ def drain(executor, timeout_s):
     it once the spin loop ended (nothing new is started). An error of a callback that
     ends here is printed as one line.
     """
-    import time
     end = time.monotonic() + float(timeout_s)
     for task in list(getattr(executor, '_futures', ())):
         while not task.done() and time.monotonic() < end:
