@@ -68,7 +68,8 @@ def test_sigint_mid_scenario_stops_cleanly_and_finalises_the_bag(tmp_path):
         # floor probe of the realtime run
         pids = _pids(lines)
         assert sorted(re.findall(r'bringup: started (\S+) \(pid', ''.join(lines))) == [
-            'bag_recorder', 'control_graph', 'lifecycle_manager', 'machine_floor'], \
+            'bag_recorder', 'control_graph', 'lifecycle_manager', 'machine_floor',
+            'run_catalog'], \
             ''.join(lines)
         left = [p for p in pids if alive(p)]
         assert stop_s <= STOP_LIMIT_S, 'bringup took %.2f s to exit' % stop_s

@@ -73,8 +73,9 @@ def test_lockstep_rig_five_alignments_a_part_each(tmp_path):
         assert 0.0 <= a['time_to_first_light_s'] < a['time_to_peak_s']
         # the launched 1 mW, the detector's noise above it
         assert a['samples'] > 0 and 0.0 < a['peak_power_w'] <= 1.01e-3
-        # the simulated rig aligns to a few hundredths of a dB of the launched 1 mW
-        assert 0.0 < a['final_loss_db'] < 0.5, a
+        # the simulated rig aligns to a few hundredths of a dB of the launched 1 mW; a
+        # measured loss, so the detector's noise (the 1 % above) may put it 0.043 dB below 0
+        assert -0.045 < a['final_loss_db'] < 0.5, a
 
 
 def test_realtime_1d_run_align_and_switch_cycles(tmp_path):

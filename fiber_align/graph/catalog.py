@@ -20,7 +20,7 @@ import os
 
 from fiber_align.config import config_path, load_params
 from fiber_align.graph import description as gd
-from fiber_align.graph.params import GraphError, RUN_CATALOG, SEQUENCER_2D, \
+from fiber_align.graph.params import ARRAY_SEQUENCER, GraphError, RUN_CATALOG, SEQUENCER_2D, \
     STATION_SEQUENCER
 from fiber_align.records import backends
 from fiber_align.records.schema import CatalogError
@@ -29,11 +29,13 @@ from fiber_align.records.schema import CatalogError
 RECORDS_FILE = 'records.yaml'
 
 
+#: The sequencer node that names a multi-axis machine -> the catalogue's ``machine``.
+MACHINE_OF = {SEQUENCER_2D: 'rig', STATION_SEQUENCER: 'station', ARRAY_SEQUENCER: 'array'}
+
+
 def machine_of(graph):
-    """Return the catalogue's ``machine`` of a graph: ``rig``, ``station`` or ``1d``."""
-    nodes = set(graph.nodes)
-    return 'rig' if SEQUENCER_2D in nodes else 'station' if STATION_SEQUENCER in nodes \
-        else '1d'
+    """Return the catalogue's ``machine`` of a graph: ``rig``, ``station``, ``array``, ``1d``."""
+    return next((m for n, m in MACHINE_OF.items() if n in set(graph.nodes)), '1d')
 
 
 def catalog_url(value):

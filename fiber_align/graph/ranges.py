@@ -20,7 +20,7 @@ from fiber_align.control.factory import CONTROLLERS, PARAM_RANGES
 from fiber_align.control.trajectory import REALTIME_SETPOINT_RATE_M_PER_S
 from fiber_align.graph.params import (
     AMPLIFIER, COMPENSATOR, CONTROLLER, DRIVER, flat, LIFECYCLE_MANAGER, LIVE_VIEW, OPTICS_2D,
-    PLANT, RECORDER, SCENARIO_RUNNER, SEQUENCER, SEQUENCER_2D, STATION_OPTICS,
+    PLANT, RECORDER, RUN_CATALOG, SCENARIO_RUNNER, SEQUENCER, SEQUENCER_2D, STATION_OPTICS,
     STATION_SEQUENCER, SYNC_MODES)
 from fiber_align.hardware.mdt693b_session import DEVICE_DOCS
 
@@ -154,6 +154,19 @@ LIVE_VIEW_RANGES = {
     'message_backlog': ('messages queued per client (oldest dropped)', 1, 1000000),
     'niceness': ('CPU niceness added to the process (os.nice; 0: none)', 0, 19),
 }
+#: ``run_catalog`` (every one read-only; ranges None: none; config/records.yaml).
+CATALOG_RANGES = {
+    'catalog': ('default, none, a SQLite path or postgresql://...', None, None),
+    'queue_size': ('rows waiting for the writer at most', 1, 10 ** 7),
+    'retry_period_s': ('retry period of a spooling writer (s)', 0.01, 3600.0),
+    'connect_timeout_s': ('PostgreSQL connection attempt (s)', 0.01, 600.0),
+    'busy_timeout_s': ('wait for a locked SQLite file (s)', 0.0, 600.0),
+    'spool_dir': ("spool folder ('' = $ROS_HOME/fiber_align/spool)", None, None),
+    'machine': ('the machine: 1d, rig, station, array', None, None),
+    'hardware': ('real devices', None, None),
+    'bag_path': ("the run's bag ('' = none)", None, None),
+    'graph_parameters': ("every node's parameters, JSON", None, None),
+    'reference_power_w': ('power of 0 dB loss (W); 0: no loss', 0.0, 1e3)}
 #: The live view's power map range (m), each of these keys.
 LIVE_VIEW_MAP = ('power map range (m)', -1e-2, 1e-2)
 
@@ -181,7 +194,8 @@ OWN = {PLANT: PLANT_RANGES, COMPENSATOR: dict(SHAPING, **COMPENSATOR_RANGES),
        CONTROLLER: dict(SHAPING, **CONTROLLER_RANGES), SCENARIO_RUNNER: SCENARIO_RANGES,
        RECORDER: RECORDER_RANGES, LIFECYCLE_MANAGER: MANAGER_RANGES,
        OPTICS_2D: OPTICS_RANGES, STATION_OPTICS: OPTICS_RANGES,
-       'power_meter': POWER_METER_RANGES, LIVE_VIEW: LIVE_VIEW_RANGES}
+       'power_meter': POWER_METER_RANGES, LIVE_VIEW: LIVE_VIEW_RANGES,
+       RUN_CATALOG: CATALOG_RANGES}
 #: The driver nodes (one executable): per-axis limits, settings, device settings.
 DRIVERS = (DRIVER, AMPLIFIER)
 SEQUENCERS = (SEQUENCER, SEQUENCER_2D, STATION_SEQUENCER)

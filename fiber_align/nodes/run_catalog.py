@@ -19,6 +19,7 @@ from rclpy.node import Node
 from std_msgs.msg import Float64, String
 
 from fiber_align.alignment.record import RunRecord
+from fiber_align.graph.ranges import CATALOG_RANGES
 from fiber_align.graph.registry import NODES
 from fiber_align.nodes.ros.diagnostics import Health, OK, WARN
 from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults
@@ -28,18 +29,7 @@ from fiber_align.nodes.ros.teardown import say
 from fiber_align.records.writer import CatalogWriter
 
 SPEC = NODES['run_catalog']
-#: The parameters (config/records.yaml, where each is explained): name -> (text, lo, hi).
-PARAMS = {'catalog': ('default, none, a SQLite path or postgresql://...', None, None),
-          'queue_size': ('rows waiting for the writer at most', 1, 10 ** 7),
-          'retry_period_s': ('retry period of a spooling writer (s)', 0.01, 3600.0),
-          'connect_timeout_s': ('PostgreSQL connection attempt (s)', 0.01, 600.0),
-          'busy_timeout_s': ('wait for a locked SQLite file (s)', 0.0, 600.0),
-          'spool_dir': ("spool folder ('' = $ROS_HOME/fiber_align/spool)", None, None),
-          'machine': ('the machine: 1d, rig, station', None, None),
-          'hardware': ('real devices', None, None),
-          'bag_path': ("the run's bag ('' = none)", None, None),
-          'graph_parameters': ("every node's parameters, JSON", None, None),
-          'reference_power_w': ('power of 0 dB loss (W); 0: no loss', 0.0, 1e3)}
+PARAMS = CATALOG_RANGES
 #: s to write the last rows at the stop; at the stop the statuses on their way are still
 #: taken until none came for QUIET_S (s), DRAIN_S (s) at most.
 CLOSE_S, QUIET_S, DRAIN_S = 3.0, 0.2, 1.0
