@@ -123,3 +123,17 @@ def test_run_record_rows_at_start_and_end():
     run = end[1][1]
     assert run['run_id'] == first['run_id'] and run['started_at'] == first['started_at']
     assert run['cycles_kept'] == 900 and run['end_reason'] == 'stopped; sequencer SEARCHING'
+
+
+def test_the_peak_power_from_the_statuses_after_the_opening_one():
+    """On the graph no reading is taken: the peak is the highest of the statuses' peaks."""
+    log = AlignmentLog('run', reference_power_w=1e-3)
+    log.on_status(st('SEARCHING', 0.0, power_w=5e-3, peak_power_w=5e-3))   # before it
+    log.on_status(st('PEAKING', 0.1, power_w=1e-5, peak_power_w=2e-5))
+    log.on_status(st('TRACKING', 0.2, power_w=9e-4, peak_power_w=9.5e-4))
+    log.on_status(st('HELD', 0.3, power_w=8e-4, peak_power_w=float('nan')))
+    row, = log.on_status(st('RELEASING', 0.4, power_w=9e-4, peak_power_w=9.7e-4))
+    assert row['peak_power_w'] == 9.7e-4
+    log.on_status(st('SEARCHING', 1.0, power_w=1e-9, peak_power_w=9e-4))    # the parking
+    row, = log.on_status(st('FAULT', 2.0, fault='no light', peak_power_w=None))
+    assert row['peak_power_w'] is None

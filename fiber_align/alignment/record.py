@@ -18,6 +18,9 @@ at update ``sample - 1``), else they are the statuses' ``sample_time_s``. The pa
 status's ``part_id`` (the sequencer's parameter) or the one :meth:`AlignmentLog.set_part`
 set, taken when the alignment started: a part set during an alignment applies to the
 next one, so a row never mixes two parts.
+The peak power is the highest reading taken (:meth:`AlignmentLog.on_power`) or, on the
+graph, the highest of the statuses' ``peak_power_w`` (the highest power the sequencer
+stepped on since its previous status) after the one that opened the alignment.
 The final loss is ``-10 log10(P / reference_power_w)`` (dB) of the last power before the
 end, when a reference power is given: the ending status's ``power_w`` (the last power the
 sequencer stepped on before it ended: readings that overtake the status on the way, the
@@ -60,7 +63,7 @@ class AlignmentLog:
         self.part_id = part_id or None
 
     def on_power(self, power_w):
-        """Take one optical power reading (W) of the open alignment."""
+        """Take one optical power reading (W) of the open alignment (None: none)."""
         a = self.open
         if a is None or power_w is None or not math.isfinite(power_w):
             return
@@ -79,6 +82,9 @@ class AlignmentLog:
         self.last = status
         out = []
         a = self.open
+        peak = status.get('peak_power_w')      # of the readings since the previous status
+        if a is not None and peak is not None and math.isfinite(peak):
+            a['peak_w'] = max(float(peak), a['peak_w'] if a['peak_w'] is not None else peak)
         if a is not None and state in ENDS:
             if state == FAULT:
                 a.update(state=FAULT, fault=status.get('fault_reason') or None)

@@ -131,7 +131,7 @@ NODES = {
     LIVE_VIEW: NodeSpec(LIVE_VIEW, LIVE_VIEW, configs=('live_view.yaml',), area=False),
     # the run catalogue (graph/catalog.py, docs/records.md): reads, publishes none
     RUN_CATALOG: NodeSpec(RUN_CATALOG, RUN_CATALOG, configs=('records.yaml',), area=False,
-                          subscribes=('alignment_state', 'optical_power')),
+                          subscribes=('alignment_state',)),
 }
 #: The topics that carry a command or a drive to an actuator, each with the one node of
 #: an axis meant to publish it: a second publisher (another graph's) is a conflict

@@ -102,7 +102,7 @@ class AlignmentSequencerNode(Node):
                              sender=sender_of(bus))
         self.q, self.q_p = [[] for _ in pre], [[] for _ in m.powers]    # (s, m) and W
         self.latest = [None] * len(pre)     # realtime: the newest reading of each axis (m)
-        self.n, self.align_sample, self.t_last, self.p_last = 0, None, None, None
+        self.n, self.align_sample, self.t_last, self.p_last, self.p_peak = 0, *[None] * 4
         self._watch_drivers(bus)
         self._publish_state()
         self.get_logger().info('sequencer ready: machine %s, %s' % (self.machine, g['sync_mode']))
@@ -188,9 +188,8 @@ class AlignmentSequencerNode(Node):
                              zip(self.ref, self.m.setpoints(self.seq))], [float(msg.data)])
 
     def _pair(self):
-        q = self.q
-        while all(q) and (all(self.q_p) or len(q[0]) > POWER_QUEUE_LIMIT):  # else no power
-            got = [a.pop(0) for a in q]
+        while all(self.q) and (all(self.q_p) or len(self.q[0]) > POWER_QUEUE_LIMIT):
+            got = [a.pop(0) for a in self.q]        # (a power, or None past the limit)
             self._step(self.n * self.period_s if self.m.counted else got[0][0],
                        [x for _, x in got], [w.pop(0) if w else None for w in self.q_p])
 
@@ -198,13 +197,15 @@ class AlignmentSequencerNode(Node):
         r = self.m.update(self.seq, t, [v if v is not None and math.isfinite(v) else None
                                         for v in pos], p)
         self.n, self.t_last, self.p_last = self.n + 1, t, (p or [None])[0]   # W, channel 1
+        if self.p_last is not None and math.isfinite(self.p_last):   # the status's peak
+            self.p_peak = max(self.p_last, self.p_peak or self.p_last)
         for pub, v in zip(self.pub_sp, r):
             pub.publish(Float64(data=float(v)))
         self._publish_state()
 
     def _publish_state(self):
         """Publish the status when its state or fault changed; health and log too."""
-        s = self.part(self.seq.status(), self.p_last)     # the part and power: the catalogue's
+        s = self.part(self.seq.status(), self.p_last, self.p_peak)    # the catalogue's
         # the time (s) of the last update: a lagging observer indexes the state by it
         s['sample_time_s'] = self.t_last
         values = {k: s[k] for k in self.m.values}
@@ -213,7 +214,7 @@ class AlignmentSequencerNode(Node):
             values['sample'] = self.n
         if (s['state'], s['fault_reason']) == self._last:
             return
-        self._last = (s['state'], s['fault_reason'])
+        self._last, self.p_peak = (s['state'], s['fault_reason']), None
         self.pub_state.publish(String(data=json.dumps(s)))
         self.n_state += 1
         log = self.get_logger()

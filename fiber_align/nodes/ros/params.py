@@ -118,15 +118,17 @@ def declare(node, defaults, name, description, lo=None, hi=None, read_only=False
 
 def declare_part(node, defaults):
     """
-    Declare the sequencer's ``part_id``; return ``(status, power_w) -> status with both``.
+    Declare the sequencer's ``part_id``; return ``(status, power, peak) -> status``.
 
-    The part the next ``align`` aligns (``ros2 param set`` before it) and the last power
-    (W) the sequencer stepped on: the run catalogue's (docs/records.md).
+    The part the next ``align`` aligns (``ros2 param set`` before it), the last power (W)
+    the sequencer stepped on and the highest since its previous status (W): the run
+    catalogue's (docs/records.md), which so needs no 1 kHz subscription of its own.
     """
     declare(node, defaults, 'part_id', 'the part the next align aligns (text; "" = none)')
-    return lambda status, power_w=None: dict(
+    return lambda status, power_w=None, peak_power_w=None: dict(
         status, part_id=str(node.get_parameter('part_id').value),
-        power_w=None if power_w is None else float(power_w))
+        power_w=None if power_w is None else float(power_w),
+        peak_power_w=None if peak_power_w is None else float(peak_power_w))
 
 
 def declare_row(node, defaults, table, name, read_only=True, choices=None):
