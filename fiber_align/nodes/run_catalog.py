@@ -22,11 +22,11 @@ from std_msgs.msg import String
 from fiber_align.alignment.record import RunRecord
 from fiber_align.graph.ranges import CATALOG_RANGES
 from fiber_align.graph.registry import NODES
+from fiber_align.lifeline import say
 from fiber_align.nodes.ros.diagnostics import Health, OK, WARN
 from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults
 from fiber_align.nodes.ros.qos import DIAG_QOS, STATE_QOS
 from fiber_align.nodes.ros.runtime import run_node
-from fiber_align.nodes.ros.teardown import say
 from fiber_align.records.writer import CatalogWriter
 
 SPEC = NODES['run_catalog']
