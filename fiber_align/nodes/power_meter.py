@@ -62,7 +62,11 @@ class PowerMeterNode(Node):
 
     def on_health(self, level, message):
         """Log a change of the meter's health; publish /diagnostics at once."""
-        (self.get_logger().error if level == ERROR else self.get_logger().info)(message)
+        # two call sites: rclpy's logger refuses a second severity from one
+        if level == ERROR:
+            self.get_logger().error(message)
+        else:
+            self.get_logger().info(message)
         self.publish_diagnostics()
 
     def _publish(self, pub, msg):
