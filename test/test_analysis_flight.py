@@ -108,6 +108,7 @@ def test_triggers_are_edges():
     assert tr.on_status(plant, 1, warn, {'sim_time_s': '2'}) == \
         'missed cycles simulated_actuator'
     assert tr.on_status(plant, 1, warn, {'sim_time_s': '3'}) is None
-    assert tr.on_transition('actuator_driver', 'active', 'inactive') == \
+    assert tr.on_transition('actuator_driver', 'active', 'deactivating') == \
         'actuator_driver inactive'
-    assert tr.on_transition('actuator_driver', 'inactive', 'active') is None
+    assert tr.on_transition('actuator_driver', 'deactivating', 'inactive') is None
+    assert tr.on_transition('actuator_driver', 'inactive', 'activating') is None

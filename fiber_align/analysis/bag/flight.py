@@ -38,6 +38,7 @@ import time
 
 from fiber_align.analysis.bag.common import storage_plugin, typestore
 from fiber_align.analysis.bag.guard import GuardedBag, write_json
+from fiber_align.analysis.recording import diag_entry
 
 #: bytes of Python memory per kept message beside its CDR bytes: the ring's tuple (56),
 #: the receive time's int (32), the bytes object's header (33), the deque's slot (8),
@@ -342,8 +343,44 @@ class Triggers:
             self.warned[name] = warned
         return out
 
+    def on_diagnostic(self, status):
+        """Take one ``diagnostic_msgs/DiagnosticStatus`` (its level bytes or int)."""
+        _, vals = diag_entry(status, 0.0)
+        return self.on_status(status.name, vals['level'], vals['message'], vals)
+
     def on_transition(self, node, start_label, goal_label):
-        """Take one lifecycle transition of ``node`` (its states' labels)."""
-        if start_label == 'active' and goal_label == 'inactive':
+        """
+        Take one lifecycle transition event of ``node`` (its states' labels).
+
+        rcl publishes a deactivation as ``active`` -> ``deactivating``, then
+        ``deactivating`` -> ``inactive``: the first is the trigger (one per deactivation).
+        """
+        if start_label == 'active' and goal_label in ('deactivating', 'inactive'):
             return '%s inactive' % node
         return None
+
+
+class NoBag:
+    """The bag of a recorder whose full recording is off: every write taken, none kept."""
+
+    stopped = None
+
+    def add_connection(self, *args, **kwargs):
+        """Return no connection."""
+        return None
+
+    def write(self, conn, t_ns, data):
+        """Take the message (nothing is written)."""
+        return True
+
+    def flush(self):
+        """Nothing to flush."""
+        return True
+
+    def close(self):
+        """Nothing to close; no reason."""
+        return None
+
+    def counts(self):
+        """Return no counts."""
+        return {}
