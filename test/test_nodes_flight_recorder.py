@@ -9,8 +9,8 @@ transition event is the trigger: one snapshot bag, which ``fiber-align analyze``
 (exit 0), holding at least 9.5 s before and 1.9 s after the trigger (the window's edges
 are the messages received inside it), the displacement's stamps without a gap over 1.5
 periods but where the plant itself missed a cycle (a late tick publishes no sample: the
-run's ``missed_cycles``, on this shared machine a few), and linked from the run's catalogue row (``snapshot_paths``). No full bag. A
-missed cycle goal of this shared machine is a trigger too: its snapshots may come beside.
+run's ``missed_cycles``, on this shared machine a few), and linked from the run's
+catalogue row (``snapshot_paths``). No full bag. A missed cycle goal of this shared machine is a trigger too: its snapshots may come beside.
 """
 
 import json
