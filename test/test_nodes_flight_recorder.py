@@ -10,7 +10,8 @@ transition event is the trigger: one snapshot bag, which ``fiber-align analyze``
 are the messages received inside it), the displacement's stamps without a gap over 1.5
 periods but where the plant itself missed a cycle (a late tick publishes no sample: the
 run's ``missed_cycles``, on this shared machine a few), and linked from the run's
-catalogue row (``snapshot_paths``). No full bag. A missed cycle goal of this shared machine is a trigger too: its snapshots may come beside.
+catalogue row (``snapshot_paths``). No full bag. A missed cycle goal of this shared
+machine is a trigger too: its snapshots may come beside.
 """
 
 import json
