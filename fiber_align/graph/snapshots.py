@@ -34,8 +34,9 @@ def with_snapshots(graph, snapshots=''):
     procs = graph.processes
     if RECORDER not in graph.nodes:
         if any(p.namespace is not None for p in procs):
-            raise GraphError('snapshots: on this graph only with record:= (the recorder '
-                             'records its axes\' topics)')
+            raise GraphError('snapshots: a multi-axis graph only with record:= (the '
+                             'station, the array: the recorder records their topics; the '
+                             'rig records none)')
         overrides[RECORDER]['record'] = False
         procs = procs + (gd.Process(RECORDER, RECORDER, (RECORDER,), node_name=RECORDER),)
     return dataclasses.replace(graph, processes=procs, overrides=overrides)
