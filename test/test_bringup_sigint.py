@@ -25,6 +25,15 @@ def _pids(lines):
                                        ''.join(lines))]
 
 
+def _threads(pid):
+    """Return the number of threads of process ``pid`` (0 if it is gone)."""
+    try:
+        with open('/proc/%d/status' % pid, encoding='ascii') as f:
+            return int(next(ln.split()[1] for ln in f if ln.startswith('Threads:')))
+    except (OSError, StopIteration, ValueError):
+        return 0
+
+
 def _bag_counts(bag):
     """Return messages per topic, every message deserialised with rosbags."""
     from rosbags.highlevel import AnyReader
@@ -46,19 +55,26 @@ def test_sigint_mid_scenario_stops_cleanly_and_finalises_the_bag(tmp_path):
            '--sync', 'realtime', '--record', str(bag), '--summary', str(summary), '--quiet']
     proc = subprocess.Popen(cmd, env=dict(os.environ), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
-    lines, up = [], threading.Event()
+    lines, up, floor = [], threading.Event(), []
 
     def read():
         for line in proc.stdout:
             lines.append(line)
             if line.startswith('bringup: graph up'):
                 up.set()
+            floor.extend(int(p) for p in re.findall(r'started machine_floor \(pid (\d+)', line))
     reader = threading.Thread(target=read, daemon=True)
     reader.start()
     pids = []
     try:
         assert up.wait(60), ''.join(lines)
-        time.sleep(1.5)                      # ~1,000 of the 10,000 samples, the floor probe up
+        # the floor probe counts once its stdin watcher runs (a second thread): under load
+        # its start took over 1.5 s and SIGINT came before its first period
+        end = time.monotonic() + 30.0
+        while time.monotonic() < end and not (floor and _threads(floor[0]) >= 2):
+            time.sleep(0.05)
+        assert floor and _threads(floor[0]) >= 2, ''.join(lines)
+        time.sleep(1.0)                      # ~1,000 of the 10,000 samples
         t0 = time.monotonic()
         proc.send_signal(signal.SIGINT)
         code = proc.wait(timeout=STOP_LIMIT_S + 5)

@@ -23,7 +23,6 @@ import sys
 
 import numpy as np
 import pytest
-import rclpy
 
 import procs
 from test_ros2_cli import spawn
@@ -47,13 +46,7 @@ def test_a_driver_deactivation_writes_one_snapshot_analyze_reads(ctx, tmp_path):
         '--snapshots', str(snaps), '--catalog', str(db), '--summary', str(summary)], log)
     try:
         assert procs.wait_log(log, 'bringup: graph up', 60.0, proc), log.read_text()[-3000:]
-        context, nodes = ctx
-        node = rclpy.create_node('flight_test', context=context)
-        nodes.append(node)
-        executor = rclpy.executors.SingleThreadedExecutor(context=context)
-        executor.add_node(node)
-        client = node.create_client(ChangeState, '/actuator_driver/change_state')
-        assert procs.spin_until(executor, client.service_is_ready, 20.0)
+        node, executor, client = procs.change_state_client(ctx, '/actuator_driver')
         procs.spin_until(executor, lambda: False, TRIP_S)
         req = ChangeState.Request()
         req.transition.id = DEACTIVATE
