@@ -39,6 +39,11 @@ from fiber_align.records import rows
 ENDS = (RELEASING, IDLE, FAULT)
 
 
+def _raise_peak(a, power_w):
+    """Raise the open alignment ``a``'s peak power (W) to ``power_w`` (W, finite)."""
+    a['peak_w'] = float(power_w) if a['peak_w'] is None else max(a['peak_w'], float(power_w))
+
+
 class AlignmentLog:
     """
     The alignments of one run (see the module docstring).
@@ -68,8 +73,7 @@ class AlignmentLog:
         if a is None or power_w is None or not math.isfinite(power_w):
             return
         a['last_w'] = float(power_w)
-        a['peak_w'] = max(a['peak_w'], float(power_w)) if a['peak_w'] is not None \
-            else float(power_w)
+        _raise_peak(a, power_w)
 
     def on_status(self, status, wall_s=None):
         """
@@ -84,7 +88,7 @@ class AlignmentLog:
         a = self.open
         peak = status.get('peak_power_w')      # of the readings since the previous status
         if a is not None and peak is not None and math.isfinite(peak):
-            a['peak_w'] = max(float(peak), a['peak_w'] if a['peak_w'] is not None else peak)
+            _raise_peak(a, peak)
         if a is not None and state in ENDS:
             if state == FAULT:
                 a.update(state=FAULT, fault=status.get('fault_reason') or None)
