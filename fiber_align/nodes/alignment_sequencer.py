@@ -189,7 +189,7 @@ class AlignmentSequencerNode(Node):
 
     def _pair(self):
         while all(self.q) and (all(self.q_p) or len(self.q[0]) > POWER_QUEUE_LIMIT):
-            got = [a.pop(0) for a in self.q]        # (a power, or None past the limit)
+            got = [a.pop(0) for a in self.q]        # (s, m); a power, or None past the limit
             self._step(self.n * self.period_s if self.m.counted else got[0][0],
                        [x for _, x in got], [w.pop(0) if w else None for w in self.q_p])
 
