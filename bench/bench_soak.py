@@ -202,7 +202,7 @@ def graph_cycles(path):
     Return the run's missed cycles beside the machine's floor, from bringup's summary.
 
     ``missed_share`` (the plant's, the whole run), ``floor`` (the bare loop beside the
-    graph: :mod:`fiber_align.bringup.floor`), ``beyond_floor_share``, and the
+    graph: :mod:`fiber_align.control.floor_probe`), ``beyond_floor_share``, and the
     summary's ``goals_missed`` and ``machine_limits``; ``{}`` without a summary.
     """
     try:

@@ -11,7 +11,8 @@ import time
 import pytest
 
 from fiber_align.analysis import run_summary as sm
-from fiber_align.control.cycle import cycle_warning, DeadlineGrid
+from fiber_align.control.cycle import cycle_warning
+from fiber_align.control.deadline import DeadlineGrid
 from fiber_align.bringup.floor import Floor
 from procs import alive
 
@@ -120,3 +121,24 @@ def test_the_probe_ends_and_writes_its_figures_when_its_launcher_is_killed(tmp_p
             launcher.kill()
         if pid is not None and alive(pid):
             os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.ros  # starts a process
+def test_the_probe_starts_light_no_numpy_no_rclpy_one_thread():
+    """
+    The probe imports the standard library only: it runs at once on a loaded machine.
+
+    Its import went through ``fiber_align.bringup`` (the whole harness, numpy and its
+    BLAS threads) until 2026-12-06: under load it started after SIGINT and counted 0
+    periods, and the kernel's thread count (numpy's BLAS thread) did not tell whether it ran.
+    """
+    # the kernel's count (/proc): numpy's BLAS threads are not Python threads
+    code = ('import sys\n'
+            'import fiber_align.control.floor_probe\n'
+            'heavy = sorted(m for m in ("numpy", "rclpy", "fiber_align.bringup")'
+            ' if m in sys.modules)\n'
+            'status = open("/proc/self/status").read()\n'
+            'print(heavy, status.split("Threads:")[1].split()[0])\n')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=60, check=True).stdout.split()
+    assert out == ['[]', '1'], out

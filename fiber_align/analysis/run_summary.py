@@ -265,7 +265,7 @@ def floor_text(floor):
     """
     Return one line of the machine-floor probe's figures (its error if it had none).
 
-    :param floor: the probe's figures (:mod:`fiber_align.bringup.floor`'s JSON:
+    :param floor: the probe's figures (:mod:`fiber_align.control.floor_probe`'s JSON:
         ``lost_share``, ``periods``, ``stalls``, ``worst_stall_s`` (s), ``scheduling``,
         ``work_median_s`` (s)) or ``{'error': text}``.
     """
@@ -284,7 +284,7 @@ def beyond_floor(missed_share, floor):
 
     :param missed_share: the plant's missed share (1) or ``None``.
     :param floor: the machine-floor probe's figures of the same seconds
-        (:meth:`fiber_align.control.cycle.DeadlineGrid.figures`: ``lost_share``) or ``None``.
+        (:meth:`fiber_align.control.deadline.DeadlineGrid.figures`: ``lost_share``) or ``None``.
     :returns: ``max(0, missed_share - lost_share)``; ``None`` without both figures.
     """
     fl = _num((floor or {}).get('lost_share'))
