@@ -83,6 +83,26 @@ def spin_until(executor, cond, bound_s, slice_s=0.01):
             return True
 
 
+def change_state_client(ctx, name, bound_s=20.0):
+    """
+    Return ``(node, executor, client)``: a client of ``name``'s ``change_state``.
+
+    The client is ready (asserted within ``bound_s`` s) on a test node on ``ctx``.
+    ``ctx`` is the ``(context, nodes)`` fixture: the node goes into ``nodes``, which the
+    fixture destroys, also on failure.
+    """
+    import rclpy
+    from lifecycle_msgs.srv import ChangeState
+    context, nodes = ctx
+    node = rclpy.create_node('test_change_state', context=context)
+    nodes.append(node)
+    executor = rclpy.executors.SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    client = node.create_client(ChangeState, name + '/change_state')
+    assert spin_until(executor, client.service_is_ready, bound_s), name + ': no change_state'
+    return node, executor, client
+
+
 def level(status):
     """Return the severity (int) of a diagnostic_msgs/DiagnosticStatus."""
     return status.level[0] if isinstance(status.level, bytes) else int(status.level)

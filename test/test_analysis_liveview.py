@@ -119,6 +119,20 @@ def test_power_map_keeps_the_brightest_reading_per_cell_and_its_grid_says_so():
     assert m.peak() is None and m.count == 0
 
 
+def test_search_map_pairs_by_source_stamp_and_starts_anew_with_a_search():
+    from fiber_align.analysis.bag.cdr import encode_float64, encode_joint_state
+    m = powermap.SearchMap(0.0, 10e-6, 0.0, 10e-6, 1e-6, 0.5)
+    pos = [bytes(r) for r in encode_joint_state([0, 0], [5.5e-6, 2.5e-6])]
+    power = bytes(encode_float64([1e-3])[0])
+    assert m.due(1.0, 0) is None                        # nothing to show yet
+    m.feed([(3, 'x', pos[0]), (1, 'y', pos[1]), (2, 'p', power)])     # y, p, then x
+    assert m.map.count == 1
+    assert powermap.grid_peak(m.due(2.0, 0))[:2] == pytest.approx((5.5e-6, 2.5e-6))
+    assert m.due(2.1, 0) is None and m.due(2.1, 0, resend=True) is not None
+    m.on_state('SEARCHING')
+    assert m.map.count == 0
+
+
 def test_dbm_and_alignment_view():
     assert lv.dbm(1e-3) == 0.0 and lv.dbm(1e-6) == pytest.approx(-30.0)
     assert lv.dbm(0.0) == -math.inf and math.isnan(lv.dbm(-1.0))

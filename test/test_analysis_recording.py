@@ -3,7 +3,8 @@
 
 from types import SimpleNamespace
 
-from fiber_align.analysis.recording import diag_entry, recorder_missing, recorder_short
+from fiber_align.analysis.recording import diag_entry, left_text, recorder_missing
+from fiber_align.analysis.recording import recorder_short
 
 
 def _report(t, **values):
@@ -64,3 +65,9 @@ def test_a_status_is_kept_by_its_node_base_name_with_level_message_and_arrival()
     diag = {'bag_recorder': diag_entry(st, 3.0)[1], 'simulated_actuator': _report(
         3.0, sent__displacement=50)}
     assert recorder_short(diag, 2.0) == {'displacement': (49, 50)}
+
+
+def test_left_text_says_what_the_recorder_lacks():
+    assert left_text(None) == 'no fresh /diagnostics reports'
+    assert left_text({'/b': (3, 5), '/a': (0, 2)}) == '/a 0 of 2, /b 3 of 5'
+    assert left_text(['/setpoint']) == 'nothing of /setpoint'

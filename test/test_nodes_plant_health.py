@@ -19,7 +19,6 @@ import sys
 import time
 
 import pytest
-import rclpy
 
 import procs
 from test_ros2_cli import spawn
@@ -44,20 +43,13 @@ def _change(executor, client, transition):
 
 def test_driver_cycles_are_not_missed_cycles_and_the_warning_clears(ctx, tmp_path):
     from diagnostic_msgs.msg import DiagnosticArray
-    from lifecycle_msgs.srv import ChangeState
     log = tmp_path / 'bringup.log'
     proc = spawn(dict(os.environ), BRINGUP + [
         '--scenario', 'sine', '--sync', 'realtime', '--duration', '45',
         '-p', 'simulated_actuator:cycle_goal_missed_share:=%g' % GOAL], log)
     try:
         assert procs.wait_log(log, 'bringup: graph up', 60.0, proc), log.read_text()[-3000:]
-        context, nodes = ctx
-        node = rclpy.create_node('health_test', context=context)
-        nodes.append(node)
-        executor = rclpy.executors.SingleThreadedExecutor(context=context)
-        executor.add_node(node)
-        client = node.create_client(ChangeState, '/actuator_driver/change_state')
-        assert procs.spin_until(executor, client.service_is_ready, 20.0)
+        node, executor, client = procs.change_state_client(ctx, '/actuator_driver')
         plant = {}
 
         def on_diag(msg):

@@ -11,7 +11,8 @@ from types import SimpleNamespace
 from std_msgs.msg import Float64
 
 from fiber_align.control.cycle import Slack
-from fiber_align.nodes.ros.diagnostics import ERROR, Health, OK, StatusWrapper, WARN
+from fiber_align.control.health import StatusWrapper
+from fiber_align.nodes.ros.diagnostics import ERROR, Health, OK, WARN
 
 
 class FakeNode:

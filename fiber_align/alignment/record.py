@@ -188,16 +188,25 @@ class RunRecord:
         self.run_id, self.started_at = rows.new_run_id(), rows.stamp()
         self.log = AlignmentLog(self.run_id, self.run['reference_power_w'] or None, period_s)
         self.tally, self.state = RunTally(), None
+        #: the flight recorder's snapshot bags of the run (paths, as announced)
+        self.snapshots = []
+
+    def on_snapshot(self, path):
+        """Take a snapshot bag's path (``snapshot_written``); return the run's row anew."""
+        if path and path not in self.snapshots:
+            self.snapshots.append(str(path))
+        return self.start_row()
 
     def start_row(self, **end):
-        """Return the run's row (``end``: its end columns)."""
+        """Return the run's row (``end``: its end columns; the snapshots so far)."""
         r = self.run
         try:
             params = json.loads(r['graph_parameters']) if r['graph_parameters'] else None
         except ValueError:
             params = None
         return rows.run_row(self.run_id, r['machine'] or None, r['sync_mode'], r['hardware'],
-                            params, self.started_at, bag_path=r['bag_path'] or None, **end)
+                            params, self.started_at, bag_path=r['bag_path'] or None,
+                            snapshot_paths=list(self.snapshots) or None, **end)
 
     def on_status(self, text):
         """Take one ``alignment_state`` (JSON text); return the rows it ended."""

@@ -10,7 +10,8 @@ No rclpy and no WebSocket here, so each part is unit-tested on its own:
 - :class:`Decimator`: at most one UI frame per period of a channel, on a fixed phase;
 - the 2-D power map of the rig's search: :mod:`fiber_align.analysis.powermap`;
 - :func:`alignment_view`: the sequencer's ``alignment_state`` JSON as structured data;
-- :func:`layout_topics`: the topics a Foxglove layout file reads.
+- :func:`layout_topics`: the topics a Foxglove layout file reads;
+- :class:`Listener`, the server's callbacks, and :class:`Tap`, one served topic.
 
 SI units throughout (m, W, s); dBm only where a person reads it.
 """
@@ -21,6 +22,7 @@ import os
 import re
 import struct
 import sys
+import threading
 
 #: ROS 2 primitive field types (no dependency).
 PRIMITIVES = frozenset((
@@ -309,3 +311,48 @@ def layout_topics(layout):
             out.add(path_topic(obj))
     walk(layout.get('configById', {}))
     return out
+
+
+class Listener:
+    """The server's callbacks (its own threads): note which channels to send again."""
+
+    def __init__(self):
+        """Start with no channel to send again."""
+        self.lock = threading.Lock()
+        self.resend = set()
+
+    def on_subscribe(self, client, channel):
+        """Send ``channel`` again: a client subscribed."""
+        with self.lock:
+            self.resend.add(channel.id)
+
+    def on_unsubscribe(self, client, channel):
+        """Nothing to do."""
+
+    def on_client_advertise(self, client, channel):
+        """Nothing to do: the view takes no client's messages."""
+
+    def on_client_unadvertise(self, client, client_channel_id):
+        """Nothing to do."""
+
+    def on_message_data(self, client, client_channel_id, data):
+        """Nothing to do."""
+
+    def take(self):
+        """Return the ids of the channels to send again, and forget them."""
+        with self.lock:
+            out, self.resend = self.resend, set()
+        return out
+
+
+class Tap:
+    """One served topic: its raw subscription, its channel, its decimation."""
+
+    __slots__ = ('topic', 'msgtype', 'sub', 'channel', 'state', 'decimator', 'last',
+                 'map_key')
+
+    def __init__(self, topic, msgtype, sub, channel, state, decimator, map_key):
+        """Keep the parts (``map_key``: its role in the power map, or ``None``)."""
+        self.topic, self.msgtype, self.sub, self.channel = topic, msgtype, sub, channel
+        self.state, self.decimator, self.map_key = state, decimator, map_key
+        self.last = None

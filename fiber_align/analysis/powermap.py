@@ -6,13 +6,17 @@ The live view's 2-D power map of the rig's search (pure: no rclpy; docs/live_vie
 sequencer pairs it with (the latest ``y`` and the power received since the previous
 ``x`` sample); :class:`PowerMap` keeps the brightest reading per cell;
 :meth:`PowerMap.grid` is a ``foxglove.Grid`` in its JSON form (:data:`GRID_SCHEMA`),
-:func:`grid_peak` its inverse. SI units (m, W); dBm only where a person reads it.
+:func:`grid_peak` its inverse; :class:`SearchMap`, the map of one search fed the rig's
+raw readings, is what the live view serves. SI units (m, W); dBm only where a person
+reads it.
 """
 
 import base64
 import math
 
 import numpy as np
+
+from fiber_align.analysis.liveview import float64_value, joint_position
 
 
 class SamplePairer:
@@ -129,6 +133,56 @@ class PowerMap:
             'fields': [{'name': 'power_dbm', 'offset': 0, 'type': FLOAT32}],
             'data': base64.b64encode(data).decode('ascii'),
         }
+
+
+class SearchMap:
+    """
+    The power map of one search from the rig's raw readings (the live view's map channel).
+
+    A new search (``SEARCHING`` after another state) starts a new map; the readings are
+    paired in the order of their source stamps (:class:`SamplePairer`); :meth:`due` gives
+    the grid every ``period_s`` (s) once it holds a reading, and at once when asked again.
+
+    :param cell_m: cell side (m); the range (m) as :class:`PowerMap`'s.
+    """
+
+    def __init__(self, x_min_m, x_max_m, y_min_m, y_max_m, cell_m, period_s):
+        """Start an empty map, no state seen, no grid sent."""
+        self.map = PowerMap(x_min_m, x_max_m, y_min_m, y_max_m, cell_m)
+        self.pairer = SamplePairer()
+        self.period_s = float(period_s)
+        self.state = None
+        self.t_sent = 0.0
+
+    def on_state(self, state):
+        """Note the sequencer's state (str); a new search starts a new map."""
+        if state == 'SEARCHING' and self.state != 'SEARCHING':
+            self.map.reset()
+        self.state = state
+
+    def feed(self, events):
+        """Take ``(source stamp, key, CDR bytes)`` readings: key ``x``, ``y`` (m) or ``p`` (W)."""
+        for _, key, data in sorted(events, key=lambda e: e[0]):
+            if key == 'p':
+                self.pairer.power(float64_value(data))
+            elif key == 'y':
+                self.pairer.y(joint_position(data))
+            else:
+                got = self.pairer.x(joint_position(data))
+                if got is not None:
+                    self.map.add(*got)
+
+    def due(self, now, stamp_ns, resend=False):
+        """
+        Return the grid (:meth:`PowerMap.grid`, frame ``rig``) due at ``now`` (s), or None.
+
+        :param stamp_ns: the grid's time (ns); :param resend: a client asked for it again.
+        """
+        if resend or now - self.t_sent >= self.period_s:
+            self.t_sent = now
+            if self.map.count or resend:
+                return self.map.grid(stamp_ns, 'rig')
+        return None
 
 
 def grid_peak(grid):

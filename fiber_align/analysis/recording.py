@@ -92,6 +92,20 @@ def recorder_missing(diag, since, names=None):
     return None if short is None else sorted(t for t, (rec, _) in short.items() if rec == 0)
 
 
+def left_text(left):
+    """
+    Return what the recorder does not hold, for a person.
+
+    :param left: what :func:`recorder_short` (``{topic: (recorded, sent)}``) or
+        :func:`recorder_missing` (topics) returned; ``None``: no fresh reports.
+    """
+    if left is None:
+        return 'no fresh /diagnostics reports'
+    if isinstance(left, dict):
+        return ', '.join('%s %d of %d' % (k, r, n) for k, (r, n) in sorted(left.items()))
+    return 'nothing of ' + ', '.join(left)
+
+
 def recorder_short_full(diag, since, nodes, base=None):
     """
     :func:`recorder_short` for reports keyed by full status names (the multi-axis graphs).

@@ -68,6 +68,7 @@ OPTIONS = {
     'live_port': ('--live-port', dict(type=int, metavar='PORT')),
     'live_host': ('--live-host', dict(metavar='HOST')),
     'catalog': ('--catalog', dict(metavar='URL')),
+    'snapshots': ('--snapshots', dict(metavar='DIR')),
 }
 #: What ``bringup`` does beyond starting the graph, by option.
 NOTES = {

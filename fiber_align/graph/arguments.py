@@ -11,7 +11,8 @@ data: the ``rig``, ``station``, ``array`` and ``hardware`` switches select a row
 takes; an argument given to a machine that does not take it is refused in one line.
 ``live`` adds the live view to any of them (:func:`fiber_align.graph.live.with_live`),
 ``catalog`` the run catalogue's node (:func:`fiber_align.graph.catalog.with_catalog`; on
-by default).
+by default), ``snapshots`` the flight recorder (:func:`fiber_align.graph.snapshots.
+with_snapshots`).
 """
 
 from dataclasses import dataclass
@@ -29,6 +30,7 @@ from fiber_align.graph.params import SYNC_MODES
 from fiber_align.graph.refusals import check_graph
 from fiber_align.graph.registry import DEFAULT_COMPOSED, SCENARIOS
 from fiber_align.graph.rig import build_rig, check_seed, RIG_NAMESPACE
+from fiber_align.graph.snapshots import with_snapshots
 from fiber_align.graph.station import build_station, STATION_NAMESPACE
 
 #: name, default, description, choices (``None``: any value): the launch file declares
@@ -70,13 +72,17 @@ ARGUMENTS = (
     ('catalog', '', 'run catalogue: none, default (SQLite $ROS_HOME/fiber_align/catalog.db), '
      'a SQLite path or postgresql://... ("" = config/records.yaml: default; '
      'docs/records.md)', None),
+    ('snapshots', '', 'flight recorder: folder of the snapshot bags (the last 10 s and the '
+     'next 2 s of every recorded topic on a fault, a hold, a watchdog trip, a missed cycle '
+     'goal or the recorder\'s ~/snapshot service; without record: the recorder with its '
+     'bag off; "" = none; docs/records.md)', None),
 )
 #: The switches that choose the machine, in the order of :data:`MACHINES`' keys.
 SWITCHES = ('rig', 'station', 'array', 'hardware')
 #: The live view's arguments (every machine), in :func:`with_live`'s order.
 LIVE_ARGS = ('live', 'live_port', 'live_host')
 #: The run catalogue's argument (every machine, :func:`with_catalog`).
-CATALOG_ARGS = ('catalog',)
+CATALOG_ARGS = ('catalog', 'snapshots')
 #: Every machine's arguments (its builder's keywords, ``seed`` aside).
 COMMON = ('namespace', 'composed', 'params_file')
 
@@ -167,6 +173,7 @@ def describe(arguments, overrides=None):
     elif m.seed == 'plant' and seed is not None:
         over[PLANT] = dict({'seed': check_seed(seed)}, **over.get(PLANT, {}))
     g = with_live(m.build(overrides=over, **kw), *[args.get(k, '') for k in LIVE_ARGS])
+    g = with_snapshots(g, args.get('snapshots', ''))
     # last: its parameters are the whole graph's; the live view does not show its topics
     g = with_catalog(g, args.get('catalog', ''), m.build in (build_hardware, build_hardware_rig))
     check_graph(g)              # every declared range, the drive limits: before any start

@@ -114,6 +114,10 @@ RECORDER_RANGES = {
     'discovery_period_s': ('topic discovery period (s)', 0.01, 60.0),
     'queue_depth': ('reader history per topic (messages)', 1, 10_000_000),
     'flush_period_s': ('period of mcap chunk flushes (s)', 0.01, 60.0),
+    'snapshots': ('folder of the flight recorder\'s snapshot bags ("": off)', None, None),
+    'snapshot_before_s': ('s of a snapshot before its trigger', 0.1, 600.0),
+    'snapshot_after_s': ('s of a snapshot after its trigger', 0.0, 600.0),
+    'snapshot_max_bytes': ('bytes the rings of all topics keep at most', 2 ** 20, 2 ** 36),
 }
 
 #: ``lifecycle_manager``.

@@ -11,6 +11,9 @@ taken from the bus as the message object and its CDR made here
 (:mod:`fiber_align.nodes.ros.cdr`); nothing of it goes through DDS. Lost messages,
 incompatible QoS, the finalised bag after any stop or a full disk (``analysis.bag.guard``)
 and the crash safety of the mcap chunks (``fiber-align bag-repair``): docs/ros_interface.md.
+``record`` false: no bag; the flight recorder (``snapshots``,
+:mod:`fiber_align.nodes.ros.flight`) keeps the last seconds of every topic and writes a
+snapshot bag on a trigger, with the full recording on or off (docs/records.md).
 """
 
 from datetime import datetime
@@ -25,6 +28,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from fiber_align import lifeline
 from fiber_align.analysis import bag as bagio
+from fiber_align.analysis.bag.flight import NoBag
 from fiber_align.analysis.bag.guard import GuardedBag, write_json
 from fiber_align.analysis.recording import STOPPED_EARLY
 from fiber_align.config import ConfigError
@@ -35,6 +39,7 @@ from fiber_align.graph.endpoints import type_name
 from fiber_align.nodes.ros.bus import LocalSub, sender_of, slack_of
 from fiber_align.nodes.ros.cdr import encoder
 from fiber_align.nodes.ros.diagnostics import ERROR, Health, OK, WARN
+from fiber_align.nodes.ros.flight import FlightROS
 from fiber_align.nodes.ros.params import declare, declare_graph_values, declare_row
 from fiber_align.nodes.ros.params import node_defaults, PRIORITY
 from fiber_align.nodes.ros.runtime import run_node
@@ -60,6 +65,8 @@ class BagRecorder(Node):
         super().__init__(SPEC.node, **kwargs)
         d = node_defaults(SPEC.node, SPEC.configs)
         ro = True
+        self.record = declare(self, d, 'record', 'write the full bag (bool; false: '
+                              'snapshots only)', read_only=ro)
         self.output = declare(self, d, 'output', 'bag directory to create (must not '
                               'exist); empty: fiber_align_<date_time>', read_only=ro) \
             or _default_output()
@@ -77,15 +84,20 @@ class BagRecorder(Node):
         self.wanted = [self.resolve_topic_name(t) for t in gp('topics').value]
         from rosbags.rosbag2 import Writer
         self.typestore = bagio.typestore()
-        if os.path.exists(self.output):
+        self.flight = FlightROS(self, d, len(self.wanted), storage)
+        if not self.record:
+            self.output, self.bag = '', NoBag()
+        elif os.path.exists(self.output):
             raise ConfigError('output %s exists already; choose a new bag directory'
                               % self.output)
-        self.writer = Writer(self.output, version=9,
-                             storage_plugin=bagio.storage_plugin(storage))
-        self.writer.open()
-        self.bag = GuardedBag(self.writer)     # a full disk: the bag closed readable
+        else:
+            self.writer = Writer(self.output, version=9,
+                                 storage_plugin=bagio.storage_plugin(storage))
+            self.writer.open()
+            self.bag = GuardedBag(self.writer)     # a full disk: the bag closed readable
         self.closed, self.finisher = False, None
         self.subs = {}
+        self.keep = {}          # topic -> the flight recorder's append, or None
         self.conns = {}
         self.counts = {}
         self.lost = 0
@@ -108,8 +120,8 @@ class BagRecorder(Node):
         self.health = Health(self, float(gp('diagnostics_period_s').value),
                              update=self._diag_values,
                              slack=slack_of(bus), sender=sender_of(bus))
-        self.get_logger().info('recording %s into %s (%s)'
-                               % (', '.join(self.wanted), self.output, storage))
+        self.get_logger().info('recording %s into %s (%s)' % (
+            ', '.join(self.wanted), self.output or 'no bag', storage))
         self.discover()
 
     def _qos(self, topic):
@@ -154,6 +166,7 @@ class BagRecorder(Node):
                 continue
             self.conns[topic] = conn
             self.counts[topic] = 0
+            self.keep[topic] = self.flight.keeper(topic, msgtype)
             from rclpy.event_handler import SubscriptionEventCallbacks
             events = SubscriptionEventCallbacks(
                 message_lost=self._on_lost(topic), incompatible_qos=self._on_incompatible(topic))
@@ -163,12 +176,15 @@ class BagRecorder(Node):
             self.get_logger().info('subscribed to %s (%s)' % (topic, msgtype))
 
     def _callback(self, topic, conn):
-        write = self.bag.write
+        write, keep = self.bag.write, self.keep[topic]
 
         def cb(data):
             if self.closed:
                 return
-            if not write(conn, time.time_ns(), data):
+            t_ns = time.time_ns()
+            if keep is not None:
+                keep(t_ns, data)
+            if not write(conn, t_ns, data):
                 return self.stopped_early()
             self.counts[topic] += 1
         return cb
@@ -225,7 +241,7 @@ class BagRecorder(Node):
                 if r.encode is not None and r.encode.fallback]
         self.health.summary(ERROR if stopped else WARN if bad else OK, stopped or (
             'lost %d message(s), %d incompatible QoS' % (self.lost, self.incompatible)
-            if bad else 'recording %s' % self.output))
+            if bad else 'recording %s' % (self.output or 'snapshots only')))
         if stopped:                     # a full disk: the graph runs on, its bag ends here
             self.health.set_values(**{STOPPED_EARLY: stopped})
         if slow:
@@ -234,7 +250,7 @@ class BagRecorder(Node):
         # every wanted topic, 0 until subscribed: a reader of these counts sees a
         # topic the recorder has not picked up yet as behind, not as absent
         self.health.set_values(lost=self.lost, incompatible_qos=self.incompatible,
-                               closed=self.closed,
+                               closed=self.closed, **self.flight.values(),
                                **{'recorded.' + t: self.counts.get(t, 0) for t in self.wanted})
 
     def destroy_node(self):
@@ -246,6 +262,7 @@ class BagRecorder(Node):
         """Finalise the bag (idempotent); log and return the message counts per topic."""
         if self.finisher is not None:
             self.finisher.join()
+        self.flight.close()             # a pending snapshot: what the rings hold now
         if self.closed:
             return self.counts
         self.closed = True
@@ -260,8 +277,8 @@ class BagRecorder(Node):
             self.counts.update(self.bag.counts())   # the bag's: a cut chunk is not in it
         msg = ', '.join('%s: %d' % kv for kv in sorted(self.counts.items())) or 'no topics'
         self.get_logger().info('bag %s closed%s; messages per topic: %s' % (
-            self.output, (' (%s)' % why) if why else '', msg))
-        why = self.counts_file and write_json(self.output, {
+            self.output or '(none: snapshots only)', (' (%s)' % why) if why else '', msg))
+        why = self.counts_file and self.record and write_json(self.output, {
             'recorder_counts.json': self.counts,
             'recorder_events.json': {'lost': self.lost, 'incompatible_qos': self.incompatible}})
         if why:                         # the disk that stopped the recording
@@ -278,6 +295,7 @@ class _Local:
         self.encode = None
         self.conn = None
         self.msgtype = ''
+        self.keep = None
         self.sub = LocalSub(rec.bus, topic, self._on_message)
 
     def _on_message(self, msg):
@@ -292,7 +310,10 @@ class _Local:
         # written at once, a few microseconds; so is the chunk close when due: its cost
         # grows with the chunk, so it is kept small and regular (deferred to a later
         # slack it only grew)
-        if not rec.bag.write(self.conn, time.time_ns(), self.encode(msg)):
+        t_ns, data = time.time_ns(), self.encode(msg)
+        if self.keep is not None:
+            self.keep(t_ns, data)
+        if not rec.bag.write(self.conn, t_ns, data):
             return rec.stopped_early()
         rec.counts[self.topic] += 1
         rec.flush_due()
@@ -301,6 +322,7 @@ class _Local:
         """Add the bag connection (once, on the first write)."""
         self.conn = self.rec.bag.add_connection(self.topic, self.msgtype,
                                                 typestore=self.rec.typestore)
+        self.keep = self.rec.flight.keeper(self.topic, self.msgtype)
         self.rec.get_logger().info('recording %s (%s) in-process'
                                    % (self.topic, self.msgtype))
 

@@ -12,7 +12,6 @@ the power map of the search as JSON channels. Channels, costs, parameters
 
 import os
 import sys
-import threading
 import time
 
 from rclpy.node import Node
@@ -39,48 +38,6 @@ MAP_TOPICS = ('x/displacement', 'y/displacement', 'optical_power')
 PARAMS = LIVE_VIEW_RANGES
 
 
-class _Listener:
-    """The server's callbacks (its own threads): note which channels to send again."""
-
-    def __init__(self):
-        self.lock = threading.Lock()
-        self.resend = set()
-
-    def on_subscribe(self, client, channel):
-        with self.lock:
-            self.resend.add(channel.id)
-
-    def on_unsubscribe(self, client, channel):
-        pass
-
-    def on_client_advertise(self, client, channel):
-        pass
-
-    def on_client_unadvertise(self, client, client_channel_id):
-        pass
-
-    def on_message_data(self, client, client_channel_id, data):
-        pass
-
-    def take(self):
-        with self.lock:
-            out, self.resend = self.resend, set()
-        return out
-
-
-class Tap:
-    """One served topic: its raw subscription, its channel, its decimation."""
-
-    __slots__ = ('topic', 'msgtype', 'sub', 'channel', 'state', 'decimator', 'last',
-                 'map_key')
-
-    def __init__(self, topic, msgtype, sub, channel, state, decimator, map_key):
-        """Keep the parts (``map_key``: its role in the power map, or ``None``)."""
-        self.topic, self.msgtype, self.sub, self.channel = topic, msgtype, sub, channel
-        self.state, self.decimator, self.map_key = state, decimator, map_key
-        self.last = None
-
-
 class LiveViewNode(Node):
     """Serve the graph's topics, the power map and the alignment state to Foxglove."""
 
@@ -99,7 +56,7 @@ class LiveViewNode(Node):
             os.nice(int(p['niceness']))
         import foxglove
         self.fg = foxglove
-        self.listener = _Listener()
+        self.listener = lv.Listener()
         try:
             self.server = foxglove.start_server(
                 name='fiber_align %s' % self.get_fully_qualified_name(), host=p['host'],
@@ -132,18 +89,14 @@ class LiveViewNode(Node):
         self.ch_dbm = self._json_channel(own + '/optical_power_dbm', lv.POWER_DBM_SCHEMA,
                                          lv.Decimator(p['ui_rate_hz']).describe())
         self.last_align = None
-        self.map = self.pairer = self.ch_map = None
+        self.map = self.ch_map = None
         if p['power_map']:
-            self.map = powermap.PowerMap(p['range_x_min_m'], p['range_x_max_m'],
-                                         p['range_y_min_m'], p['range_y_max_m'],
-                                         p['power_map_cell_m'])
-            self.pairer = powermap.SamplePairer()
+            self.map = powermap.SearchMap(*(p[k] for k in RANGE_KEYS), p['power_map_cell_m'],
+                                          p['power_map_period_s'])
             self.ch_map = self._json_channel(
                 own + '/power_map', powermap.GRID_SCHEMA, 'every %g s: the brightest reading per '
                 '%g m cell since the search began' % (p['power_map_period_s'],
                                                       p['power_map_cell_m']))
-            self.map_state = None
-            self.t_map = 0.0
         self.sent = {}
         self.timer = self.create_timer(1.0 / p['ui_rate_hz'], self.poll)
         self.create_timer(p['discovery_period_s'], self.discover)
@@ -194,7 +147,7 @@ class LiveViewNode(Node):
         sub = self.taps_node.create_subscription(
             message_class(msgtype), topic, lambda msg: None, profile(depth, state, state),
             raw=True)
-        self.taps[topic] = Tap(topic, msgtype, sub, channel, state, dec, map_key)
+        self.taps[topic] = lv.Tap(topic, msgtype, sub, channel, state, dec, map_key)
         self.sent[topic] = 0
         self.get_logger().info('serving %s (%s)' % (topic, msgtype))
 
@@ -246,7 +199,10 @@ class LiveViewNode(Node):
         if self.ch_align.id() in resend and self.last_align is not None:
             self.ch_align.log(self.last_align, log_time=now_ns)
         if self.map is not None:
-            self._map(map_events, now, now_ns, self.ch_map.id() in resend)
+            self.map.feed(map_events)
+            grid = self.map.due(now, now_ns, self.ch_map.id() in resend)
+            if grid is not None:
+                self.ch_map.log(lv.json_bytes(grid), log_time=now_ns)
 
     def _on_alignment(self, data, now_ns):
         try:
@@ -255,28 +211,9 @@ class LiveViewNode(Node):
             self.get_logger().warning('alignment_state not shown: %s' % exc)
             return
         if self.map is not None:
-            if view.get('state') == 'SEARCHING' and self.map_state != 'SEARCHING':
-                self.map.reset()        # a new search: a new map
-            self.map_state = view.get('state')
+            self.map.on_state(view.get('state'))
         self.last_align = lv.json_bytes(view)
         self.ch_align.log(self.last_align, log_time=now_ns)
-
-    def _map(self, events, now, now_ns, resend):
-        events.sort(key=lambda e: e[0])
-        for _, key, data in events:
-            if key == 'p':
-                self.pairer.power(lv.float64_value(data))
-            elif key == 'y':
-                self.pairer.y(lv.joint_position(data))
-            else:
-                got = self.pairer.x(lv.joint_position(data))
-                if got is not None:
-                    self.map.add(*got)
-        if resend or now - self.t_map >= self.p['power_map_period_s']:
-            self.t_map = now
-            if self.map.count or resend:
-                self.ch_map.log(lv.json_bytes(self.map.grid(now_ns, 'rig')),
-                                log_time=now_ns)
 
     def destroy_node(self):
         """Stop the server and destroy the taps (the UI frames sent go to the log)."""

@@ -6,8 +6,10 @@ A process of its own, never in ``control_graph`` (a locked, full or unreachable 
 costs no control period). Relative names, SI units: sub ``alignment_state`` (the
 sequencer's JSON status, with ``part_id``, ``power_w`` and ``peak_power_w``: no 1 kHz
 subscription, which cost this process 0.30 s/s of CPU beside the loop),
-``/diagnostics`` (cycles kept, watchdog trips); the rows (:class:`~fiber_align.alignment.
-record.RunRecord`) go through a :class:`~fiber_align.records.writer.CatalogWriter`;
+``/diagnostics`` (cycles kept, watchdog trips), ``snapshot_written`` (the flight
+recorder's bags: the run's ``snapshot_paths``, its row written anew); the rows
+(:class:`~fiber_align.alignment.record.RunRecord`) go through a
+:class:`~fiber_align.records.writer.CatalogWriter`;
 ``/diagnostics``: OK, WARN while they spool, with the reason (also logged once).
 Parameters ``config/records.yaml``; docs/records.md.
 """
@@ -22,11 +24,11 @@ from std_msgs.msg import String
 from fiber_align.alignment.record import RunRecord
 from fiber_align.graph.ranges import CATALOG_RANGES
 from fiber_align.graph.registry import NODES
+from fiber_align.lifeline import say
 from fiber_align.nodes.ros.diagnostics import Health, OK, WARN
 from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults
 from fiber_align.nodes.ros.qos import DIAG_QOS, STATE_QOS
 from fiber_align.nodes.ros.runtime import run_node
-from fiber_align.nodes.ros.teardown import say
 from fiber_align.records.writer import CatalogWriter
 
 SPEC = NODES['run_catalog']
@@ -53,6 +55,8 @@ class RunCatalogNode(Node):
         self.create_subscription(DiagnosticArray, '/diagnostics', lambda msg: [
             self.rec.tally.on_status(s.name, {kv.key: kv.value for kv in s.values})
             for s in msg.status], DIAG_QOS)
+        self.create_subscription(String, 'snapshot_written', lambda msg: self._put(
+            'runs', self.rec.on_snapshot(msg.data)), STATE_QOS)
         self.health = Health(self, g['diagnostics_period_s'], update=self._report)
         self._report()
         self.get_logger().info('run %s into the catalogue %s' % (self.rec.run_id,

@@ -39,7 +39,8 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 
-from fiber_align.analysis.recording import diag_entry, recorder_missing, recorder_short
+from fiber_align.analysis.recording import diag_entry, left_text, recorder_missing
+from fiber_align.analysis.recording import recorder_short
 from fiber_align.config import ConfigError
 from fiber_align.control.trajectory import stamp_ns
 from fiber_align.graph.ranges import SCENARIO_RANGES
@@ -161,14 +162,9 @@ class ScenarioRunnerNode(Node):
             self.get_logger().info('the recorder holds what the graph sent')
             self._exit()
         elif time.monotonic() - self._t_done > self.recorder_wait_s:
-            if left is None:
-                what = 'no fresh /diagnostics reports'
-            elif isinstance(left, dict):
-                what = ', '.join('%s %d of %d' % (k, r, n) for k, (r, n) in sorted(left.items()))
-            else:
-                what = 'nothing of ' + ', '.join(left)
             self.get_logger().error('after %g s the recorder does not hold what the graph '
-                                    'sent (%s); ending anyway' % (self.recorder_wait_s, what))
+                                    'sent (%s); ending anyway' % (self.recorder_wait_s,
+                                                                  left_text(left)))
             self._exit()
 
     def _exit(self):

@@ -52,12 +52,19 @@ def new_run_id():
 
 
 def run_row(run_id, machine, sync_mode, hardware, parameters, started_at, ended_at=None,
-            bag_path=None, cycles_kept=None, watchdog_trips=None, end_reason=None):
-    """Return one row of ``runs`` (``parameters``: a mapping, stored as JSON)."""
+            bag_path=None, cycles_kept=None, watchdog_trips=None, end_reason=None,
+            snapshot_paths=None):
+    """
+    Return one row of ``runs`` (``parameters``: a mapping, stored as JSON).
+
+    :param snapshot_paths: the flight recorder's bags of the run (a list of paths, stored
+        as JSON; None: none).
+    """
     return dict(run_id=run_id, started_at=started_at, ended_at=ended_at, machine=machine,
                 sync_mode=sync_mode, hardware=bool(hardware), package_version=__version__,
                 parameters=_json(parameters), bag_path=bag_path, cycles_kept=cycles_kept,
-                watchdog_trips=watchdog_trips, end_reason=end_reason)
+                watchdog_trips=watchdog_trips, end_reason=end_reason,
+                snapshot_paths=_json(snapshot_paths))
 
 
 def _json(value):

@@ -1,24 +1,27 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-A node's health on ``/diagnostics`` (diagnostic_msgs), with the status levels.
+A node's health on ``/diagnostics`` (diagnostic_msgs).
 
 :class:`Health` is the stand-in for ``diagnostic_updater.Updater`` (not in a pip install
 of ROS 2), with its shape: ``add(name, fn)`` tasks, each ``fn(stat)`` filling a
-:class:`StatusWrapper` (``summary(level, message)``, ``add(key, value)``), the node's own
-``summary(level, message)`` and ``force_update()``; swap it for the updater when installed.
+:class:`~fiber_align.control.health.StatusWrapper` (``summary(level, message)``,
+``add(key, value)``), the node's own ``summary(level, message)`` and ``force_update()``;
+swap it for the updater when installed. The status itself, its levels (``OK``, ``WARN``,
+``ERROR``, ``STALE``), latch and conditions: :mod:`fiber_align.control.health`.
 """
 
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
-from fiber_align.graph.endpoints import foreign_publishers, suspect_topics, type_name
+from fiber_align.control.health import ERROR, LEVELS, OK, STALE, Status, WARN
+from fiber_align.graph.endpoints import foreign_publishers, node_fqn, suspect_topics
+from fiber_align.graph.endpoints import type_name
 from fiber_align.nodes.ros.qos import DIAG_QOS
 
-#: DiagnosticStatus levels as ints (the message field is a byte).
-OK, WARN, ERROR, STALE = 0, 1, 2, 3
-#: The levels by the names a core's reports use.
-LEVELS = {'ok': OK, 'warn': WARN, 'fail': ERROR}
+#: the levels, for the nodes that import them with :class:`Health`
+__all__ = ('endpoint_node_name', 'ERROR', 'Health', 'LEVELS', 'OK', 'report_refusals',
+           'STALE', 'WARN')
 
 
 def report_refusals(node, health):
@@ -68,51 +71,16 @@ def _refused(node, health, parameters, reason):
     health.warn(text)
 
 
-class StatusWrapper:
-    """
-    The status a diagnostic task fills: the stand-in for ``DiagnosticStatusWrapper``.
-
-    ``summary(level, message)`` sets the level (``OK``, ``WARN``, ``ERROR``: int) and
-    text, ``add(key, value)`` a key/value pair (the unit in the key's name);
-    ``merge_summary`` keeps the more severe of two summaries, joining the texts of equal
-    ones, as the real wrapper's ``mergeSummary`` does.
-    """
-
-    def __init__(self, name=''):
-        """Start OK with no message and no values; ``name``: the status's name."""
-        self.name = name
-        self.level = OK
-        self.message = ''
-        self.values = {}
-
-    def summary(self, level, message):
-        """Set the level (int) and the message (str)."""
-        self.level, self.message = int(level), str(message)
-
-    def merge_summary(self, level, message):
-        """Raise the level to ``level`` with its message; an equal one adds its text."""
-        level = int(level)
-        if level > self.level:
-            self.level, self.message = level, str(message)
-        elif level == self.level and message:
-            self.message = '; '.join(m for m in (self.message, str(message)) if m)
-
-    def add(self, key, value):
-        """Add the key/value pair ``key`` (str, its unit in the name) = ``value``."""
-        self.values[str(key)] = value
-
-
-class Health:
+class Health(Status):
     """
     Publish the node's health on ``/diagnostics``: the stand-in for ``diagnostic_updater``.
 
-    The updater's shape (module docstring). Each report is one DiagnosticArray: the node's
-    own status, named after its fully qualified name, then one per task, named ``<node>:
-    <task>``. ``warn``/``error`` latch their level for ``hold_s`` s (wall) so a short event
-    is seen by every subscriber; ``condition`` sets a standing WARN until cleared;
-    ``set_values`` adds key/value pairs (units in the key names). Every
-    :attr:`ENDPOINT_EVERY` reports it looks for publishers of another type on the node's
-    subscribed topics (their messages never arrive): a standing WARN naming them.
+    The updater's shape (module docstring); the status, its latch and conditions are a
+    :class:`~fiber_align.control.health.Status`. Each report is one DiagnosticArray:
+    :meth:`~fiber_align.control.health.Status.reports`, the node's own status named after
+    its fully qualified name. Every :attr:`ENDPOINT_EVERY` reports it looks for publishers
+    of another type on the node's subscribed topics (their messages never arrive): a
+    standing WARN naming them.
     """
 
     #: the condition key of the publishers of a wrong type
@@ -134,22 +102,14 @@ class Health:
             reports then leave the control thread (and carry its ``sender.*`` counts).
         """
         from rclpy.clock import Clock, ClockType
+        super().__init__(hold_s)
         self._node = node
         self._name = name
         self._pub = node.create_publisher(DiagnosticArray, '/diagnostics', DIAG_QOS)
         self._sender = sender
         self._out = sender.writer(self._pub, False) if sender is not None else self._pub
-        self._hold_s = float(hold_s)
         self._hw = hardware_id
-        self._level = OK
-        self._message = 'ok'
-        self._until = 0.0
-        self._base_level = OK
-        self._base_message = 'ok'
-        self.values = {}
-        self._conditions = {}
         self._update = update
-        self._tasks = []
         self.sent = 0
         #: a :class:`~fiber_align.control.cycle.CycleStats` whose window is reported with
         #: every publish (per-sample nodes set it), or ``None``
@@ -164,81 +124,9 @@ class Health:
             # the listing of the check, off the control thread
             sender.watch_graph(node, float(period_s) * self.ENDPOINT_EVERY)
 
-    def summary(self, level, message):
-        """
-        Set the node's steady level (``OK``, ``WARN``, ``ERROR``: int) and message.
-
-        A status at least as severe as a latched event replaces it: the newer news wins
-        (a device lost right after a refused configure reported the refusal for 2 s).
-        """
-        self._base_level, self._base_message = level, message
-        if level >= self._level:
-            self._until = 0.0
-
-    def add(self, name, fn=None):
-        """
-        Add a diagnostic task, as ``diagnostic_updater.Updater.add``.
-
-        :param name: the task's name (its status is ``<node>: <name>``), or a task
-            object with ``name`` and ``run(stat)`` (a ``DiagnosticTask``).
-        :param fn: ``fn(stat)`` fills a :class:`StatusWrapper` on every report; an
-            exception it raises is reported as that task's ERROR.
-        """
-        if fn is None:
-            name, fn = name.name, name.run
-        self._tasks.append((str(name), fn))
-
     def force_update(self):
         """Publish the node's status and run every task now, as the updater's call."""
         self.publish()
-
-    def resolve(self):
-        """
-        End a latched event now: the state it reported no longer holds.
-
-        A configure that succeeds resolves the refusal before it; the steady status is
-        then what the next publish reports.
-        """
-        self._until = 0.0
-
-    @property
-    def message(self):
-        """Steady status text (str) of the node."""
-        return self._base_message
-
-    def _latch(self, level, message):
-        self._level, self._message = level, message
-        self._until = time.monotonic() + self._hold_s
-        self.publish()
-
-    def warn(self, message):
-        """Report a WARN now and keep it for ``hold_s`` s."""
-        self._latch(WARN, message)
-
-    def error(self, message):
-        """Report an ERROR now and keep it for ``hold_s`` s."""
-        self._latch(ERROR, message)
-
-    def condition(self, key, message=None, publish=True):
-        """
-        Set (``message``) or clear (``None``) the standing WARN ``key``; publish at once.
-
-        While any is set the status is at least WARN and its message ends with theirs.
-        ``publish`` False: the next report carries it (a caller inside that report).
-        """
-        if message is None:
-            if self._conditions.pop(key, None) is None:
-                return
-        elif self._conditions.get(key) == message:
-            return
-        else:
-            self._conditions[key] = message
-        if publish:
-            self.publish()
-
-    def set_values(self, **values):
-        """Set key/value pairs reported with the status."""
-        self.values.update(values)
 
     def check_endpoints(self):
         """
@@ -344,23 +232,8 @@ class Health:
             self.values.update(self.cycle.window(time.monotonic_ns()))
         if self._sender is not None and self._sender.running:
             self.values.update(self._sender.stats())
-        if time.monotonic() < self._until and self._level >= self._base_level:
-            level, message = self._level, self._message
-        else:
-            level, message = self._base_level, self._base_message
-        if self._conditions:
-            level = max(level, WARN)
-            message = '; '.join([message] + list(self._conditions.values()))
-        name = self._name or self._node.get_fully_qualified_name()
-        statuses = [self._message_of(name, level, message, self.values)]
-        for task, fn in self._tasks:
-            stat = StatusWrapper('%s: %s' % (name, task))
-            try:
-                fn(stat)
-            except Exception as exc:  # noqa: BLE001 - a task's failure is its status
-                stat.summary(ERROR, 'task failed: %s: %s' % (type(exc).__name__, exc))
-            statuses.append(self._message_of(stat.name, stat.level, stat.message,
-                                             stat.values))
+        statuses = [self._message_of(*r) for r in self.reports(
+            self._name or self._node.get_fully_qualified_name())]
         arr = DiagnosticArray(status=statuses)
         arr.header.stamp = self._node.get_clock().now().to_msg()
         try:
@@ -378,8 +251,7 @@ class Health:
 
 def endpoint_node_name(info):
     """Return the fully qualified node name of a TopicEndpointInfo."""
-    ns = info.node_namespace.rstrip('/')
-    return '%s/%s' % (ns, info.node_name)
+    return node_fqn(info.node_name, info.node_namespace)
 
 
 def _fmt(v):

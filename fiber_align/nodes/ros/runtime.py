@@ -17,10 +17,10 @@ from rclpy.exceptions import ParameterException
 
 from fiber_align import lifeline
 from fiber_align.config import ConfigError
-from fiber_align.lifeline import StopFlag
+from fiber_align.lifeline import say, StopFlag
 from fiber_align.nodes.ros.scheduling import (
     CpuLatencyRequest, node_priority, set_realtime_priority)
-from fiber_align.nodes.ros.teardown import drain, finish, say
+from fiber_align.nodes.ros.teardown import drain, finish
 
 #: The signals that stop a node in order: Ctrl-C, ``kill`` and launch's escalation, and
 #: the hang-up of a closed or crashed terminal (sent to the launcher's whole group).

@@ -21,6 +21,14 @@ from rclpy.logging import LoggingSeverity
 from fiber_align.nodes.ros.rcl_ctypes import c_text, Location, MessageType, Rcl
 
 
+def _at(severity):
+    """Return the :class:`QueuedLogger` method that logs at ``severity``."""
+    def log(self, message, **kwargs):
+        return self._log(message, severity, kwargs)
+    log.__doc__ = 'Log ``message`` at %s.' % severity.name
+    return log
+
+
 class QueuedLogger:
     """
     A node's rclpy logger whose lines the :class:`Sender` thread writes, in its order.
@@ -55,27 +63,11 @@ class QueuedLogger:
         """Log ``message`` at ``severity`` (rclpy's ``LoggingSeverity``)."""
         return self._log(message, severity, kwargs)
 
-    def debug(self, message, **kwargs):
-        """Log ``message`` at DEBUG."""
-        return self._log(message, LoggingSeverity.DEBUG, kwargs)
-
-    def info(self, message, **kwargs):
-        """Log ``message`` at INFO."""
-        return self._log(message, LoggingSeverity.INFO, kwargs)
-
-    def warning(self, message, **kwargs):
-        """Log ``message`` at WARN."""
-        return self._log(message, LoggingSeverity.WARN, kwargs)
-
-    warn = warning
-
-    def error(self, message, **kwargs):
-        """Log ``message`` at ERROR."""
-        return self._log(message, LoggingSeverity.ERROR, kwargs)
-
-    def fatal(self, message, **kwargs):
-        """Log ``message`` at FATAL."""
-        return self._log(message, LoggingSeverity.FATAL, kwargs)
+    debug = _at(LoggingSeverity.DEBUG)
+    info = _at(LoggingSeverity.INFO)
+    warning = warn = _at(LoggingSeverity.WARN)
+    error = _at(LoggingSeverity.ERROR)
+    fatal = _at(LoggingSeverity.FATAL)
 
 
 class Writer:

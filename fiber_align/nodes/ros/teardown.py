@@ -2,14 +2,15 @@
 """
 The end of a node process (:func:`finish`): exit reports, close, acks, bounded teardown.
 
-:func:`say` writes every line a node writes at its stop: a dead launcher's pipe ends none.
+Every line a node writes at its stop goes through :func:`fiber_align.lifeline.say` (a
+dead launcher's pipe ends none); the bound is :func:`fiber_align.lifeline.teardown_guard`.
 """
 
-import faulthandler
 import json
-import os
 import sys
 import time
+
+from fiber_align.lifeline import say, TEARDOWN_S, teardown_guard
 
 #: Exit report prefix of the line ``FIBER_ALIGN_SENT {json}`` (bringup collects them).
 SENT_PREFIX = 'FIBER_ALIGN_SENT '
@@ -19,30 +20,6 @@ def report_sent(node, counts):
     """Print the exit report: ``counts`` (topic -> messages published), one JSON line."""
     say(SENT_PREFIX + json.dumps({'node': node.get_fully_qualified_name(),
                                   'sent': dict(counts)}))
-
-
-def say(line, stream=None):
-    """
-    Write one line to ``stream`` (``sys.stdout``); a reader that is gone ends nothing.
-
-    A launcher killed with SIGKILL leaves its children's output pipes without a reader:
-    a write raises ``BrokenPipeError``, which would end the stop before the nodes are
-    closed (a driver's device left at its voltage). The stream is pointed at
-    ``/dev/null`` instead, so the interpreter's own flush at exit cannot fail either.
-    Return True if the line was written.
-    """
-    stream = sys.stdout if stream is None else stream
-    try:
-        print(line, file=stream, flush=True)
-        return True
-    except (OSError, ValueError):       # EPIPE, EIO of a closed terminal, a closed file
-        try:
-            null = os.open(os.devnull, os.O_WRONLY)
-            os.dup2(null, stream.fileno())
-            os.close(null)
-        except (OSError, ValueError):
-            pass
-        return False
 
 
 def finish(nodes, stop=None, limit_s=None):
@@ -103,63 +80,6 @@ def settle(nodes, limit_s):
     end = time.monotonic() + float(limit_s)
     for pub in [p for n in nodes for p in getattr(n, 'publishers', ())]:
         pub.wait_for_all_acked(Duration(seconds=max(0.0, end - time.monotonic())))
-
-
-#: s: the longest a node process's teardown (nodes, contexts, DDS participants) may take
-#: once its reports are out and its files closed: a node whose launcher was killed is
-#: gone within 2 s (the lifeline's notice, the close, this), and well under bringup's and
-#: launch's stop timeouts (about 5 s), so the process ends itself first
-TEARDOWN_S = 1.0
-
-
-def teardown_guard(limit_s, stop=None):
-    """
-    Return a started guard that ends the process if the teardown outlasts ``limit_s``.
-
-    rcl's node teardown (``destroy_when_not_in_use``, the DDS participant's) has been
-    seen to wait for seconds; the process has nothing left to save then. A timer thread
-    prints one line naming the stall and exits with the process's code (:func:`exit_code`
-    of ``stop``), without the interpreter's exit. A teardown that waits while it holds
-    the GIL (rclpy's ``destroy_node`` does) stops that thread too; for that case
-    ``faulthandler``'s watchdog, a C thread that needs no GIL, ends the process
-    :data:`BACKSTOP_S` later with every thread's stack and exit code 1. Cancel the guard
-    (:meth:`TeardownGuard.cancel`) when the teardown ended.
-    """
-    return TeardownGuard(limit_s, stop)
-
-
-#: s: after the teardown guard's bound, the GIL-free backstop's (:func:`teardown_guard`)
-BACKSTOP_S = 0.3
-
-
-class TeardownGuard:
-    """The two exits of :func:`teardown_guard`: its timer thread and the C backstop."""
-
-    def __init__(self, limit_s, stop=None):
-        """Start both; ``limit_s`` in s."""
-        import threading
-        self.limit_s = float(limit_s)
-        self.stop = stop
-        self.timer = threading.Timer(self.limit_s, self._abandon)
-        self.timer.daemon = True
-        self.timer.start()
-        try:
-            faulthandler.dump_traceback_later(self.limit_s + BACKSTOP_S, exit=True)
-        except (OSError, ValueError, RuntimeError):     # no usable stderr
-            pass
-
-    def _abandon(self):
-        code = self.stop.exit_code(0) if self.stop is not None else 0
-        try:
-            say('teardown: the middleware did not end within %g s; exiting %d without it'
-                % (self.limit_s, code), sys.stderr)
-        finally:
-            os._exit(code)
-
-    def cancel(self):
-        """Disarm both exits (the teardown ended)."""
-        self.timer.cancel()
-        faulthandler.cancel_dump_traceback_later()
 
 
 def drain(executor, timeout_s):
