@@ -5,24 +5,22 @@
 It publishes nothing on the control topics and changes no node's state: the setpoint
 source is the graph's own node (``scenario_runner`` or a sequencer) and
 ``lifecycle_manager`` activates the drivers; the observer watches. Per sample it records
-the streams it is given (reliable, deep, transient local: every sample), the
-``alignment_state`` changes and, through its own thread, ``/diagnostics``. With a
-``clock`` stream (the 1-D ``displacement``) it keeps the sample times and the scenario's
-reference at each (:class:`~fiber_align.simulation.setpoints.Source`). Service clients
+the streams it is given (reliable, deep, transient local: every sample) and the
+``alignment_state`` changes into its :class:`~fiber_align.analysis.run_record.RunRecord`
+(the counting rules), and, through its own thread, ``/diagnostics``. Service clients
 live on a second node that only the calling thread spins, so a call never waits on the
 executor thread. Its rclpy context is its own.
 """
 
-import json
 import math
 import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
-import numpy as np
 from rclpy.executors import SingleThreadedExecutor
 
 from fiber_align.analysis.recording import diag_entry
+from fiber_align.analysis.run_record import RunRecord
 from fiber_align.analysis.run_summary import worst_cycles
 from fiber_align.control.trajectory import stamp_ns
 from fiber_align.nodes.ros.qos import DIAG_QOS, LATCHED_QOS, sample_pub_qos, STATE_QOS
@@ -116,17 +114,15 @@ class DiagnosticsWatch:
         self.node.destroy_node()
 
 
-class Observer:
+class Observer(RunRecord):
     """
     Watch a running graph: streams, states, diagnostics, stall checks, service calls.
 
     :param namespace: the graph's namespace (``''``: none).
     :param streams: key -> topic recorded per message (``*displacement``: its position,
         m; others ``std_msgs/Float64`` data, SI).
-    :param clock: the key of the stream that times the samples (``None``: none).
-    :param source: the scenario's Source (the trace's reference) or ``None``.
-    :param lockstep: sample times are multiples of ``1 / rate_hz``.
-    :param duration_s: the run ends at this sample time (s).
+    :param clock, source, lockstep, rate_hz, duration_s: the record's
+        (:class:`~fiber_align.analysis.run_record.RunRecord`).
     :param qos: the QoS of the stream subscriptions (``None``: the per-sample topics'
         profile of the sync mode, every sample).
     """
@@ -137,6 +133,7 @@ class Observer:
         import rclpy
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Float64, String
+        super().__init__(streams, clock, source, lockstep, rate_hz, duration_s)
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, args=[])
         ns = namespace.strip('/') or None
@@ -147,27 +144,15 @@ class Observer:
                                        start_parameter_services=False)
         self.cexec = SingleThreadedExecutor(context=self.ctx)
         self.cexec.add_node(self.cnode)
-        self.source, self.lockstep, self.clock = source, lockstep, clock
-        self.period, self.duration = 1.0 / rate_hz, float(duration_s)
-        self.lock = threading.Lock()
-        self.data = {k: [] for k in streams}
-        self.stamps = {k: [] for k in streams}      # monotonic s of each message
-        self.t, self.r = [], []
-        self.states = []             # (sample index, status dict) of alignment_state
-        self.active = clock is None  # record samples (the clock stream: from start())
-        self.t0_ns = None
-        self.done = threading.Event()
-        self.progress = self.started = time.monotonic()
         self.stall_s, self.start_stall_s = 10.0, 3.0
         qos = sample_pub_qos(lockstep) if qos is None else qos
         for key, topic in streams.items():
             typ = JointState if topic.endswith('displacement') else Float64
             self.node.create_subscription(typ, topic, self._adder(key), qos)
-        self.node.create_subscription(String, 'alignment_state', self._on_state, STATE_QOS)
-        #: monotonic s at which the scenario runner said ``done`` (``None``: not yet)
-        self.runner_done_at = None
-        self.node.create_subscription(String, 'scenario_state', self._on_runner,
-                                      LATCHED_QOS)
+        self.node.create_subscription(String, 'alignment_state',
+                                      lambda m: self.add_state(m.data), STATE_QOS)
+        self.node.create_subscription(String, 'scenario_state',
+                                      lambda m: self.runner_state(m.data), LATCHED_QOS)
         self.clients = {}
         self.executor = SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(self.node)
@@ -180,92 +165,13 @@ class Observer:
             self.clients[name] = self.cnode.create_client(srv_type, name)
         return self.clients[name]
 
-    @property
-    def samples(self):
-        """Return the samples recorded in every stream (the clock's count, if any)."""
-        with self.lock:
-            if self.clock is not None:
-                return len(self.t)
-            return min((len(v) for v in self.data.values()), default=0)
-
     def _adder(self, key):
         def add(msg):
-            v = float(msg.position[0]) if hasattr(msg, 'position') and len(msg.position) \
-                else (math.nan if hasattr(msg, 'position') else float(msg.data))
-            if key == self.clock:
-                return self._on_clock(msg, v)
-            if self.active or self.data[key]:
-                with self.lock:
-                    self.data[key].append(v)
-                    self.stamps[key].append(time.monotonic())
+            if not hasattr(msg, 'position'):
+                return self.add(key, float(msg.data))
+            self.add(key, float(msg.position[0]) if len(msg.position) else math.nan,
+                     stamp_ns(msg.header.stamp) if key == self.clock else None)
         return add
-
-    def _on_clock(self, msg, y):
-        if not self.active or self.done.is_set():
-            return
-        ns = stamp_ns(msg.header.stamp)
-        self.t0_ns = ns if self.t0_ns is None else self.t0_ns
-        t = (ns - self.t0_ns) * 1e-9
-        if self.lockstep:
-            t = round(t / self.period) * self.period
-        if t >= self.duration - 0.5 * self.period:
-            self.done.set()
-            return
-        self.progress = time.monotonic()
-        with self.lock:
-            self.t.append(t)
-            self.data[self.clock].append(y)
-            if self.source is not None:
-                self.r.append(math.nan if self.source.open_loop else self.source.value(t))
-
-    def _on_runner(self, msg):
-        if msg.data == 'done' and self.runner_done_at is None:
-            self.runner_done_at = time.monotonic()
-
-    def behind(self, drain_s):
-        """
-        Return True when the runner's ``done`` is ``drain_s`` (s) old and this record short.
-
-        Short: this observer's own sample clock has not reached the end. Realtime only:
-        on a loaded machine this process reads the 1 kHz streams slower than the graph
-        sends them, and would end the run long after the graph's end.
-        """
-        return (not self.lockstep and self.runner_done_at is not None
-                and not self.done.is_set()
-                and time.monotonic() - self.runner_done_at > drain_s)
-
-    def _on_state(self, msg):
-        try:
-            st = json.loads(msg.data)
-        except ValueError:
-            st = {'state': msg.data}
-        with self.lock:
-            self.states.append((self._state_index(st), st))
-
-    def _state_index(self, st):
-        """
-        Return the sample index from which state ``st`` holds.
-
-        Lockstep with a clock: the sample after the one the sequencer stepped last (its
-        stamp in ``sample_time_s``); this observer may be behind the graph. Otherwise the
-        state's own ``sample``, or the samples received so far.
-        """
-        ts = st.get('sample_time_s')
-        if self.lockstep and ts is not None and self.t0_ns is not None:
-            return int(round((float(ts) - self.t0_ns * 1e-9) / self.period)) + 1
-        return st['sample'] if self.clock is None and 'sample' in st else len(self.t)
-
-    @property
-    def status(self):
-        """Return the latest ``alignment_state`` status dict (``{}`` before the first)."""
-        with self.lock:
-            return dict(self.states[-1][1]) if self.states else {}
-
-    def first(self, state, after=-1):
-        """Return ``(index, status)`` of the first ``state`` from index ``after`` on."""
-        with self.lock:
-            return next(((k, dict(s)) for k, s in self.states
-                         if s.get('state') == state and k >= after), (None, None))
 
     def event(self, n_before, timeout_s=5.0):
         """Return the sample index of the first state published after ``n_before`` states."""
@@ -400,21 +306,6 @@ class Observer:
             alive()
             self.check_stall()
         self.wait(lambda: self.samples >= n or stop(), wall_limit_s, check, 'sample %d' % n)
-
-    def trace(self):
-        """Return ``(t, r, y)`` arrays (s, m, m) of the clock's samples (r NaN if unknown)."""
-        return np.array(self.t), self.series('r'), self.series(self.clock)
-
-    def series(self, key):
-        """Return a stream (or ``r``) per sample, cut or padded with NaN to the samples."""
-        with self.lock:
-            n = len(self.t) if self.clock is not None else \
-                min((len(v) for v in self.data.values()), default=0)
-            src = self.r if key == 'r' else self.data[key]
-            out = np.full(n, np.nan)
-            m = min(n, len(src))
-            out[:m] = src[:m]
-            return out
 
     def destroy(self):
         """Stop the threads, destroy the nodes, shut the context down."""

@@ -1,0 +1,148 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+What ``bringup``'s observer records of a running graph, per sample: pure (no rclpy).
+
+The streams it is given (one value per message, SI) and, with a ``clock`` stream (the
+1-D ``displacement``), the sample times and the scenario's reference at each
+(:class:`~fiber_align.simulation.setpoints.Source`); the ``alignment_state`` statuses
+with the sample index from which each holds; the scenario runner's ``done``. The
+counting rules live here, unit-tested without ROS;
+:class:`fiber_align.bringup.observer.Observer` feeds it from its subscriptions (its
+executor's thread: every access holds :attr:`RunRecord.lock`).
+"""
+
+import json
+import math
+import threading
+import time
+
+import numpy as np
+
+
+class RunRecord:
+    """
+    The per-sample record of one run.
+
+    :param streams: the keys of the streams recorded per message.
+    :param clock: the key of the stream that times the samples (``None``: none).
+    :param source: the scenario's Source (the trace's reference) or ``None``.
+    :param lockstep: sample times are multiples of ``1 / rate_hz``.
+    :param duration_s: the run ends at this sample time (s).
+    """
+
+    def __init__(self, streams, clock=None, source=None, lockstep=False, rate_hz=1000.0,
+                 duration_s=math.inf):
+        """Start an empty record (recording from :attr:`active`)."""
+        self.source, self.lockstep, self.clock = source, lockstep, clock
+        self.period, self.duration = 1.0 / rate_hz, float(duration_s)
+        self.lock = threading.Lock()
+        self.data = {k: [] for k in streams}
+        self.stamps = {k: [] for k in streams}      # monotonic s of each message
+        self.t, self.r = [], []
+        self.states = []             # (sample index, status dict) of alignment_state
+        self.active = clock is None  # record samples (the clock stream: from start())
+        self.t0_ns = None
+        self.done = threading.Event()
+        self.progress = self.started = time.monotonic()
+        #: monotonic s at which the scenario runner said ``done`` (``None``: not yet)
+        self.runner_done_at = None
+
+    @property
+    def samples(self):
+        """Return the samples recorded in every stream (the clock's count, if any)."""
+        with self.lock:
+            if self.clock is not None:
+                return len(self.t)
+            return min((len(v) for v in self.data.values()), default=0)
+
+    def add(self, key, value, stamp_ns=None):
+        """Record ``value`` (SI) of stream ``key``; the clock's with its stamp (ns)."""
+        if key == self.clock:
+            return self._add_sample(stamp_ns, value)
+        if self.active or self.data[key]:
+            with self.lock:
+                self.data[key].append(value)
+                self.stamps[key].append(time.monotonic())
+
+    def _add_sample(self, ns, y):
+        if not self.active or self.done.is_set():
+            return
+        self.t0_ns = ns if self.t0_ns is None else self.t0_ns
+        t = (ns - self.t0_ns) * 1e-9
+        if self.lockstep:
+            t = round(t / self.period) * self.period
+        if t >= self.duration - 0.5 * self.period:
+            self.done.set()
+            return
+        self.progress = time.monotonic()
+        with self.lock:
+            self.t.append(t)
+            self.data[self.clock].append(y)
+            if self.source is not None:
+                self.r.append(math.nan if self.source.open_loop else self.source.value(t))
+
+    def runner_state(self, text):
+        """Note the scenario runner's state (``scenario_state``): the time of ``done``."""
+        if text == 'done' and self.runner_done_at is None:
+            self.runner_done_at = time.monotonic()
+
+    def behind(self, drain_s):
+        """
+        Return True when the runner's ``done`` is ``drain_s`` (s) old and this record short.
+
+        Short: this record's own sample clock has not reached the end. Realtime only:
+        on a loaded machine the observer reads the 1 kHz streams slower than the graph
+        sends them, and would end the run long after the graph's end.
+        """
+        return (not self.lockstep and self.runner_done_at is not None
+                and not self.done.is_set()
+                and time.monotonic() - self.runner_done_at > drain_s)
+
+    def add_state(self, text):
+        """Record an ``alignment_state`` message (JSON status, or a bare state name)."""
+        try:
+            st = json.loads(text)
+        except ValueError:
+            st = {'state': text}
+        with self.lock:
+            self.states.append((self._state_index(st), st))
+
+    def _state_index(self, st):
+        """
+        Return the sample index from which state ``st`` holds.
+
+        Lockstep with a clock: the sample after the one the sequencer stepped last (its
+        stamp in ``sample_time_s``); the observer may be behind the graph. Otherwise the
+        state's own ``sample``, or the samples received so far.
+        """
+        ts = st.get('sample_time_s')
+        if self.lockstep and ts is not None and self.t0_ns is not None:
+            return int(round((float(ts) - self.t0_ns * 1e-9) / self.period)) + 1
+        return st['sample'] if self.clock is None and 'sample' in st else len(self.t)
+
+    @property
+    def status(self):
+        """Return the latest ``alignment_state`` status dict (``{}`` before the first)."""
+        with self.lock:
+            return dict(self.states[-1][1]) if self.states else {}
+
+    def first(self, state, after=-1):
+        """Return ``(index, status)`` of the first ``state`` from index ``after`` on."""
+        with self.lock:
+            return next(((k, dict(s)) for k, s in self.states
+                         if s.get('state') == state and k >= after), (None, None))
+
+    def trace(self):
+        """Return ``(t, r, y)`` arrays (s, m, m) of the clock's samples (r NaN if unknown)."""
+        return np.array(self.t), self.series('r'), self.series(self.clock)
+
+    def series(self, key):
+        """Return a stream (or ``r``) per sample, cut or padded with NaN to the samples."""
+        with self.lock:
+            n = len(self.t) if self.clock is not None else \
+                min((len(v) for v in self.data.values()), default=0)
+            src = self.r if key == 'r' else self.data[key]
+            out = np.full(n, np.nan)
+            m = min(n, len(src))
+            out[:m] = src[:m]
+            return out

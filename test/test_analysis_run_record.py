@@ -1,0 +1,79 @@
+# SPDX-License-Identifier: Apache-2.0
+"""Tests of :mod:`fiber_align.analysis.run_record`: bringup's per-sample record, pure."""
+
+import json
+import time
+
+import numpy as np
+
+from fiber_align.analysis.run_record import RunRecord
+
+
+def record(lockstep=False, done_ago=None, own_done=False, **kw):
+    rec = RunRecord({'y': None}, lockstep=lockstep, **kw)
+    if own_done:
+        rec.done.set()
+    rec.runner_done_at = None if done_ago is None else time.monotonic() - done_ago
+    return rec
+
+
+# A realtime run ends ``observer_drain_s`` after the runner's done, however far behind.
+def test_behind_once_the_runner_is_done_longer_than_the_drain():
+    assert record(done_ago=2.5).behind(2.0)
+    assert not record(done_ago=1.0).behind(2.0)
+
+
+def test_not_behind_before_the_runner_is_done_or_once_the_record_is_complete():
+    assert not record(done_ago=None).behind(2.0)
+    assert not record(done_ago=5.0, own_done=True).behind(2.0)
+
+
+def test_lockstep_always_waits_for_its_own_record():
+    # lockstep figures are compared sample for sample: its record must be whole
+    assert not record(lockstep=True, done_ago=60.0).behind(2.0)
+
+
+def test_lockstep_samples_sit_on_the_period_grid_and_end_at_the_duration():
+    rec = RunRecord({'y': None, 'v': None}, clock='y', lockstep=True, rate_hz=1000.0,
+                    duration_s=0.003)
+    rec.add('y', 1.0, 5_000_000)            # before start(): not recorded
+    assert rec.samples == 0
+    rec.active = True
+    for i, ns in enumerate((7_000_000, 8_000_100, 8_999_900, 10_000_000)):
+        rec.add('y', float(i), ns)
+        rec.add('v', 10.0 * i)
+    t, r, y = rec.trace()
+    assert np.allclose(t, [0.0, 0.001, 0.002]) and rec.done.is_set()
+    assert list(y) == [0.0, 1.0, 2.0] and np.isnan(r).all()
+    assert list(rec.series('v')) == [0.0, 10.0, 20.0]      # cut to the samples
+
+
+def test_a_state_holds_from_the_sample_after_the_one_the_sequencer_stepped():
+    rec = RunRecord({'y': None}, clock='y', lockstep=True, rate_hz=1000.0)
+    rec.active = True
+    rec.add('y', 0.0, 2_000_000_000)
+    rec.add_state(json.dumps({'state': 'SEARCHING', 'sample_time_s': 2.004}))
+    rec.add_state('IDLE')                   # a bare name: from the samples so far
+    assert rec.first('SEARCHING') == (5, {'state': 'SEARCHING', 'sample_time_s': 2.004})
+    assert rec.first('IDLE')[0] == 1 and rec.status == {'state': 'IDLE'}
+    assert rec.first('TRACKING') == (None, None)
+
+
+def test_without_a_clock_a_state_holds_from_its_own_sample():
+    rec = RunRecord({'a': None, 'b': None})
+    rec.add('a', 1.0)
+    rec.add('a', 2.0)
+    rec.add('b', 3.0)
+    rec.add_state(json.dumps({'state': 'PEAKING', 'sample': 42}))
+    assert rec.samples == 1 and rec.first('PEAKING')[0] == 42
+    assert list(rec.series('a')) == [1.0]      # the complete samples only
+
+
+def test_a_stream_short_of_the_clock_is_padded_with_nan():
+    rec = RunRecord({'y': None, 'v': None}, clock='y', rate_hz=1000.0)
+    rec.active = True
+    rec.add('v', 5.0)
+    for ns in (0, 1_000_000, 2_000_000):
+        rec.add('y', 0.0, ns)
+    v = rec.series('v')
+    assert v[0] == 5.0 and np.isnan(v[1:]).all() and v.size == 3
