@@ -29,6 +29,24 @@ def axis_figures(by_status, namespace, axes=('x', 'y')):
     return out
 
 
+def axis_goals(axes, floor, missed_goal):
+    """
+    Return ``(goals missed, machine limits)`` of a realtime multi-axis run, axis by axis.
+
+    Each axis is held to the 1-D run's goals (:func:`~.run_summary.goals_missed`,
+    :func:`~.run_summary.machine_limit`) against the one machine floor of the run.
+
+    :param axes: :func:`axis_figures`; :param floor: the machine-floor probe's figures or
+        ``None``; :param missed_goal: the share of missed periods allowed (1).
+    :returns: two lists of texts, each led by its axis (``x: ...``).
+    """
+    per_axis = [(axis, {'realtime': rt, 'floor': floor}) for axis, rt in axes.items()]
+    return (['%s: %s' % (axis, m) for axis, s in per_axis
+             for m in sm.goals_missed(s, 'realtime', missed_goal)],
+            ['%s: %s' % (axis, m) for axis, s in per_axis
+             for m in [sm.machine_limit(s, 'realtime', missed_goal)] if m])
+
+
 def print_report(summary):
     """Print the run for people (ms, um)."""
     off = summary.get('offline') or {}

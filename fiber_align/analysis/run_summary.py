@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from fiber_align.analysis.report import default_params
+from fiber_align.analysis.report import default_params, hysteresis_metrics
 from fiber_align.plant.optics import OpticalLink
 from fiber_align.simulation import alignment2d_scenarios as a2, scenarios
 from fiber_align.simulation import array_scenarios as asc
@@ -132,6 +132,30 @@ def align_figures(t, p, loss, states, events, rate_hz):
     if tracking.any():
         out['tracking_max_loss_db'] = float(np.max(loss[tracking]))
     return out
+
+
+def run_figures(scenario, t, ref, y, series, states, events, plant_params, rate_hz):
+    """
+    Return the figures of a 1-D run on the graph, by its scenario (``{}``: none).
+
+    :param t, ref, y: the sample times (s), the reference and the position (m).
+    :param series: ``key -> per-sample array`` of the other streams (``v``, V; ``p``, W).
+    :param states, events, plant_params, rate_hz: as :func:`align_metrics`.
+    :returns: ``{'metrics': ...}`` (:func:`scenario_metrics` of a tracking scenario,
+        :func:`~fiber_align.analysis.report.hysteresis_metrics` of the open-loop
+        experiment) or ``{'align': ...}`` (:func:`align_metrics`); nothing of a run of
+        two samples or fewer.
+    """
+    if t.size <= 2:
+        return {}
+    if scenario in scenarios.TRACKING:
+        return {'metrics': scenario_metrics(scenario, t, ref, y, series('v'))}
+    if scenario == 'hysteresis-experiment':
+        return {'metrics': hysteresis_metrics(series('v'), y)}
+    if scenario == 'align':
+        return {'align': align_metrics(t, y, series('p'), states, events, plant_params,
+                                       rate_hz)}
+    return {}
 
 
 def format_summary(s):
@@ -351,55 +375,35 @@ def goals_missed(s, sync, missed_goal):
     return out
 
 
-#: The rig's per-sample streams compared with the offline ``align2d``.
-RIG_STREAMS = ('mx', 'my', 'p', 'rx', 'ry')
 #: Lockstep equality bounds: positions and setpoints (m), power (relative). The graph
 #: computes the offline run's operations on the same float64 inputs in the same order
 #: (the messages carry float64), so the runs are equal to the last bit; the bounds only
 #: leave room for a last-bit difference, far below any physical effect.
 TOLERANCE_M = 1e-15
 TOLERANCE_REL = 1e-12
+#: The offline run a lockstep multi-axis graph equals, by its scenario: ``seed -> bench``
+#: (recording its trace) and the bench's align run (the array: the joint method).
+OFFLINE = {'align2d': (lambda seed: a2.build(seed=seed, record=True), a2.align_bench),
+           'station': (lambda seed: sc.build(seed, record=True), sc.align_bench),
+           'array': (lambda seed: asc.build(seed, record=True), hs.align_bench)}
 
 
-def compare_offline(seed, align_sample, graph):
+def compare_offline(scenario, seed, align_sample, graph):
     """
-    Run the offline ``align2d`` with ``align`` before sample ``align_sample``; compare.
+    Run the offline ``scenario`` with ``align`` before sample ``align_sample``; compare.
 
-    :param graph: the graph's per-sample arrays: ``mx``, ``my`` (m), ``p`` (W), ``rx``,
-        ``ry`` (m).
+    :param scenario: a key of :data:`OFFLINE` (``align2d``, ``station``, ``array``).
+    :param graph: the graph's per-sample arrays, keyed by the offline trace's columns
+        (``graph.rig.Machine.streams``): measured positions and setpoints (m), powers
+        (``p``, ``p_1``, ...; W).
     :returns: dict: ``samples`` compared, ``max_abs_<stream>`` (m, W), ``max_rel_p``,
         ``equal`` (within :data:`TOLERANCE_M` / :data:`TOLERANCE_REL`), the offline
         ``state`` and ``offline_samples``.
     """
-    bench = a2.build(seed=seed, record=True)
-    res = a2.align_bench(bench, idle_s=align_sample * bench.period_s)
-    return _compare(bench.trace(), res, graph, RIG_STREAMS)
-
-
-def compare_offline_station(seed, align_sample, graph):
-    """
-    Run the offline ``station`` with ``align`` before sample ``align_sample``; compare.
-
-    :param graph: the graph's per-sample arrays: ``mx_in`` .. ``my_out`` (m, measured),
-        ``rx_in`` .. ``ry_out`` (m, setpoints), ``p`` (W).
-    :returns: as :func:`compare_offline`.
-    """
-    bench = sc.build(seed, record=True)
-    res = sc.align_bench(bench, idle_s=align_sample * bench.period_s)
-    return _compare(bench.trace(), res, graph, sc.StationBench.FIELDS[1:])
-
-
-def compare_offline_array(seed, align_sample, graph):
-    """
-    Run the offline ``array`` (joint method) with ``align`` before sample ``align_sample``.
-
-    :param graph: the graph's per-sample arrays: ``mx`` .. ``my_right`` (m, measured),
-        ``rx`` .. ``ry_right`` (m, setpoints), ``p_1``, ``p_n`` (W).
-    :returns: as :func:`compare_offline`.
-    """
-    bench = asc.build(seed, record=True)
-    res = hs.align_bench(bench, idle_s=align_sample * bench.period_s)
-    return _compare(bench.trace(), res, graph, asc.ArrayBench.FIELDS[1:])
+    build, align = OFFLINE[scenario]
+    bench = build(seed)
+    res = align(bench, idle_s=align_sample * bench.period_s)
+    return _compare(bench.trace(), res, graph, tuple(graph))
 
 
 def _compare(tr, res, graph, streams):

@@ -222,6 +222,29 @@ class Observer(RunRecord):
         return int(st['align_sample']) if (self.lockstep and name == 'align'
                                            and st.get('align_sample') is not None) else k
 
+    def ended(self, what):
+        """Return the error of ``what`` (``alignment``, ...) that ended short of its state."""
+        st = self.status
+        return BringupError('%s ended in %s: %s'
+                            % (what, st.get('state'), st.get('fault_reason') or 'timeout'))
+
+    def align(self, alive, clock, max_samples, wall_s=120.0):
+        """
+        Call ``align`` and wait for TRACKING; return ``(align sample, its sample, status)``.
+
+        ``(align sample, None, None)`` when the alignment ended otherwise (:meth:`ended`
+        says how).
+
+        :param clock: returns the samples so far: the bound ``max_samples`` is in sample
+            time (``wall_s``, s, in wall time).
+        :raises BringupError: a refused call, no state within ``wall_s``.
+        """
+        k_align = self.command('align', alive=alive)
+        k_max = clock() + max_samples
+        self.wait(lambda: self.status.get('state') in ('TRACKING', 'FAULT')
+                  or clock() > k_max, wall_s, alive, 'TRACKING')
+        return (k_align,) + self.first('TRACKING', k_align)
+
     def set_text(self, node, name, value, alive=lambda: None, timeout=10.0):
         """Set the text parameter ``name`` of ``node`` (relative), as ``ros2 param set``."""
         from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue

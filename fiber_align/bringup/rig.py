@@ -12,51 +12,28 @@ exit code is 1 when a stream differs beyond the tolerance. docs/alignment2d.md, 
 import time
 
 from fiber_align.analysis import run_summary as sm
-from fiber_align.analysis.axes_summary import axis_figures, print_report
+from fiber_align.analysis.axes_summary import axis_figures, axis_goals, print_report
 from fiber_align.bringup.harness import Harness, session
 from fiber_align.bringup.observer import BringupError
-from fiber_align.graph.registry import STATION_AXES as AXES4
-from fiber_align.simulation import array_scenarios as asc
-from fiber_align.simulation import station_scenarios as sc
 
-#: Streams recorded per sample: name -> topic. The setpoints as the loop accepted them
-#: (``reference``): a command topic keeps one reader, the loop's (graph.registry.COMMANDS).
-STREAMS = {'mx': 'x/displacement', 'my': 'y/displacement', 'p': 'optical_power',
-           'rx': 'x/reference', 'ry': 'y/reference'}
-#: The station's (``bringup --station``): the offline bench's trace columns
-#: (:class:`fiber_align.simulation.station_scenarios.StationBench`).
-STATION_STREAMS = dict([('m' + k, a + '/displacement') for k, a in zip(sc.AXIS_KEYS, AXES4)]
-                       + [('r' + k, a + '/reference') for k, a in zip(sc.AXIS_KEYS, AXES4)]
-                       + [('p', 'optical_power')])
-#: The array's (``bringup --array``): :class:`fiber_align.simulation.array_scenarios.
-#: ArrayBench`'s trace columns, the outer channels' readings ``p_1`` and ``p_n``.
-_AB = asc.ArrayBench
-ARRAY_STREAMS = dict([(k, a + '/displacement') for k, a in zip(_AB.MEASURED, _AB.POSITION)]
-                     + [(k, a + '/reference') for k, a in zip(_AB.SETPOINT, _AB.POSITION)]
-                     + list(zip(_AB.POWERS, ('optical_power', 'optical_power_n'))))
+#: The scenarios whose wait for TRACKING is bounded by the sequencer's own search timeout
+#: (+ 2 s, as offline; the station's search may walk its whole square), not ``ALIGN_MAX_S``.
+OWN_TIMEOUT = ('station', 'array')
 
 
-#: What differs between the multi-axis graphs, by their scenario: the per-sample streams,
-#: the offline run a lockstep run is compared with, and whether the wait for TRACKING is
-#: bounded by the sequencer's own search timeout (+ 2 s, as offline; the station's search
-#: may walk its whole square) or by ``ALIGN_MAX_S``.
-KINDS = {'align2d': (STREAMS, sm.compare_offline, False),
-         'station': (STATION_STREAMS, sm.compare_offline_station, True),
-         'array': (ARRAY_STREAMS, sm.compare_offline_array, True)}
-
-
-def arrays(obs, streams=STREAMS):
+def arrays(obs, streams):
     """Return every stream of the observer, cut to the complete samples (SI arrays)."""
     return {k: obs.series(k) for k in streams}
 
 
 def run_rig(a, g):
-    """Run ``bringup --rig`` or ``--station`` (options ``a``, graph ``g``); return the code."""
+    """Run ``bringup --rig``, ``--station``, ``--array`` (options ``a``, graph ``g``): the code."""
     from std_srvs.srv import Trigger
     seq = g.node_params(g.own_nodes[-1])
     rate = float(seq['rate_hz'])
-    streams, compare, own_timeout = KINDS[g.scenario]
-    max_s = float(seq['search_timeout_s']) + 2.0 if own_timeout else sm.ALIGN_MAX_S
+    streams = dict(g.streams)       # trace column -> topic (graph.rig.Machine.streams)
+    max_s = float(seq['search_timeout_s']) + 2.0 if g.scenario in OWN_TIMEOUT \
+        else sm.ALIGN_MAX_S
     summary = {'scenario': g.scenario, 'rig': True, 'sync_mode': g.sync_mode, 'seed': g.seed,
                'composed': g.composed, 'namespace': g.namespace, 'rate_hz': rate,
                'error': ''}
@@ -77,21 +54,40 @@ def run_rig(a, g):
         t_run = time.monotonic()
         clock = (lambda: obs.samples) if full else (
             lambda: int((time.monotonic() - t_run) * rate))
-        k = int(round(sm.ALIGN_IDLE_S * rate))
-        obs.wait(lambda: clock() >= k, 60.0, alive, 'sample %d' % k)
+
+        def until(k):
+            obs.wait(lambda: clock() >= k, 60.0, alive, 'sample %d' % k)
+
         parts = iter(range(1, 10 ** 6))
-        part = (lambda: obs.set_text(g.own_nodes[-1], 'part_id', '%s-%d' % (
-            a.part, next(parts)), alive)) if a.part else (lambda: None)
-        part()
-        k_align, tracking = _align(obs, alive, rate, clock, max_s)
+
+        def align(k_rest):
+            """Rest ``ALIGN_IDLE_S`` from sample ``k_rest``, set the part (``--part``), align."""
+            until(k_rest + int(round(sm.ALIGN_IDLE_S * rate)))
+            if a.part:
+                obs.set_text(g.own_nodes[-1], 'part_id', '%s-%d' % (a.part, next(parts)),
+                             alive)
+            k_align, _, tracking = obs.align(alive, clock, max_s * rate)
+            if tracking is None:
+                raise obs.ended('alignment')
+            return k_align, tracking
+
+        def release_align():
+            """One switch cycle: ``release`` to IDLE, then align; return the time to peak."""
+            obs.command('release', alive=alive)
+            obs.wait(lambda: obs.status.get('state') in ('IDLE', 'FAULT'), 60.0, alive, 'IDLE')
+            if obs.status.get('state') != 'IDLE':
+                raise BringupError('release ended in FAULT: %s'
+                                   % obs.status.get('fault_reason'))
+            k_align, tracking = align(clock())
+            return (tracking['sample'] - 1 - k_align) / rate
+
+        k_align, tracking = align(0)
         # from the TRACKING sample: the status can arrive before the streams' samples
-        k_end = max(clock(), tracking['sample']) + int(round(sm.LOSS_WINDOW_S * rate)) + 5
-        obs.wait(lambda: clock() >= k_end, 60.0, alive, 'sample %d' % k_end)
+        until(max(clock(), tracking['sample']) + int(round(sm.LOSS_WINDOW_S * rate)) + 5)
         summary.update(align_sample=k_align, tracking_sample=tracking['sample'],
                        time_to_peak_s=(tracking['sample'] - 1 - k_align) / rate,
                        peak_samples=tracking['peak_samples'])
-        cycles = [_release_align(obs, alive, rate, clock, max_s, part)
-                  for _ in range(a.cycles or 0)]
+        cycles = [release_align() for _ in range(a.cycles or 0)]
         if cycles:
             summary['cycles_tracking'] = len(cycles)
             summary['cycle_time_to_peak_s'] = cycles
@@ -107,11 +103,17 @@ def run_rig(a, g):
         obs.watch.run_to = time.monotonic()
         if g.sync_mode == 'realtime':
             # before the hold: a held plant stops the drivers' input (a watchdog trip)
-            _realtime(summary, h, g)
+            summary['axes'] = axis_figures(obs.watch.by_status, g.namespace, g.axes)
+            floor = h.floor_figures()
+            if floor is not None:
+                summary['floor'] = floor
+            summary['goals_missed'], summary['machine_limits'] = axis_goals(
+                summary['axes'], floor, h.cycle_goal)
         h.run(False)
         summary.update(state=obs.status.get('state'), samples=clock())
         if g.sync_mode == 'lockstep' and not (a.cycles or a.duration):
-            summary['offline'] = compare(g.seed, k_align, arrays(obs, streams))
+            summary['offline'] = sm.compare_offline(g.scenario, g.seed, k_align,
+                                                    arrays(obs, streams))
             # the offline run has the shipped parameters: with others it is only reported
             comparable = not (a.param or a.params_file)
             summary['offline']['comparable'] = comparable
@@ -131,53 +133,3 @@ def run_rig(a, g):
         h.close()
         print_report(summary)
     return session(a, summary, steps, stop)
-
-
-def _realtime(summary, h, g):
-    """Put each axis's realtime figures, the floor's, missed goals and limits in ``summary``."""
-    summary['axes'] = axis_figures(h.obs.watch.by_status, g.namespace, g.axes)
-    floor = h.floor_figures()
-    if floor is not None:
-        summary['floor'] = floor
-    per_axis = [(axis, {'realtime': rt, 'floor': floor}) for axis, rt in summary['axes'].items()]
-    summary['goals_missed'] = ['%s: %s' % (axis, m) for axis, s in per_axis
-                               for m in sm.goals_missed(s, 'realtime', h.cycle_goal)]
-    summary['machine_limits'] = ['%s: %s' % (axis, m) for axis, s in per_axis
-                                 for m in [sm.machine_limit(s, 'realtime', h.cycle_goal)] if m]
-
-
-def _align(obs, alive, rate, clock, max_s=sm.ALIGN_MAX_S):
-    """
-    Call ``align`` and wait for TRACKING; return ``(align sample, TRACKING status)``.
-
-    :param clock: returns the samples so far (the wait's bound is in sample time).
-    :param max_s: the bound (s of sample time).
-    """
-    k_align = obs.command('align', alive=alive)
-    k_max = clock() + max_s * rate
-    obs.wait(lambda: obs.status.get('state') in ('TRACKING', 'FAULT') or clock() > k_max,
-             120.0, alive, 'TRACKING')
-    _, tracking = obs.first('TRACKING', k_align)
-    if tracking is None:
-        raise BringupError('alignment ended in %s: %s' % (
-            obs.status.get('state'), obs.status.get('fault_reason') or 'timeout'))
-    return k_align, tracking
-
-
-def _release_align(obs, alive, rate, clock, max_s=sm.ALIGN_MAX_S, part=lambda: None):
-    """
-    One switch cycle of the rig: ``release`` to IDLE, then ``align`` to TRACKING.
-
-    :param part: sets the next part (``--part``) before the align.
-    :returns: the time to peak of the new alignment (s of sample time).
-    :raises BringupError: a refused call, a FAULT, a timeout.
-    """
-    obs.command('release', alive=alive)
-    obs.wait(lambda: obs.status.get('state') in ('IDLE', 'FAULT'), 60.0, alive, 'IDLE')
-    if obs.status.get('state') != 'IDLE':
-        raise BringupError('release ended in FAULT: %s' % obs.status.get('fault_reason'))
-    k = clock() + int(round(sm.ALIGN_IDLE_S * rate))
-    obs.wait(lambda: clock() >= k, 60.0, alive, 'sample %d' % k)
-    part()
-    k_align, tracking = _align(obs, alive, rate, clock, max_s)
-    return (tracking['sample'] - 1 - k_align) / rate

@@ -22,12 +22,10 @@ import time
 import numpy as np
 
 from fiber_align.analysis import run_summary as sm
-from fiber_align.analysis.report import hysteresis_metrics
 from fiber_align.bringup.harness import EXIT_INTERRUPTED, EXIT_OK, Harness, session, settings
 from fiber_align.bringup.observer import BringupError, StartStall
 from fiber_align.graph.params import PLANT, RECORDER, SCENARIO_RUNNER
 from fiber_align.graph.registry import expected_endpoints
-from fiber_align.simulation.scenarios import TRACKING as TRACKING_SCENARIOS
 
 
 class Bringup:
@@ -135,22 +133,19 @@ class Bringup:
         def k(seconds):
             return int(round(seconds * self.rate))
 
-        def ended(events, what):
-            st = r.status
+        def ended(what):
             self.summary['align_events'] = events
-            raise BringupError('%s ended in %s: %s' % (
-                what, st.get('state'), st.get('fault_reason') or 'timeout'))
+            return r.ended(what)
 
+        events = {}
         wall = 30.0 + 40.0 * (sm.ALIGN_MAX_S + self.cycles * (sm.SWITCH_OFF_S
                                                               + sm.SWITCH_ON_S))
         r.wait_samples(k(sm.ALIGN_IDLE_S), wall, alive)
-        events = {'align': r.command('align', alive=alive)}
-        r.wait_samples(events['align'] + k(sm.ALIGN_MAX_S), wall, alive,
-                       lambda: r.status.get('state') in ('TRACKING', 'FAULT'))
-        if r.status.get('state') != 'TRACKING':
-            ended(events, 'alignment')
-        k_tracking = r.first('TRACKING', events['align'])[0]
-        events['tracking'] = r.samples if k_tracking is None else k_tracking
+        events['align'], k_tracking, _ = r.align(lambda: (alive(), r.check_stall()),
+                                                 lambda: r.samples, k(sm.ALIGN_MAX_S), wall)
+        if k_tracking is None:
+            raise ended('alignment')
+        events['tracking'] = k_tracking
         r.wait_samples(events['tracking'] + k(sm.LOSS_WINDOW_S), wall, alive)
         events['cycles'] = []
         for _ in range(self.cycles):
@@ -162,7 +157,7 @@ class Bringup:
             if r.status.get('state') == 'FAULT':
                 break
         if r.status.get('state') != 'TRACKING':
-            ended(events, 'switch cycles')
+            raise ended('switch cycles')
         return events
 
     def _report(self):
@@ -177,14 +172,9 @@ class Bringup:
             if self.source is None:
                 ref = r.series('r_ref')
             s['samples'] = int(t.size)
-            if t.size > 2 and self.scenario in TRACKING_SCENARIOS:
-                s['metrics'] = sm.scenario_metrics(self.scenario, t, ref, y, r.series('v'))
-            elif t.size > 2 and self.scenario == 'hysteresis-experiment':
-                s['metrics'] = hysteresis_metrics(r.series('v'), y)
-            elif t.size > 2 and self.scenario == 'align':
-                s['align'] = sm.align_metrics(t, y, r.series('p'), r.states,
-                                              s.get('align_events', {}),
-                                              g.node_params(PLANT), self.rate)
+            s.update(sm.run_figures(self.scenario, t, ref, y, r.series, r.states,
+                                    s.get('align_events', {}), g.node_params(PLANT),
+                                    self.rate))
             if a.trace and t.size:
                 np.savetxt(a.trace, np.column_stack([t, ref, y]), delimiter=',',
                            header='t_s,r_m,y_m', comments='')

@@ -37,6 +37,11 @@ OWN_NODES = {n: NODES[n].executable for n in (OPTICS, SEQUENCER)}
 PER_AXIS_RECORDED = ('displacement', 'setpoint', 'drive_voltage')
 RECORDED = tuple('%s/%s' % (a, t) for a in AXES for t in PER_AXIS_RECORDED) + \
     ARRAY_POWERS + ('alignment_state', '/diagnostics', '/clock')
+#: The per-sample streams: :class:`~fiber_align.simulation.array_scenarios.ArrayBench`'s
+#: trace columns, measured and setpoint per actuator, the outer channels' readings.
+STREAMS = tuple(zip(sc.ArrayBench.MEASURED, ['%s/displacement' % a for a in AXES])) + tuple(
+    zip(sc.ArrayBench.SETPOINT, ['%s/reference' % a for a in AXES])) + tuple(
+    zip(sc.ArrayBench.POWERS, ARRAY_POWERS))
 CHIP_KEYS = ('chip_x_m', 'chip_y_m', 'chip_roll_rad')
 
 
@@ -49,7 +54,7 @@ def _seeded(seed):
 #: ``random_chip(S)``, the layout of ``S`` (:mod:`fiber_align.simulation.array_scenarios`).
 ARRAY = Machine('array', ARRAY_NAMESPACE, AXES, OWN_NODES,
                 lambda seed: tuple(sc.run_seeds(seed)['plant'] + i for i in range(len(AXES))),
-                _seeded, RECORDED)
+                _seeded, RECORDED, STREAMS)
 
 
 def build_array(namespace=ARRAY_NAMESPACE, composed=None, sync_mode='', controller='',

@@ -74,6 +74,8 @@ class RigGraph(g.Graph):
     axes: Tuple[str, ...] = AXES
     #: the nodes of the graph's own namespace besides the manager (optics, sequencer)
     own_nodes: Tuple[str, ...] = tuple(RIG_NODES)
+    #: its machine's :attr:`Machine.streams`
+    streams: Tuple[Tuple[str, str], ...] = ()
 
     @property
     def nodes(self):
@@ -164,6 +166,9 @@ class Machine:
     :ivar plant_seeds: ``seed -> (noise seed of each axis's plant)`` for the run seed.
     :ivar seeded: ``seed -> {node: {name: value}}``: what else the run seed sets.
     :ivar recorded: the topics ``record`` records (relative; empty: no ``record``).
+    :ivar streams: ``((trace column, topic), ...)``: the per-sample streams of the run
+        (relative topics), named as the offline bench's trace columns a lockstep run is
+        compared with (:func:`fiber_align.analysis.run_summary.compare_offline`).
     """
 
     scenario: str
@@ -173,6 +178,7 @@ class Machine:
     plant_seeds: Callable
     seeded: Callable
     recorded: Tuple[str, ...] = ()
+    streams: Tuple[Tuple[str, str], ...] = ()
 
 
 def build_axes(m, namespace='', composed=None, sync_mode='', controller='', params_file='',
@@ -219,7 +225,8 @@ def build_axes(m, namespace='', composed=None, sync_mode='', controller='', para
                     processes=rig_processes(ns, composed, m.axes, m.own, m.namespace,
                                             bool(record)),
                     params_files=tuple(files), overrides=over, remappings=g.REMAPPINGS,
-                    managed_nodes=managed, seed=seed, axes=m.axes, own_nodes=tuple(m.own))
+                    managed_nodes=managed, seed=seed, axes=m.axes, own_nodes=tuple(m.own),
+                    streams=m.streams)
 
 
 def multi_axis_files(config_directory, own, params_file, overrides):
@@ -245,11 +252,16 @@ def _rig_seeded(seed):
                      'target.position_y_m': target[1]}}
 
 
+#: The rig's per-sample streams: the setpoints as the loop accepted them (``reference``):
+#: a command topic keeps one reader, the loop's (:data:`~.registry.COMMANDS`).
+RIG_STREAMS = (('mx', 'x/displacement'), ('my', 'y/displacement'), ('p', 'optical_power'),
+               ('rx', 'x/reference'), ('ry', 'y/reference'))
 #: The two-axis rig: plant seeds ``2 S``, ``2 S + 1``, detector seed ``S + 1000``, the
 #: target ``random_target(S)`` (:mod:`fiber_align.simulation.seeds2d`).
 RIG = Machine('align2d', RIG_NAMESPACE, AXES, RIG_NODES,
               lambda seed: (seeds2d.run_seeds(seed)['plant_x'],
-                            seeds2d.run_seeds(seed)['plant_y']), _rig_seeded)
+                            seeds2d.run_seeds(seed)['plant_y']), _rig_seeded,
+              streams=RIG_STREAMS)
 
 
 def build_rig(namespace=RIG_NAMESPACE, composed=None, sync_mode='', controller='',

@@ -45,6 +45,10 @@ OWN_NODES = {n: NODES[n].executable for n in (OPTICS, SEQUENCER)}
 PER_AXIS_RECORDED = ('displacement', 'reference', 'drive_voltage')
 RECORDED = tuple('%s/%s' % (a, t) for a in AXES for t in PER_AXIS_RECORDED) + (
     'optical_power', 'alignment_state', '/diagnostics', '/clock')
+#: The per-sample streams: :class:`~fiber_align.simulation.station_scenarios.StationBench`'s
+#: trace columns, measured and setpoint per axis, and the power.
+STREAMS = tuple(zip(sc.StationBench.MEASURED, ['%s/displacement' % a for a in AXES])) + tuple(
+    zip(sc.StationBench.SETPOINT, ['%s/reference' % a for a in AXES])) + (('p', 'optical_power'),)
 FACET_KEYS = ('facet_in_x_m', 'facet_in_y_m', 'facet_out_x_m', 'facet_out_y_m')
 #: The station: plant seeds ``4 S`` .. ``4 S + 3``, detector seed ``S + 1000``, the
 #: facets ``random_facets(S)`` (:mod:`fiber_align.simulation.station_scenarios`).
@@ -52,7 +56,7 @@ STATION = Machine(
     'station', STATION_NAMESPACE, AXES, OWN_NODES,
     lambda seed: tuple(sc.run_seeds(seed)['plant'] + i for i in range(len(AXES))),
     lambda seed: {OPTICS: dict(zip(FACET_KEYS, sc.random_facets(seed)),
-                               seed=sc.run_seeds(seed)['detector'])}, RECORDED)
+                               seed=sc.run_seeds(seed)['detector'])}, RECORDED, STREAMS)
 
 
 def build_station(namespace=STATION_NAMESPACE, composed=None, sync_mode='', controller='',
