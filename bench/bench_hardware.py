@@ -38,7 +38,7 @@ from fiber_align.config import load_params
 from fiber_align.graph.hardware import build_hardware
 from fiber_align.graph.hardware_rig import build_hardware_rig
 from fiber_align.hardware.mdt693b_channels import MDT693BChannels
-from fiber_align.bringup.hardware import graph_trial, HardwareRun
+from fiber_align.bringup.hardware import ALIGN_TIMEOUT_S, HardwareRun
 from fiber_align.plant.optics2d import OpticalLink2D
 from fiber_align.simulation.alignment2d_scenarios import random_target
 
@@ -75,6 +75,60 @@ def align_trials(n_seeds, trial=None):
         slot = float(np.random.default_rng(1000 + seed).uniform(3e-6, 62e-6))
         res.append(trial(seed, slot) if trial else align_trial(seed, slot, timeout_s=3.0))
     return res
+
+
+def graph_trial(seed, slot_m=None, target_m=None, composed=None, settle_s=0.2,
+                timeout_s=ALIGN_TIMEOUT_S, emulator_params=None, overrides=None):
+    """
+    Align once through a hardware graph on fresh in-process emulators; return SI metrics.
+
+    The 1-D bench with the slot at ``slot_m`` (m), or with ``target_m`` (the output core
+    ``(x, y)``, m) the two-axis rig on one MDT693B. ``final_loss_db``: the mean true loss
+    (the emulator's truth) over the first ``settle_s`` (s) of TRACKING, as
+    :func:`fiber_align.hardware.bench.align_trial`; ``align_wall_s``: wall time (s) from
+    the ``align`` call to TRACKING; ``v_range``: the lowest and highest voltage the
+    emulated amplifier received (V; the rig: on the axes' channels). The rig adds
+    ``commands`` per channel, the link's achieved write rate (``link_rate_hz``: voltage
+    commands a second between ``align`` and TRACKING, a combined one counted once), the
+    amplifier's diagnostics and watchdog trips.
+    """
+    rig = target_m is not None
+    optics = dict(position_x_m=target_m[0], position_y_m=target_m[1]) if rig else dict(
+        slot_position_m=slot_m)
+    with emulated(seed=seed, emulator_params=emulator_params, rig=rig, **optics) as (
+            bench, mdt, pm):
+        hw = HardwareRun((build_hardware_rig if rig else build_hardware)(
+            port=mdt.port, visa_resource=pm.resource, composed=composed, overrides=overrides))
+        try:
+            hw.start()
+            t0 = time.monotonic()
+            ok, wall = hw.align(timeout_s)
+            t1 = time.monotonic()
+            losses = []
+            end = time.monotonic() + settle_s
+            while ok and time.monotonic() < end:
+                losses.append(bench.true_loss_db())
+                time.sleep(0.01)
+            log = list(mdt.command_log)
+            sent = [row[3] for row in log if not rig or row[1] in bench.axes.values()]
+            out = dict(seed=seed, aligned=ok, align_wall_s=wall, status=dict(hw.status),
+                       peak_samples=hw.status.get('peak_samples'),
+                       final_loss_db=sum(losses) / len(losses) if losses else None,
+                       max_loss_db=max(losses) if losses else None,
+                       v_range=(min(sent), max(sent)) if sent else None)
+            if not rig:
+                out.update(slot_m=slot_m, commands=len(sent))
+            else:
+                during = {(row[0], row[2]) for row in log if t0 <= row[0] <= t1}
+                out.update(target_m=tuple(target_m), diag=hw.diag.get(hw.driver),
+                           commands={ch: sum(1 for r in log if r[1] == ch) for ch in 'xyz'},
+                           link_rate_hz=len(during) / (t1 - t0) if t1 > t0 else None,
+                           trips='%s, %s' % tuple((hw.obs.watch.latest.get(a) or {}).get(
+                               'watchdog_count', '-') for a in ('x', 'y')))
+        finally:
+            codes = hw.stop()
+        out['exit_codes'] = codes
+        return out
 
 
 def graph_track_switch(track_s, n_cycles, drift=0.2e-6, seed=5, slot_m=30e-6):

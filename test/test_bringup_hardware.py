@@ -3,7 +3,7 @@
 
 import pytest
 
-from fiber_align.bringup.hardware import graph_trial
+from bench.bench_hardware import graph_trial
 
 
 @pytest.mark.ros  # starts a process
@@ -125,8 +125,8 @@ def test_the_emulator_runs_at_the_graph_priority():
     import os
     import subprocess
 
+    from fiber_align.graph.hardware import emulator_priority
     from fiber_align.hardware.process import start_emulator, stop_process
-    from fiber_align.bringup.hardware import emulator_priority
     prio = emulator_priority()
     assert prio == 50                       # config/fiber_align.yaml realtime_priority
     probe = subprocess.Popen(['sleep', '10'])

@@ -5,10 +5,11 @@ import time
 
 import pytest
 
+from bench.bench_hardware import graph_trial
+from fiber_align.bringup.hardware import HardwareRun
 from fiber_align.graph.hardware_rig import build_hardware_rig
 from fiber_align.graph.params import GraphError
 from fiber_align.hardware.bench import emulated
-from fiber_align.bringup.hardware import graph_trial, HardwareRun
 
 AMP = 'mdt693b_driver'
 

@@ -16,10 +16,8 @@ from fiber_align.bringup import interrupt
 from fiber_align.bringup.cli import graph
 from fiber_align.bringup.harness import Harness, session
 from fiber_align.bringup.observer import BringupError, Refused
-from fiber_align.graph.hardware import build_hardware, POWER_METER
-from fiber_align.graph.hardware_rig import build_hardware_rig
+from fiber_align.graph.hardware import emulator_priority
 from fiber_align.graph.params import LIFECYCLE_MANAGER, RECORDER
-from fiber_align.hardware.bench import emulated
 from fiber_align.hardware.errors import DeviceError
 from fiber_align.hardware.process import start_emulator, stop_process
 from fiber_align.nodes.ros.qos import REALTIME_QOS
@@ -28,17 +26,6 @@ from fiber_align.simulation.seeds2d import random_target
 #: Bounds (s, wall) of the steps; the align bound is the issue's 3 s goal plus margin.
 FLOOR_WAIT_S = 0.3
 ALIGN_TIMEOUT_S = 10.0
-
-
-def emulator_priority():
-    """
-    Return the ``SCHED_FIFO`` priority of the emulators: the power meter node's (its params).
-
-    The emulators stand for devices, which answer on time whatever the host does; at the
-    normal policy they would be the one process of the feedforward's chain that other
-    load could hold up (docs/hardware.md).
-    """
-    return int(build_hardware().node_params(POWER_METER).get('realtime_priority', 0))
 
 
 class HardwareRun(Harness):
@@ -149,60 +136,6 @@ class HardwareRun(Harness):
         s = super().stop()
         self.close()
         return {n: c['exit_code'] for n, c in s['children'].items()}
-
-
-def graph_trial(seed, slot_m=None, target_m=None, composed=None, settle_s=0.2,
-                timeout_s=ALIGN_TIMEOUT_S, emulator_params=None, overrides=None):
-    """
-    Align once through a hardware graph on fresh in-process emulators; return SI metrics.
-
-    The 1-D bench with the slot at ``slot_m`` (m), or with ``target_m`` (the output core
-    ``(x, y)``, m) the two-axis rig on one MDT693B. ``final_loss_db``: the mean true loss
-    (the emulator's truth) over the first ``settle_s`` (s) of TRACKING, as
-    :func:`fiber_align.hardware.bench.align_trial`; ``align_wall_s``: wall time (s) from
-    the ``align`` call to TRACKING; ``v_range``: the lowest and highest voltage the
-    emulated amplifier received (V; the rig: on the axes' channels). The rig adds
-    ``commands`` per channel, the link's achieved write rate (``link_rate_hz``: voltage
-    commands a second between ``align`` and TRACKING, a combined one counted once), the
-    amplifier's diagnostics and watchdog trips.
-    """
-    rig = target_m is not None
-    optics = dict(position_x_m=target_m[0], position_y_m=target_m[1]) if rig else dict(
-        slot_position_m=slot_m)
-    with emulated(seed=seed, emulator_params=emulator_params, rig=rig, **optics) as (
-            bench, mdt, pm):
-        hw = HardwareRun((build_hardware_rig if rig else build_hardware)(
-            port=mdt.port, visa_resource=pm.resource, composed=composed, overrides=overrides))
-        try:
-            hw.start()
-            t0 = time.monotonic()
-            ok, wall = hw.align(timeout_s)
-            t1 = time.monotonic()
-            losses = []
-            end = time.monotonic() + settle_s
-            while ok and time.monotonic() < end:
-                losses.append(bench.true_loss_db())
-                time.sleep(0.01)
-            log = list(mdt.command_log)
-            sent = [row[3] for row in log if not rig or row[1] in bench.axes.values()]
-            out = dict(seed=seed, aligned=ok, align_wall_s=wall, status=dict(hw.status),
-                       peak_samples=hw.status.get('peak_samples'),
-                       final_loss_db=sum(losses) / len(losses) if losses else None,
-                       max_loss_db=max(losses) if losses else None,
-                       v_range=(min(sent), max(sent)) if sent else None)
-            if not rig:
-                out.update(slot_m=slot_m, commands=len(sent))
-            else:
-                during = {(row[0], row[2]) for row in log if t0 <= row[0] <= t1}
-                out.update(target_m=tuple(target_m), diag=hw.diag.get(hw.driver),
-                           commands={ch: sum(1 for r in log if r[1] == ch) for ch in 'xyz'},
-                           link_rate_hz=len(during) / (t1 - t0) if t1 > t0 else None,
-                           trips='%s, %s' % tuple((hw.obs.watch.latest.get(a) or {}).get(
-                               'watchdog_count', '-') for a in ('x', 'y')))
-        finally:
-            codes = hw.stop()
-        out['exit_codes'] = codes
-        return out
 
 
 def run(args):

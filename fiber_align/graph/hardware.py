@@ -86,3 +86,14 @@ def build_hardware(port='', visa_resource='', namespace='', composed=None, param
         base, sync_mode=wide['sync_mode'], controller=wide['controller'], scenario='align',
         processes=tuple(procs), params_files=tuple(files), overrides=over,
         managed_nodes=(DRIVER,))
+
+
+def emulator_priority():
+    """
+    Return the ``SCHED_FIFO`` priority of the emulators: the power meter node's (its params).
+
+    The emulators stand for devices, which answer on time whatever the host does; at the
+    normal policy they would be the one process of the feedforward's chain that other
+    load could hold up (docs/hardware.md).
+    """
+    return int(build_hardware().node_params(POWER_METER).get('realtime_priority', 0))
