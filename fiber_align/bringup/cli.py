@@ -13,12 +13,10 @@ import math
 import os
 import sys
 
-import yaml
-
-from fiber_align.config import ConfigError
 from fiber_align.graph.arguments import ARGUMENTS, describe
 from fiber_align.graph.description import check_namespace
-from fiber_align.graph.params import GraphError, PLANT, RECORDER, SCENARIO_RUNNER
+from fiber_align.graph.params import (GraphError, parse_overrides, PLANT, RECORDER,
+                                      SCENARIO_RUNNER)
 from fiber_align.simulation.setpoints import setpoint_range, Source
 
 #: bringup's options that are no launch argument, of the simulated 1-D graph only:
@@ -184,7 +182,7 @@ def graph(a, **given):
         ov[PLANT] = {'noise_rms_m': 0.0}
     if a.storage:
         ov[RECORDER] = {'storage': a.storage}
-    ov = parse_params(a.param, ov)
+    ov = parse_overrides(a.param, ov)
     args = arguments(a, **given)
     if a.rig or a.station or a.array:
         ov[PLANT] = dict(ov.get(PLANT, {}), autostart=False)
@@ -201,24 +199,3 @@ def graph(a, **given):
         ov[SCENARIO_RUNNER] = dict(ov.get(SCENARIO_RUNNER, {}), exit_when_done=False,
                                    wait_for_recorder=False, duration_s=float(dur))
     return describe(dict(args, scenario=g.scenario), ov), src
-
-
-def parse_params(items, ov):
-    """
-    Return ``ov`` (``{node or '/**': {name: value}}``) updated by ``-p`` items.
-
-    :param items: ``NODE:NAME:=VALUE`` strings (``NODE`` ``**`` = all nodes; VALUE YAML).
-    :raises ConfigError: an item that is not ``NODE:NAME:=VALUE`` or not YAML.
-    """
-    # NODE may be <axis>/<node> (the rig): the description checks the names
-    for item in items:
-        node, sep1, rest = item.partition(':')
-        name, sep2, value = rest.partition(':=')
-        if not (node and sep1 and name and sep2):
-            raise ConfigError('-p wants NODE:NAME:=VALUE, got %r' % item)
-        try:
-            parsed = yaml.safe_load(value)
-        except yaml.YAMLError:
-            raise ConfigError('-p %s: %r is not a YAML value' % (item, value)) from None
-        ov.setdefault('/**' if node in ('**', '/**') else node, {})[name] = parsed
-    return ov

@@ -13,6 +13,8 @@ kind than its default, is refused with the closest known name.
 
 import difflib
 
+import yaml
+
 from fiber_align.config import ConfigError, read_yaml
 
 PLANT = 'simulated_actuator'
@@ -281,3 +283,24 @@ def check_user(shipped_files, user_files=(), overrides=None):
         for name, value in params.items():
             ov = merge(ov, {node: {'ros__parameters': nest(name, value)}})
     check_names(ov, known, 'command line')
+
+
+def parse_overrides(items, ov):
+    """
+    Return ``ov`` (``{node or '/**': {name: value}}``) updated by ``-p`` items (``bringup``).
+
+    :param items: ``NODE:NAME:=VALUE`` strings (``NODE`` ``**`` = all nodes; VALUE YAML).
+    :raises ConfigError: an item that is not ``NODE:NAME:=VALUE`` or not YAML.
+    """
+    # NODE may be <axis>/<node> (the rig): the description checks the names
+    for item in items:
+        node, sep1, rest = item.partition(':')
+        name, sep2, value = rest.partition(':=')
+        if not (node and sep1 and name and sep2):
+            raise ConfigError('-p wants NODE:NAME:=VALUE, got %r' % item)
+        try:
+            parsed = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise ConfigError('-p %s: %r is not a YAML value' % (item, value)) from None
+        ov.setdefault('/**' if node in ('**', '/**') else node, {})[name] = parsed
+    return ov
