@@ -3,10 +3,11 @@
 
 import json
 import time
+from types import SimpleNamespace
 
 import numpy as np
 
-from fiber_align.analysis.run_record import RunRecord
+from fiber_align.analysis.run_record import DiagnosticsRecord, RunRecord
 
 
 def record(lockstep=False, done_ago=None, own_done=False, **kw):
@@ -77,3 +78,23 @@ def test_a_stream_short_of_the_clock_is_padded_with_nan():
         rec.add('y', 0.0, ns)
     v = rec.series('v')
     assert v[0] == 5.0 and np.isnan(v[1:]).all() and v.size == 3
+
+
+def status(name, level=0, message='', **values):
+    return SimpleNamespace(name=name, level=bytes([level]), message=message, values=[
+        SimpleNamespace(key=k, value=str(v)) for k, v in values.items()])
+
+
+def test_diagnostics_keep_the_newest_distinct_errors_and_the_worst_window_inside_the_run():
+    d = DiagnosticsRecord()
+    d.add(status('/rig/x/simulated_actuator', **{'cycle.achieved_rate_hz': 900}), 0.0)
+    assert d.latest['simulated_actuator']['_t'] == 0.0 and not d.worst   # no run yet
+    d.run_from, d.run_to = 10.0, 20.0
+    for now, rate in ((10.5, 800), (10.7, 950), (12.0, 990), (21.0, 100)):
+        d.add(status('/rig/x/simulated_actuator', **{'cycle.achieved_rate_hz': rate}), now)
+    # the report at 10.5 s covers a window that began before the run: not counted
+    assert d.worst['simulated_actuator'] == {'windows': 2, 'rate_min_hz': 950.0}
+    assert d.by_status['worst']['/rig/x/simulated_actuator']['windows'] == 2
+    for msg in ('amplifier lost', 'amplifier lost', 'watchdog'):
+        d.add(status('/actuator_driver', 2, msg), 15.0)
+    assert d.errors == {'actuator_driver': ['amplifier lost', 'watchdog']}

@@ -8,7 +8,8 @@ The streams it is given (one value per message, SI) and, with a ``clock`` stream
 with the sample index from which each holds; the scenario runner's ``done``. The
 counting rules live here, unit-tested without ROS;
 :class:`fiber_align.bringup.observer.Observer` feeds it from its subscriptions (its
-executor's thread: every access holds :attr:`RunRecord.lock`).
+executor's thread: every access holds :attr:`RunRecord.lock`). Beside it, the nodes'
+``/diagnostics`` (:class:`DiagnosticsRecord`).
 """
 
 import json
@@ -17,6 +18,13 @@ import threading
 import time
 
 import numpy as np
+
+from fiber_align.analysis.recording import diag_entry
+from fiber_align.analysis.run_summary import worst_cycles
+
+#: s: the longest diagnostics period of a node of the graph (fiber_align.yaml: 0.5 s),
+#: plus margin: the first report counted starts its window inside the run.
+WINDOW_S = 0.6
 
 
 class RunRecord:
@@ -146,3 +154,38 @@ class RunRecord:
             m = min(n, len(src))
             out[:m] = src[:m]
             return out
+
+
+class DiagnosticsRecord:
+    """
+    The newest ``/diagnostics`` values of every node, its worst cycle window, its errors.
+
+    :ivar latest: node name -> its last key/value pairs (strings), ``level``, ``message``
+        and ``_t`` (monotonic s of arrival).
+    :ivar worst: node name -> its worst cycle window
+        (:func:`~fiber_align.analysis.run_summary.worst_cycles`) among the reports of
+        windows inside [:attr:`run_from`, :attr:`run_to`] (monotonic s).
+    :ivar by_status: the same as ``latest`` and ``worst``, keyed by the full status name
+        (``/rig/x/simulated_actuator``): the rig's axes have nodes of one base name.
+    :ivar errors: node name -> the distinct ERROR messages it reported (why a FAULT).
+    """
+
+    def __init__(self):
+        """Start with no report and no run."""
+        self.latest, self.worst, self.errors = {}, {}, {}
+        self.by_status = {'latest': {}, 'worst': {}}
+        self.run_from = self.run_to = None
+
+    def add(self, status, now):
+        """Fold in one ``diagnostic_msgs/DiagnosticStatus`` arrived at ``now`` (monotonic s)."""
+        node, values = diag_entry(status, now)
+        self.latest[node] = values
+        self.by_status['latest'][status.name] = values
+        if values['level'] >= 2 and values['message'] not in self.errors.get(node, []):
+            self.errors.setdefault(node, []).append(values['message'])
+        # a report covers the diagnostics period before it (0.5 s by default): the first
+        # full window starts a period after the run did
+        if self.run_from is not None and now >= self.run_from + WINDOW_S and (
+                self.run_to is None or now <= self.run_to):
+            worst_cycles(self.worst, node, values)
+            worst_cycles(self.by_status['worst'], status.name, values)

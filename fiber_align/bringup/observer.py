@@ -19,9 +19,7 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import SingleThreadedExecutor
 
-from fiber_align.analysis.recording import diag_entry
-from fiber_align.analysis.run_record import RunRecord
-from fiber_align.analysis.run_summary import worst_cycles
+from fiber_align.analysis.run_record import DiagnosticsRecord, RunRecord
 from fiber_align.control.trajectory import stamp_ns
 from fiber_align.nodes.ros.qos import DIAG_QOS, LATCHED_QOS, sample_pub_qos, STATE_QOS
 
@@ -54,58 +52,25 @@ def spin_thread(executor):
     return th
 
 
-#: s: the longest diagnostics period of a node of the graph (fiber_align.yaml: 0.5 s),
-#: plus margin: the first report counted starts its window inside the run.
-WINDOW_S = 0.6
-
-
-class DiagnosticsWatch:
+class DiagnosticsWatch(DiagnosticsRecord):
     """
-    Keep the newest ``/diagnostics`` values of every node, on a node and thread of its own.
+    The ``/diagnostics`` record of a run, fed on a node and thread of its own.
 
     The observer's executor may be seconds behind with samples (Python executor) when the
     stop needs fresh reports, hence a thread of its own.
-
-    :ivar latest: node name -> its last key/value pairs (strings), ``level``, ``message``
-        and ``_t`` (monotonic s of arrival).
-    :ivar worst: node name -> its worst cycle window (:func:`summary.worst_cycles`).
-    :ivar by_status: the same as ``latest`` and ``worst``, keyed by the full status name
-        (``/rig/x/simulated_actuator``): the rig's axes have nodes of one base name.
-    :ivar errors: node name -> the distinct ERROR messages it reported (why a FAULT).
     """
 
     def __init__(self, namespace, context):
         """Subscribe and start spinning (``namespace``: the graph's, or ``''``)."""
         import rclpy
-        self.latest = {}
-        self.worst = {}
-        self.by_status = {'latest': {}, 'worst': {}}
-        self.errors = {}
-        #: monotonic s: reports of windows inside [run_from, run_to] count for ``worst``
-        self.run_from = None
-        self.run_to = None
+        super().__init__()
         self.node = rclpy.create_node('bringup_diagnostics', namespace=namespace or None,
                                       context=context)
-        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag,
-                                      DIAG_QOS)
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', lambda msg: [
+            self.add(st, time.monotonic()) for st in msg.status], DIAG_QOS)
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
         self.thread = spin_thread(self.executor)
-
-    def _on_diag(self, msg):
-        for st in msg.status:
-            now = time.monotonic()
-            node, values = diag_entry(st, now)
-            self.latest[node] = values
-            self.by_status['latest'][st.name] = values
-            if values['level'] >= 2 and values['message'] not in self.errors.get(node, []):
-                self.errors.setdefault(node, []).append(values['message'])
-            # a report covers the diagnostics period before it (0.5 s by default): the
-            # first full window starts a period after the run did
-            if self.run_from is not None and now >= self.run_from + WINDOW_S and (
-                    self.run_to is None or now <= self.run_to):
-                worst_cycles(self.worst, node, values)
-                worst_cycles(self.by_status['worst'], st.name, values)
 
     def close(self):
         """Stop the executor and join the thread (it must leave rclpy before exit)."""
