@@ -8,8 +8,8 @@ a second publisher of a command or drive topic, are named in one line each.
 
 from fiber_align.graph.arguments import describe
 from fiber_align.graph.endpoints import (drive_owners, extra_publishers, foreign_publishers,
-                                         graph_names, names_taken, suspect_topics,
-                                         type_name)
+                                         graph_names, names_taken, surplus_publishers,
+                                         suspect_topics, type_name, unconnected)
 
 
 class Float64:
@@ -113,3 +113,11 @@ def test_a_second_publisher_of_a_drive_topic_is_named():
         '/actuator_driver', '/actuator_driver']})) == []
     assert extra_publishers(owners, {'/feedforward_voltage': ['/a', '/b']}) == [
         '/feedforward_voltage: 2 publishers, 1 expected: foreign /a, /b']
+
+
+def test_a_topic_short_of_an_endpoint_is_unconnected_and_one_more_publisher_is_named():
+    expected = {'displacement': (1, 2), 'setpoint': (1, 1), '/clock': (1, 0), 'p': (0, 1)}
+    counts = {'displacement': (1, 1), 'setpoint': (2, 1), '/clock': (1, 3), 'p': (4, 1)}
+    assert unconnected(expected, counts) == ['displacement']
+    assert surplus_publishers(expected, counts) == ['setpoint (2 publishers, expected 1)']
+    assert unconnected(expected, dict(counts, displacement=(1, 2))) == []

@@ -25,7 +25,7 @@ from fiber_align.bringup.children import Child, wait_all
 from fiber_align.bringup.floor import Floor
 from fiber_align.bringup.observer import BadInput, BringupError, Observer
 from fiber_align.graph.description import dds_environment
-from fiber_align.graph.endpoints import graph_names
+from fiber_align.graph.endpoints import graph_names, surplus_publishers, unconnected
 from fiber_align.graph.params import effective, merge_params, PLANT, RECORDER
 from fiber_align.jsonout import json_default
 from fiber_align.nodes.ros.diagnostics import endpoint_node_name
@@ -130,8 +130,8 @@ class Harness:
                       'every node on the graph')
         self.obs.wait(lambda: self.obs.active_nodes(g.managed_nodes, self.alive), timeout,
                       self.alive, 'the lifecycle nodes active (lifecycle_manager)')
-        self.obs.wait(lambda: not self.obs.short_endpoints(self.endpoints), timeout,
-                      self.alive, 'topics connected: %s' % self.endpoints)
+        self.obs.wait(lambda: not unconnected(self.endpoints, self.obs.endpoint_counts(
+            self.endpoints)), timeout, self.alive, 'topics connected: %s' % self.endpoints)
         if ready is not None:
             self.obs.wait(ready, timeout, self.alive, 'the graph ready')
         self.alive()
@@ -153,7 +153,7 @@ class Harness:
         now = time.monotonic()
         if self.endpoints and self.obs is not None and now >= self._next_check:
             self._next_check = now + 1.0
-            extra = self.obs.foreign_publishers(self.endpoints)
+            extra = surplus_publishers(self.endpoints, self.obs.endpoint_counts(self.endpoints))
             if extra:
                 raise BringupError(
                     'another graph shares ROS_DOMAIN_ID=%s: %s; run on a domain of its own'

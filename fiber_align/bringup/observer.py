@@ -244,25 +244,11 @@ class Observer(RunRecord):
                              5.0, alive).current_state.id == State.PRIMARY_STATE_ACTIVE
                    for n in names)
 
-    def endpoint_counts(self, topic):
-        """Return ``(publishers, subscribers)`` of ``topic`` on the graph."""
-        name = self.node.resolve_topic_name(topic)
-        return self.node.count_publishers(name), self.node.count_subscribers(name)
-
-    def short_endpoints(self, topics):
-        """Return the topics with fewer than their ``(publishers, subscribers)``."""
-        out = []
-        for topic, (np_, ns_) in topics.items():
-            have = self.endpoint_counts(topic)
-            if have[0] < np_ or have[1] < ns_:
-                out.append('%s (%d/%d publishers, %d/%d subscribers)'
-                           % (topic, have[0], np_, have[1], ns_))
-        return out
-
-    def foreign_publishers(self, topics):
-        """Return the topics that have more publishers than ``topics`` allows (exactly)."""
-        return ['%s (%d publishers, expected %d)' % (t, n, p) for t, (p, _) in topics.items()
-                for n in [self.endpoint_counts(t)[0]] if p and n > p]
+    def endpoint_counts(self, topics):
+        """Return ``{topic: (publishers, subscribers)}`` of ``topics`` on the graph."""
+        full = {t: self.node.resolve_topic_name(t) for t in topics}
+        return {t: (self.node.count_publishers(n), self.node.count_subscribers(n))
+                for t, n in full.items()}
 
     def start(self):
         """Mark the start of the run (recording and the stall clocks start now)."""

@@ -130,6 +130,29 @@ def extra_publishers(owners, publishers):
     return sorted(out)
 
 
+def unconnected(expected, counts):
+    """
+    Return the topics with fewer publishers or subscribers than ``expected``.
+
+    :param expected: ``{topic: (publishers, subscribers)}`` the running graph must have
+        at least (:func:`~.registry.expected_endpoints`).
+    :param counts: ``{topic: (publishers, subscribers)}`` on the domain.
+    """
+    return [t for t, want in expected.items() if any(n < w for n, w in zip(counts[t], want))]
+
+
+def surplus_publishers(expected, counts):
+    """
+    Return one line per topic with more publishers than ``expected`` (exactly; 0: any).
+
+    A topic of the graph with a publisher more is written by another graph on the domain.
+    Arguments as :func:`unconnected`; lines such as ``"/setpoint (2 publishers, expected
+    1)"``.
+    """
+    return ['%s (%d publishers, expected %d)' % (t, counts[t][0], p)
+            for t, (p, _) in expected.items() if p and counts[t][0] > p]
+
+
 def drive_owners(driver, axes):
     """
     Return ``{topic: owner}`` of the command and drive topics of a driver's axes.
