@@ -20,6 +20,24 @@ from fiber_align.hardware import errors as er
 EMULATE_TIMEOUT_S = 20.0
 
 
+def emulator_options(seed, target_m=None, slot_m=None, meter_floor_w=None):
+    """
+    Return the options of ``fiber-align emulate`` for a run (``bringup --hardware --emulate``).
+
+    :param seed: the emulators' seed; :param target_m: the rig's output core ``(x, y)``
+        (m; ``None``: the 1-D bench); :param slot_m: the 1-D slot position (m);
+        :param meter_floor_w: the PM100's reading floor (W); ``None``: the emulator's.
+    """
+    extra = ['--seed', str(seed)]
+    if target_m is not None:
+        extra += ['--rig', '--target-x', repr(target_m[0]), '--target-y', repr(target_m[1])]
+    if slot_m is not None:
+        extra += ['--slot', repr(float(slot_m))]
+    if meter_floor_w is not None:
+        extra += ['--meter-floor', repr(float(meter_floor_w))]
+    return extra
+
+
 def start_emulator(extra=(), quiet=True, priority=0):
     """
     Start ``fiber-align emulate`` as a child of this process; return ``(proc, info)``.
