@@ -17,9 +17,9 @@ from fiber_align.bringup.cli import graph
 from fiber_align.bringup.harness import Harness, session
 from fiber_align.bringup.observer import BringupError, Refused
 from fiber_align.graph.hardware import emulator_priority
-from fiber_align.graph.params import LIFECYCLE_MANAGER, RECORDER
+from fiber_align.graph.params import LIFECYCLE_MANAGER
 from fiber_align.hardware.errors import DeviceError
-from fiber_align.hardware.process import start_emulator, stop_process
+from fiber_align.hardware.process import emulator_options, start_emulator, stop_process
 from fiber_align.nodes.ros.qos import REALTIME_QOS
 from fiber_align.simulation.seeds2d import random_target
 
@@ -93,16 +93,7 @@ class HardwareRun(Harness):
             raise BringupError('%s (driver: %s)' % (self.diag[LIFECYCLE_MANAGER][1],
                                                     self.diag.get(self.driver)))
         return (self.level(self.driver) == 0 and self.status.get('state') == 'IDLE'
-                and len(self.obs.data['p']) > 5 and self._recording())
-
-    def _recording(self):
-        """Return True when a recorder of the graph (if any) reads the measured topics."""
-        if not self.graph.record:
-            return True
-        n = self.obs.node
-        return all(any(i.node_name == RECORDER for i in n.get_subscriptions_info_by_topic(
-            n.resolve_topic_name(t))) for t in self.graph.node_params(RECORDER)['topics']
-            if t.lstrip('/') in ('optical_power', 'drive_voltage', 'drive_voltage_readback'))
+                and len(self.obs.data['p']) > 5 and self.recorder_reads())
 
     def wait(self, cond, timeout_s, what):
         """Wait (bounded, s wall) until ``cond()``; raise :class:`BringupError` naming it."""
@@ -146,15 +137,9 @@ def run(args):
         port, resource = args.port or '', args.visa_resource or ''
         if args.emulate:
             seed = args.seed if args.seed is not None else 0
-            extra = ['--seed', str(seed)]
-            if args.rig:
-                # the target of the simulated rig's run seed (graph/rig.py)
-                tx, ty = random_target(seed)
-                extra += ['--rig', '--target-x', repr(tx), '--target-y', repr(ty)]
-            if args.slot is not None:
-                extra += ['--slot', repr(float(args.slot))]
-            if args.meter_floor is not None:
-                extra += ['--meter-floor', repr(float(args.meter_floor))]
+            # --rig: the target of the simulated rig's run seed (graph/rig.py)
+            extra = emulator_options(seed, random_target(seed) if args.rig else None,
+                                     args.slot, args.meter_floor)
             parts['emu'], info = start_emulator(extra, quiet=args.quiet,
                                                 priority=emulator_priority())
             port, resource = info['serial_link'], info['visa_resource']

@@ -25,7 +25,8 @@ from fiber_align.bringup.children import Child, wait_all
 from fiber_align.bringup.floor import Floor
 from fiber_align.bringup.observer import BadInput, BringupError, Observer
 from fiber_align.graph.description import dds_environment
-from fiber_align.graph.endpoints import graph_names, surplus_publishers, unconnected
+from fiber_align.graph.endpoints import (graph_names, node_fqn, surplus_publishers,
+                                         unconnected)
 from fiber_align.graph.params import effective, merge_params, PLANT, RECORDER
 from fiber_align.jsonout import json_default
 from fiber_align.nodes.ros.diagnostics import endpoint_node_name
@@ -101,7 +102,7 @@ class Harness:
         self._next_check, self.stopping = 0.0, False
         self.plants = tuple(n for n in graph.nodes if n.rsplit('/', 1)[-1] == PLANT)
         #: the recorded and sent counts when the recorder had matched every writer
-        self.rec_base = None
+        self.rec_base, self._rec_topics = None, None
 
     def start(self, check_alone=False, ready=None):
         """
@@ -189,25 +190,28 @@ class Harness:
     @property
     def full_nodes(self):
         """Return the full name of every node of the graph (``/station/in/x/...``)."""
-        return ['%s/%s' % (ns.rstrip('/'), n) for p in self.graph.processes
-                for n, ns in p.hosted(self.graph.namespace)]
+        return [node_fqn(n, ns) for n, ns in graph_names(self.graph)]
+
+    def recorder_reads(self):
+        """Return True when the recorder (if any) reads every writer of its topics."""
+        g, node = self.graph, self.obs.node
+        if not g.record:
+            return True
+        if self._rec_topics is None:
+            # the topics it reads in-process (hosted in the composed process) need no match
+            host = self._recorder_host()
+            local = set(host.local_topics(g.namespace)) if host is not None else set()
+            self._rec_topics = [t for t in (node.resolve_topic_name(t) for t in g.node_params(
+                RECORDER)['topics']) if t not in local]
+        rec = node_fqn(RECORDER, '/' + g.namespace)
+        return all(not node.count_publishers(t) or any(
+            endpoint_node_name(i) == rec for i in node.get_subscriptions_info_by_topic(t))
+            for t in self._rec_topics)
 
     def _recorder_matched(self):
         """Wait until the recorder reads every writer of its topics (bounded)."""
-        g, node = self.graph, self.obs.node
-        rec = '/%s/%s' % (g.namespace, RECORDER) if g.namespace else '/' + RECORDER
-        # the topics it reads in-process (hosted in the composed process) need no match
-        host = self._recorder_host()
-        local = set(host.local_topics(g.namespace)) if host is not None else set()
-        topics = [t for t in (node.resolve_topic_name(t)
-                              for t in g.node_params(RECORDER)['topics']) if t not in local]
-
-        def matched():
-            return all(not node.count_publishers(t) or any(
-                endpoint_node_name(i) == rec for i in node.get_subscriptions_info_by_topic(t))
-                for t in topics)
-        timeout = float(self.gp['startup_timeout_s'])
-        self.obs.wait(matched, timeout, self.alive, 'the recorder on every recorded topic')
+        self.obs.wait(self.recorder_reads, float(self.gp['startup_timeout_s']), self.alive,
+                      'the recorder on every recorded topic')
         # this node saw the recorder's readers; each writer matches them on its own, a
         # little later (a first sample sent before that reaches no reader)
         time.sleep(float(self.gp['recorder_match_s']))
