@@ -4,7 +4,7 @@
 import pytest
 
 from fiber_align.bringup.cli import graph as bringup_graph, parse_args
-from fiber_align.graph.arguments import ARGUMENTS, describe, MACHINES
+from fiber_align.graph.arguments import ARGUMENTS, describe, describe_run, MACHINES
 from fiber_align.graph.description import Graph
 from fiber_align.graph.params import GraphError, PLANT
 from fiber_align.graph.rig import RigGraph
@@ -93,3 +93,15 @@ def test_bringup_starts_the_graph_launch_starts_for_the_same_arguments(options, 
     # run catalogue's copy of every node's parameters (graph_parameters) carries it too
     _same(bringup_graph(parse_args(options))[0], launch(**given),
           without=('autostart', 'graph_parameters'))
+
+
+def test_bringup_holds_the_simulated_plants_and_ends_a_1d_scenario_itself():
+    g, src = describe_run(dict(DEFAULTS, scenario='sine'), duration_s=0.5)
+    runner = g.node_params('scenario_runner')
+    assert runner['duration_s'] == 0.5 and runner['exit_when_done'] is False
+    assert runner['wait_for_recorder'] is False and not src.open_loop
+    assert g.node_params(PLANT)['autostart'] is False
+    rig, none = describe_run(dict(DEFAULTS, rig='true'))
+    assert none is None and rig.node_params('x/' + PLANT)['autostart'] is False
+    idle, none = describe_run(DEFAULTS)          # no scenario: it starts as under launch
+    assert none is None and idle.node_params(PLANT)['autostart'] is True

@@ -3,9 +3,9 @@
 ``bringup``'s command line: options, their checks, and the graph they describe.
 
 The options map onto the launch arguments (:func:`arguments`), which
-:func:`fiber_align.graph.arguments.describe` turns into the graph as under ``ros2
-launch``, and the rest onto parameter overrides of the description; bringup merges
-nothing itself.
+:func:`fiber_align.graph.arguments.describe_run` turns into the graph as under ``ros2
+launch`` (as ``bringup`` runs it), and the rest onto parameter overrides of the
+description; bringup merges nothing itself.
 """
 
 import argparse
@@ -13,11 +13,9 @@ import math
 import os
 import sys
 
-from fiber_align.graph.arguments import ARGUMENTS, describe
+from fiber_align.graph.arguments import ARGUMENTS, describe_run
 from fiber_align.graph.description import check_namespace
-from fiber_align.graph.params import (GraphError, parse_overrides, PLANT, RECORDER,
-                                      SCENARIO_RUNNER)
-from fiber_align.simulation.setpoints import setpoint_range, Source
+from fiber_align.graph.params import GraphError, parse_overrides, PLANT, RECORDER
 
 #: bringup's options that are no launch argument, of the simulated 1-D graph only:
 #: (attribute, option); the launch arguments' are :func:`describe`'s.
@@ -162,12 +160,9 @@ def graph(a, **given):
     """
     Return ``(graph, source)`` the options ``a`` describe (and ``given`` launch arguments).
 
-    The graph is :func:`fiber_align.graph.arguments.describe` of :func:`arguments`, with
-    ``bringup``'s own options (``--rate``, ``--no-noise``, ``--storage``, ``-p``) as
-    overrides. The harness holds the simulated plants until the graph is connected
-    (``autostart`` false); with a scenario it ends the run itself (the runner's
-    ``exit_when_done`` false, ``duration_s`` set). ``source``: the scenario's setpoints
-    (:class:`~fiber_align.simulation.setpoints.Source`) or ``None``.
+    :func:`fiber_align.graph.arguments.describe_run` of :func:`arguments` (the graph as
+    ``bringup`` runs it, and the scenario's setpoints), with ``bringup``'s own options
+    (``--rate``, ``--no-noise``, ``--storage``, ``-p``) as overrides and ``--duration``.
 
     :raises GraphError: a bad option, params file or ``-p`` (exit code 2).
     """
@@ -182,20 +177,4 @@ def graph(a, **given):
         ov[PLANT] = {'noise_rms_m': 0.0}
     if a.storage:
         ov[RECORDER] = {'storage': a.storage}
-    ov = parse_overrides(a.param, ov)
-    args = arguments(a, **given)
-    if a.rig or a.station or a.array:
-        ov[PLANT] = dict(ov.get(PLANT, {}), autostart=False)
-    g = describe(args, ov)
-    if not one_axis or g.scenario == 'none':
-        return g, None
-    ov[PLANT] = dict(ov.get(PLANT, {}), autostart=False)
-    src = None
-    if SCENARIO_RUNNER in g.nodes:
-        sp = g.node_params(SCENARIO_RUNNER)
-        src = Source(g.scenario, *setpoint_range(sp['setpoint_min_m'], sp['setpoint_max_m'],
-                                                 sp['reach_m']))
-        dur = a.duration or float(sp['duration_s']) or float(src.sc.duration_s)
-        ov[SCENARIO_RUNNER] = dict(ov.get(SCENARIO_RUNNER, {}), exit_when_done=False,
-                                   wait_for_recorder=False, duration_s=float(dur))
-    return describe(dict(args, scenario=g.scenario), ov), src
+    return describe_run(arguments(a, **given), parse_overrides(a.param, ov), a.duration)

@@ -4,9 +4,10 @@ From launch arguments to a graph, once: :func:`describe` (pure: no rclpy).
 
 ``ros2 launch fiber_align fiber_align.launch.py name:=value ...`` and ``bringup`` (its
 options turned into these arguments, :func:`fiber_align.bringup.cli.arguments`) both
-call :func:`describe`. The machine (the 1-D graph, the two-axis rig, the coupled
-station, the fiber array, the sensorless hardware bench, the rig on hardware) is chosen by
-data: the ``rig``, ``station``, ``array`` and ``hardware`` switches select a row of
+call :func:`describe` (``bringup`` through :func:`describe_run`: the plants held, a 1-D
+scenario ended by ``bringup``). The machine (the 1-D graph, the two-axis rig, the
+coupled station, the fiber array, the sensorless hardware bench, the rig on hardware) is
+chosen by data: the ``rig``, ``station``, ``array`` and ``hardware`` switches select a row of
 :data:`MACHINES`, which names its builder, its default namespace and the arguments it
 takes; an argument given to a machine that does not take it is refused in one line.
 ``live`` adds the live view to any of them (:func:`fiber_align.graph.live.with_live`),
@@ -24,7 +25,7 @@ from fiber_align.graph.description import build, parse_bool
 from fiber_align.graph.hardware import build_hardware
 from fiber_align.graph.hardware_rig import build_hardware_rig
 from fiber_align.graph.live import check_endpoint, live_settings, with_live
-from fiber_align.graph.params import GraphError, PLANT
+from fiber_align.graph.params import GraphError, PLANT, SCENARIO_RUNNER
 from fiber_align.control.factory import CONTROLLERS
 from fiber_align.graph.params import SYNC_MODES
 from fiber_align.graph.refusals import check_graph
@@ -32,6 +33,7 @@ from fiber_align.graph.registry import DEFAULT_COMPOSED, SCENARIOS
 from fiber_align.graph.rig import build_rig, check_seed, RIG_NAMESPACE
 from fiber_align.graph.snapshots import with_snapshots
 from fiber_align.graph.station import build_station, STATION_NAMESPACE
+from fiber_align.simulation.setpoints import setpoint_range, Source
 
 #: name, default, description, choices (``None``: any value): the launch file declares
 #: them, ``bringup``'s options are named after them.
@@ -181,3 +183,35 @@ def describe(arguments, overrides=None):
     if served:                  # a port in use: one line before any process starts
         check_endpoint(*served)
     return g
+
+
+def describe_run(arguments, overrides=None, duration_s=None):
+    """
+    Return ``(graph, source)``: the graph of :func:`describe` as ``bringup`` runs it.
+
+    ``bringup`` starts the simulated plants itself once the graph is connected (their
+    ``autostart`` false; the 1-D graph without a scenario starts as under launch) and ends
+    a 1-D scenario itself: its runner neither ends the graph nor waits for the recorder,
+    and runs ``duration_s`` (s; ``None``: as its params say, else the scenario's length).
+
+    :returns: the graph and the scenario's setpoints
+        (:class:`~fiber_align.simulation.setpoints.Source`; ``None``: no scenario runner).
+    """
+    ov = dict(overrides or {})
+    built = machine(arguments).build
+    held = {PLANT: dict(ov.get(PLANT, {}), autostart=False)}
+    if built in (build_rig, build_station, build_array):
+        return describe(arguments, dict(ov, **held)), None
+    g = describe(arguments, ov)
+    if built is not build or g.scenario == 'none':
+        return g, None
+    ov.update(held)
+    src = None
+    if SCENARIO_RUNNER in g.nodes:
+        sp = g.node_params(SCENARIO_RUNNER)
+        src = Source(g.scenario, *setpoint_range(sp['setpoint_min_m'], sp['setpoint_max_m'],
+                                                 sp['reach_m']))
+        dur = duration_s or float(sp['duration_s']) or float(src.sc.duration_s)
+        ov[SCENARIO_RUNNER] = dict(ov.get(SCENARIO_RUNNER, {}), exit_when_done=False,
+                                   wait_for_recorder=False, duration_s=float(dur))
+    return describe(dict(arguments, scenario=g.scenario), ov), src
