@@ -98,3 +98,14 @@ def test_diagnostics_keep_the_newest_distinct_errors_and_the_worst_window_inside
     for msg in ('amplifier lost', 'amplifier lost', 'watchdog'):
         d.add(status('/actuator_driver', 2, msg), 15.0)
     assert d.errors == {'actuator_driver': ['amplifier lost', 'watchdog']}
+
+
+def test_a_command_caused_the_next_state_and_lockstep_align_counts_as_the_sequencer_does():
+    rec = RunRecord({'y': None}, clock='y', lockstep=True)
+    rec.add_state(json.dumps({'state': 'IDLE'}))
+    rec.add_state(json.dumps({'state': 'SEARCHING', 'sample': 9, 'align_sample': 17}))
+    assert rec.caused(1, 'align') == 17 and rec.caused(1, 'switch') == 0
+    assert rec.caused(2, 'align', timeout_s=0.01) == 0         # none came: the samples
+    free = RunRecord({'y': None}, clock='y')
+    free.add_state(json.dumps({'state': 'SEARCHING', 'align_sample': 17}))
+    assert free.caused(0, 'align') == 0                         # realtime: as it arrived

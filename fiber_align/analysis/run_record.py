@@ -128,6 +128,24 @@ class RunRecord:
             return int(round((float(ts) - self.t0_ns * 1e-9) / self.period)) + 1
         return st['sample'] if self.clock is None and 'sample' in st else len(self.t)
 
+    def caused(self, n_before, command='', timeout_s=5.0):
+        """
+        Return the sample index of the state a command caused: the next after ``n_before``.
+
+        Waits for it (bounded, s wall; none: the samples so far). Lockstep ``align``: the
+        sequencer's own count (the status's ``align_sample``) is the truth.
+        """
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            with self.lock:
+                if len(self.states) > n_before:
+                    k, st = self.states[n_before]
+                    own = st.get('align_sample') if self.lockstep and command == 'align' \
+                        else None
+                    return k if own is None else int(own)
+            time.sleep(0.002)
+        return self.samples
+
     @property
     def status(self):
         """Return the latest ``alignment_state`` status dict (``{}`` before the first)."""

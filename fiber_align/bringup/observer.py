@@ -138,16 +138,6 @@ class Observer(RunRecord):
                      stamp_ns(msg.header.stamp) if key == self.clock else None)
         return add
 
-    def event(self, n_before, timeout_s=5.0):
-        """Return the sample index of the first state published after ``n_before`` states."""
-        end = time.monotonic() + timeout_s
-        while time.monotonic() < end:
-            with self.lock:
-                if len(self.states) > n_before:
-                    return self.states[n_before][0]
-            time.sleep(0.002)
-        return self.samples
-
     def call(self, client, request, timeout, alive=lambda: None):
         """Call a service with a bounded wait (s); ``alive()`` may raise meanwhile."""
         end = time.monotonic() + timeout
@@ -181,11 +171,7 @@ class Observer(RunRecord):
         if not res.success:
             what = name if data is None else '%s %s' % (name, 'on' if data else 'off')
             raise Refused('%s refused: %s' % (what, res.message))
-        k = self.event(n)
-        with self.lock:         # lockstep: the sequencer's own count is the truth
-            st = self.states[n][1] if len(self.states) > n else {}
-        return int(st['align_sample']) if (self.lockstep and name == 'align'
-                                           and st.get('align_sample') is not None) else k
+        return self.caused(n, name)
 
     def ended(self, what):
         """Return the error of ``what`` (``alignment``, ...) that ended short of its state."""
