@@ -16,6 +16,7 @@ python -m bench.bench_flight [--duration 30] [--skip 12]``.
 """
 
 import argparse
+import math
 import os
 import signal
 import subprocess
@@ -25,22 +26,9 @@ import time
 
 import numpy as np
 
+from fiber_align.procstat import cpu_time_s, rss_bytes
+
 MODES = ('bag_recorder', 'flight_full', 'flight_only')
-TICK = os.sysconf('SC_CLK_TCK')
-
-
-def _cpu_s(pid):
-    with open('/proc/%d/stat' % pid) as f:
-        fields = f.read().rsplit(')', 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICK
-
-
-def _rss_mb(pid):
-    with open('/proc/%d/status' % pid) as f:
-        for line in f:
-            if line.startswith('VmRSS:'):
-                return int(line.split()[1]) / 1024.0
-    return float('nan')
 
 
 def _recorder_pid(name, exclude=()):
@@ -109,9 +97,8 @@ def main(argv=None):
                     pids['bag_recorder'] = pid
             now = time.monotonic()
             for n, pid in pids.items():
-                try:
-                    c, r = _cpu_s(pid), _rss_mb(pid)
-                except OSError:
+                c, r = cpu_time_s(pid), rss_bytes(pid) / 2 ** 20
+                if math.isnan(c):           # gone
                     continue
                 if n in prev:
                     dt = now - prev[n][0]

@@ -41,7 +41,7 @@ import numpy as np
 
 from fiber_align.analysis.run_summary import beyond_floor
 from fiber_align.graph.description import build
-from fiber_align.bringup.children import rss_bytes
+from fiber_align.procstat import rss_bytes
 
 
 def main(argv=None):

@@ -18,7 +18,7 @@ ROOT = Path(__file__).resolve().parent.parent / PACKAGE
 
 # area -> rank; an area is the first name below the package (a sub-package or a module).
 RANKS = {
-    '': 0, 'config': 0, 'jsonout': 0, 'lifeline': 0,
+    '': 0, 'config': 0, 'jsonout': 0, 'lifeline': 0, 'procstat': 0,
     'design': 1, 'hysteresis': 1, 'records': 1,
     'plant': 2, 'control': 2,
     'alignment': 3,

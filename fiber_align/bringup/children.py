@@ -13,7 +13,6 @@ domain.
 import collections
 import json
 import math
-import os
 import signal
 import subprocess
 import sys
@@ -22,6 +21,7 @@ import time
 
 from fiber_align.nodes.ros.runtime import STACKS_SIGNAL
 from fiber_align.nodes.ros.teardown import SENT_PREFIX
+from fiber_align.procstat import cpu_time_s, rss_bytes
 
 #: lines of a child's output kept for the report of a stop that overran
 TAIL_LINES = 60
@@ -131,7 +131,7 @@ def wait_all(children, timeout, poll_s=0.01):
     Wait for every child to exit, each timed on its own; SIGKILL those left at ``timeout`` s.
 
     Each child's ``stop_s`` is its own time from its SIGINT to its exit (a sequential
-    wait would time the later ones by the earlier ones). Return ``{name: exit code}``.
+    wait would time the later ones by the earlier ones).
     """
     end = time.monotonic() + max(0.0, timeout)
     left = list(children)
@@ -144,23 +144,3 @@ def wait_all(children, timeout, poll_s=0.01):
             time.sleep(poll_s)
     for ch in left:
         ch.wait(0.0)
-    return {ch.name: ch.proc.returncode for ch in children}
-
-
-def cpu_time_s(pid):
-    """Return the user + system CPU time (s) of process ``pid``, or NaN if it is gone."""
-    try:
-        with open('/proc/%d/stat' % pid, encoding='ascii') as f:
-            fields = f.read().rsplit(')', 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
-    except (OSError, IndexError, ValueError):
-        return math.nan
-
-
-def rss_bytes(pid):
-    """Return the resident set size (bytes) of process ``pid``, or NaN if it is gone."""
-    try:
-        with open('/proc/%d/statm' % pid, encoding='ascii') as f:
-            return int(f.read().split()[1]) * os.sysconf('SC_PAGE_SIZE')
-    except (OSError, IndexError, ValueError):
-        return math.nan
