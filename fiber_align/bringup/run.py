@@ -24,7 +24,7 @@ import numpy as np
 from fiber_align.analysis import run_summary as sm
 from fiber_align.bringup.harness import EXIT_INTERRUPTED, EXIT_OK, Harness, session, settings
 from fiber_align.bringup.observer import BringupError, StartStall
-from fiber_align.graph.params import PLANT, RECORDER, SCENARIO_RUNNER
+from fiber_align.graph.params import PLANT, SCENARIO_RUNNER
 from fiber_align.graph.registry import expected_endpoints
 
 
@@ -46,10 +46,8 @@ class Bringup:
         streams = {'y': 'displacement', 'v': 'drive_voltage'}
         if self.source is None:
             streams.update(r_ref='reference', p='optical_power')
-        recorded = self.graph.node_params(RECORDER).get('topics', ()) \
-            if self.graph.record else ()
         want = expected_endpoints(self.graph, tuple(streams.values()) + (
-            ('alignment_state',) if self.source is None else ()), recorded)
+            ('alignment_state',) if self.source is None else ()))
         return Harness(self.graph, dict(streams=streams, clock='y', source=self.source,
                                         lockstep=self.sync == 'lockstep', rate_hz=self.rate,
                                         duration_s=self.duration),

@@ -186,17 +186,17 @@ def is_command(topic):
 OPEN_LOOP = ('feedforward_voltage', 'feedback_voltage')
 
 
-def expected_endpoints(graph, observed=(), recorded=()):
+def expected_endpoints(graph, observed=()):
     """
     Return ``{topic: (publishers, subscribers)}`` (at least) the running graph must have.
 
     From :data:`NODES`: the topics its nodes publish and read, only those some node, the
-    observer or the recorder reads. A reader hosted in one process with the topic's
-    publisher reads it in-process (``LocalBus``), not as a DDS subscription.
+    observer or the recorder (its ``topics``, when the graph records) reads. A reader
+    hosted in one process with the topic's publisher reads it in-process (``LocalBus``),
+    not as a DDS subscription.
 
     :param graph: a 1-D :class:`~fiber_align.graph.description.Graph`.
     :param observed: the topics the observer subscribes to.
-    :param recorded: the topics the recorder subscribes to (``topics``; empty: none).
     """
     def publishes(node):
         if node == SCENARIO_RUNNER:
@@ -214,6 +214,7 @@ def expected_endpoints(graph, observed=(), recorded=()):
     out = {t: (pubs.get(t, 0), n) for t, n in subs.items()}
     if graph.sync_mode == 'lockstep':
         out['/clock'] = (1, 0)
-    recorded = {t.lstrip('/') for t in recorded}
+    recorded = {t.lstrip('/') for t in (graph.node_params(RECORDER).get('topics', ())
+                                        if graph.record else ())}
     return {k: (p, s + (1 if p and k.lstrip('/') in recorded else 0))
             for k, (p, s) in out.items()}
