@@ -78,6 +78,8 @@ def test_a_stream_short_of_the_clock_is_padded_with_nan():
         rec.add('y', 0.0, ns)
     v = rec.series('v')
     assert v[0] == 5.0 and np.isnan(v[1:]).all() and v.size == 3
+    cols = rec.columns(['y', 'v'])
+    assert list(cols) == ['y', 'v'] and np.array_equal(cols['v'], v, equal_nan=True)
 
 
 def status(name, level=0, message='', **values):

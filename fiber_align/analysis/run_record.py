@@ -173,6 +173,10 @@ class RunRecord:
             out[:m] = src[:m]
             return out
 
+    def columns(self, keys):
+        """Return ``{key: series}`` of every stream in ``keys`` (:meth:`series`, SI)."""
+        return {k: self.series(k) for k in keys}
+
 
 class DiagnosticsRecord:
     """

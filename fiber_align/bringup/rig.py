@@ -21,11 +21,6 @@ from fiber_align.bringup.observer import BringupError
 OWN_TIMEOUT = ('station', 'array')
 
 
-def arrays(obs, streams):
-    """Return every stream of the observer, cut to the complete samples (SI arrays)."""
-    return {k: obs.series(k) for k in streams}
-
-
 def run_rig(a, g):
     """Run ``bringup --rig``, ``--station``, ``--array`` (options ``a``, graph ``g``): the code."""
     from std_srvs.srv import Trigger
@@ -113,7 +108,7 @@ def run_rig(a, g):
         summary.update(state=obs.status.get('state'), samples=clock())
         if g.sync_mode == 'lockstep' and not (a.cycles or a.duration):
             summary['offline'] = sm.compare_offline(g.scenario, g.seed, k_align,
-                                                    arrays(obs, streams))
+                                                    obs.columns(streams))
             # the offline run has the shipped parameters: with others it is only reported
             comparable = not (a.param or a.params_file)
             summary['offline']['comparable'] = comparable
@@ -129,7 +124,7 @@ def run_rig(a, g):
             if k in s:
                 summary[k] = s[k]
         if a.trace and h.obs is not None:
-            sm.write_trace(a.trace, arrays(h.obs, streams), rate)   # full: every stream
+            sm.write_trace(a.trace, h.obs.columns(streams), rate)   # full: every stream
         h.close()
         print_report(summary)
     return session(a, summary, steps, stop)
