@@ -19,7 +19,7 @@ settled (:class:`~fiber_align.alignment.visit.Visit`). The fit is weighted by th
 import numpy as np
 
 from fiber_align.alignment import search2d as s2
-from fiber_align.alignment.machine import dbm
+from fiber_align.alignment.states import dbm
 from fiber_align.alignment.visit import PointPeaking
 
 AXES = ('x', 'y')

@@ -50,11 +50,10 @@ All quantities are SI (s, m, W); dB only for ratios. Defaults: ``config/sequence
 import numpy as np
 
 from fiber_align.alignment.driver_state import DriverState
-from fiber_align.alignment.machine import dbm as _dbm, Machine
+from fiber_align.alignment.machine import Machine
 from fiber_align.alignment.peaking import Peaking
-from fiber_align.alignment.states import (ACTIVE, FAULT, HELD, IDLE, PEAKING,  # noqa: F401
-                                          RELEASING, SEARCHING, TRACKING)
-from fiber_align.alignment.tracking import Tracker
+from fiber_align.alignment.states import (ACTIVE, dbm, FAULT, HELD, IDLE,  # noqa: F401
+                                          PEAKING, RELEASING, SEARCHING, TRACKING)
 from fiber_align.config import ConfigError, load_params
 
 CONFIG_FILE = 'sequencer.yaml'
@@ -83,6 +82,9 @@ class Sequencer(Machine, Peaking):
     """Find, peak, track and switch the light on one axis (see the module docstring)."""
 
     AXIS_NAMES = ('the actuator',)
+    DITHERS = (('dither_frequency_hz', (0,)),)
+    DITHER_AMPLITUDE = 'dither_amplitude_m'
+    TRACK_LAG = False           # each reading with the same period's displacement
 
     def __init__(self, params=None, **overrides):
         """
@@ -117,8 +119,14 @@ class Sequencer(Machine, Peaking):
     def _start_search(self):
         self._phase = 'start'
 
-    def _aligned_point(self):
-        return self.aligned_position_m
+    @property
+    def aligned(self):
+        """Return the last aligned position as the one entry of an array (m), or None."""
+        return None if self.aligned_position_m is None else np.array([self.aligned_position_m])
+
+    @aligned.setter
+    def aligned(self, value):
+        self.aligned_position_m = float(np.asarray(value, dtype=float).reshape(-1)[0])
 
     @property
     def sp(self):
@@ -193,7 +201,7 @@ class Sequencer(Machine, Peaking):
         if self._elapsed(t) > p['search_timeout_s']:
             self._fault('no light found: search timed out after %.0f ms at %.1f um '
                         '(threshold %.1f dBm)' % (self._elapsed(t) * 1e3, y * 1e6,
-                                                  _dbm(self.threshold_w)))
+                                                  dbm(self.threshold_w)))
             return
         if self._phase == 'start':
             self._setpoint = p['range_min_m']
@@ -232,21 +240,7 @@ class Sequencer(Machine, Peaking):
                             '(threshold %.1f dBm): broken fiber, no source, or the slot is '
                             'outside the reachable range'
                             % (p['range_min_m'] * 1e6, p['range_max_m'] * 1e6,
-                               _dbm(self.threshold_w)))
-
-    # TRACKING -------------------------------------------------------------------------
-    def _start_tracking(self, t):
-        p = self.p
-        self._enter(TRACKING)
-        self._tracker = Tracker([self._goal], self.curvature_per_m2, p['dither_amplitude_m'],
-                                [(p['dither_frequency_hz'], (0,))], t, p, p['range_min_m'],
-                                p['range_max_m'], self.aligned_power_w)
-
-    def _do_tracking(self, t, y, pw):
-        sp = self._track(t, y, pw)
-        if sp is not None:
-            self.aligned_position_m = float(self._tracker.xhat[0])
-            self._setpoint = float(sp[0])
+                               dbm(self.threshold_w)))
 
     def status(self):
         """Return a dict describing the state (for topics, diagnostics and reports)."""

@@ -31,8 +31,7 @@ side. SI units.
 import numpy as np
 
 from fiber_align.alignment import station_search as ss
-from fiber_align.alignment.hold import um  # noqa: F401 (the station's text of positions)
-from fiber_align.alignment.machine import dbm
+from fiber_align.alignment.states import dbm, um
 from fiber_align.alignment.visit import PointPeaking
 
 AXES4 = ('x_in', 'y_in', 'x_out', 'y_out')

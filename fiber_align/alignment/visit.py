@@ -19,8 +19,8 @@ import math
 
 import numpy as np
 
-from fiber_align.alignment.hold import um
 from fiber_align.alignment.search2d import LN10_OVER_10
+from fiber_align.alignment.states import um
 
 
 class Visit:
