@@ -31,7 +31,6 @@ side. SI units.
 import numpy as np
 
 from fiber_align.alignment import station_search as ss
-from fiber_align.alignment.states import dbm, um
 from fiber_align.alignment.visit import PointPeaking
 
 AXES4 = ('x_in', 'y_in', 'x_out', 'y_out')
@@ -39,6 +38,11 @@ AXES4 = ('x_in', 'y_in', 'x_out', 'y_out')
 
 class JointPeakMixin(PointPeaking):
     """Visit points settled in four axes, fit both sides together, iterate to convergence."""
+
+    #: a vertex this close, even with the prior curvature, is off by at most the step
+    #: times the prior's error; the reading at the vertex checks the fit's peak (a wrong
+    #: curvature shows there) and a miss pools another pattern
+    PRIOR_CONVERGES = True
 
     def _start_pattern(self, center, radius):
         self._phase = 'pattern'
@@ -91,37 +95,7 @@ class JointPeakMixin(PointPeaking):
             fit = ss.fit_log_paraboloid_sides(data[ok, :4], data[ok, 4], w[ok],
                                               curvature=self.curvature_prior)
         if fit is None:
-            if ok.sum() == 0 and self.iterations == 1:
-                return self._false_light()
-            if ok.sum() == 0:
-                self._fault('light lost while peaking: no reading above %.1f dBm around %s'
-                            % (dbm(p['fit_min_snr'] * self.floor[1]), um(self._center)))
-                return
-            best = rows[int(np.argmax(rows[:, 4])), :4]
-            return self._iterate(best, self._radius)
-        vertex = np.asarray(fit[0])
-        out = (vertex < self.lo - p['range_tolerance_m']) | \
-            (vertex > self.hi + p['range_tolerance_m'])
-        at_edge = (np.abs(self._center - self.lo) < p['settle_tolerance_m']) | \
-            (np.abs(self._center - self.hi) < p['settle_tolerance_m'])
-        bad = [AXES4[a] for a in range(4) if out[a] and at_edge[a]]
-        if bad:
-            self._fault('target out of reach in %s: peak estimated at %s, reachable %.1f..'
-                        '%.1f um' % (' and '.join(bad), um(vertex), self.lo[0] * 1e6,
-                                     self.hi[0] * 1e6))
-            return
-        step = vertex - self._center
-        dist = float(np.linalg.norm(step))
-        self._log('pattern %d at %s, radius %.2f um, %d lit: vertex %s%s'
-                  % (self.iterations, um(self._center), self._radius * 1e6, ok.sum(),
-                     um(vertex), ' (curvature prior)' if prior else ''))
-        if dist > p['max_step_m']:
-            step *= p['max_step_m'] / dist
-        self._fit = fit
-        if dist < p['converge_tolerance_m']:
-            # a vertex this close, even with the prior curvature, is off by at most the
-            # step times the prior's error; the reading at the vertex checks the fit's peak
-            # (a wrong curvature shows there) and a miss pools another pattern
+            return self._no_fit(rows, ok.sum(), search_on=True)
+        if self._move_to(np.asarray(fit[0]), fit, prior, ok.sum()):
             self.curvatures_per_m2 = (fit[1], fit[2])
-            return self._verify_at(vertex)
-        self._iterate(self._center + step, dist=dist)
+            self._verify_at(np.asarray(fit[0]))
