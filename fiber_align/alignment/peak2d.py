@@ -45,21 +45,20 @@ class PeakFitMixin(PointPeaking):
         ok, w = self._weights(rows[:, 2])
         fit, prior = None, False
         if ok.sum() >= 4:
-            fit = s2.fit_log_paraboloid(rows[ok, 0], rows[ok, 1], rows[ok, 2], w[ok])
+            fit = s2.fit_log_paraboloid_groups(rows[ok, :2], rows[ok, 2], ((0, 1),), w[ok])
             r = p['curvature_ratio_max']
             # far outside the cross the vertex is an extrapolation whose error scales with
             # the curvature's: there the prior (from the mode radius) is the better guess
-            if fit is not None and (not (self.curvature_prior / r < fit[2]
+            if fit is not None and (not (self.curvature_prior / r < fit[1][0]
                                          < self.curvature_prior * r) or np.hypot(
-                    fit[0] - self._center[0], fit[1] - self._center[1]) > 2 * self._radius):
+                    *(fit[0] - self._center)) > 2 * self._radius):
                 fit = None
         if fit is None and ok.sum() >= 3:
             prior = True
-            fit = s2.fit_log_paraboloid(rows[ok, 0], rows[ok, 1], rows[ok, 2], w[ok],
-                                        curvature=self.curvature_prior)
+            fit = s2.fit_log_paraboloid_groups(rows[ok, :2], rows[ok, 2], ((0, 1),), w[ok],
+                                               curvature=self.curvature_prior)
         if fit is None:
             return self._no_fit(rows, ok.sum())
-        vertex = np.array(fit[:2])
-        if self._move_to(vertex, fit, prior, ok.sum(), reach=ok.sum() >= 4):
-            self.curvature_per_m2 = fit[2]
-            self._verify_at(vertex)
+        if self._move_to(fit[0], fit, prior, ok.sum(), reach=ok.sum() >= 4):
+            self.curvature_per_m2 = fit[1][0]
+            self._verify_at(fit[0])
