@@ -41,7 +41,7 @@ def test_commands_and_states_from_idle():
 
 
 def test_unknown_parameter_is_rejected():
-    with pytest.raises(ValueError, match='unknown sequencer parameter'):
+    with pytest.raises(ValueError, match=r'sequencer parameters: .*unknown .*dither_amplitude'):
         sq.Sequencer(dither_amplitude=1.0)
 
 

@@ -50,32 +50,14 @@ All quantities are SI (s, m, W); dB only for ratios. Defaults: ``config/sequence
 import numpy as np
 
 from fiber_align.alignment.driver_state import DriverState
-from fiber_align.alignment.machine import Machine
+from fiber_align.alignment.machine import check_params, Machine
 from fiber_align.alignment.peaking import Peaking
 from fiber_align.alignment.states import (ACTIVE, dbm, FAULT, HELD, IDLE,  # noqa: F401
                                           PEAKING, RELEASING, SEARCHING, TRACKING)
-from fiber_align.config import ConfigError, load_params
+from fiber_align.config import load_params
 
 CONFIG_FILE = 'sequencer.yaml'
 CONFIG_NODE = 'alignment_sequencer'
-
-
-# The sequencer's parameters (SI); their values live in config/sequencer.yaml only.
-KEYS = (
-    'range_min_m', 'range_max_m', 'park_position_m',
-    'floor_samples', 'threshold_sigma', 'floor_max_w', 'min_threshold_w',
-    'confirm_samples', 'search_speed_m_per_s', 'search_timeout_s',
-    'peak_speed_m_per_s', 'peak_drop_db', 'peak_fit_window_db',
-    'peak_min_fit_samples', 'power_lag_s', 'range_tolerance_m',
-    'settle_tolerance_m', 'settle_samples', 'settle_timeout_s',
-    'verify_samples', 'verify_tolerance_db', 'max_refits',
-    'repeak_span_m', 'repeak_speed_m_per_s', 'repeak_widen_max', 'switch_ramp_time_s',
-    'dither_amplitude_m', 'dither_frequency_hz', 'tracking_bandwidth_rad_s',
-    'gradient_time_s', 'track_loss_db', 'track_loss_timeout_s',
-    'sensor_timeout_s', 'dark_floor_w', 'meter_frozen_timeout_s', 'follow_error_m',
-    'follow_timeout_s',
-    'release_tolerance_m', 'release_timeout_s', 'driver_down_timeout_s',
-)
 
 
 class Sequencer(Machine, Peaking):
@@ -90,21 +72,13 @@ class Sequencer(Machine, Peaking):
         """
         Build a sequencer from a parameter mapping (``None``: config/sequencer.yaml).
 
-        :param params: every key of :data:`KEYS` (SI units).
-        :param overrides: keys of :data:`KEYS` that win over ``params``.
-        :raises ValueError: an unknown key; ConfigError: a missing one.
+        :param params: every key of the file's ``alignment_sequencer`` node (SI units; the
+            file is the one source of defaults).
+        :param overrides: keys that win over ``params``.
+        :raises ValueError: a missing or unknown key.
         """
-        if params is None:
-            params = load_params(CONFIG_FILE, CONFIG_NODE)
-        unknown = sorted((set(params) | set(overrides)) - set(KEYS))
-        if unknown:
-            raise ValueError('unknown sequencer parameter(s): %s' % ', '.join(unknown))
-        p = dict(params, **overrides)
-        missing = [k for k in KEYS if k not in p]
-        if missing:
-            raise ConfigError('%s: node %s lacks %s' % (CONFIG_FILE, CONFIG_NODE,
-                                                        ', '.join(missing)))
-        p = {k: p[k] for k in KEYS}
+        p = check_params(load_params(CONFIG_FILE, CONFIG_NODE), params, overrides,
+                         'sequencer')
         if not p['range_max_m'] > p['range_min_m']:
             raise ValueError('range_max_m must exceed range_min_m')
         self.aligned_position_m = None
