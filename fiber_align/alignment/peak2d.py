@@ -28,6 +28,9 @@ class PeakFitMixin(PointPeaking):
     """Visit points settled, fit ``ln P`` with a circular paraboloid, iterate to convergence."""
 
     PATTERN = 'cross'
+    #: True: nothing lit around the first-light point resumes the search (a noise spike
+    #: ended it: the machine's ``_false_light``); False: the host decides (its ``_fault``)
+    RESUMES_SEARCH = False
     PRIOR_CONVERGES = False
     AXIS_NAMES = AXES
 
@@ -58,7 +61,7 @@ class PeakFitMixin(PointPeaking):
             fit = s2.fit_log_paraboloid_groups(rows[ok, :2], rows[ok, 2], ((0, 1),), w[ok],
                                                curvature=self.curvature_prior)
         if fit is None:
-            return self._no_fit(rows, ok.sum())
+            return self._no_fit(rows, ok.sum(), search_on=self.RESUMES_SEARCH)
         if self._move_to(fit[0], fit, prior, ok.sum(), reach=ok.sum() >= 4):
             self.curvature_per_m2 = fit[1][0]
             self._verify_at(fit[0])

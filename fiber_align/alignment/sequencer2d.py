@@ -67,6 +67,7 @@ class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
 
     CREST = False
     SEARCH_PHASE = 'spiral'
+    RESUMES_SEARCH = True
     DITHERS = (('dither_frequency_hz', (0, 1)),)
     AXIS_NAMES = AXES
 
