@@ -7,22 +7,23 @@ import numpy as np
 import pytest
 
 from fiber_align.alignment import sequencer as sq
-from fiber_align.alignment.peaking import fit_log_parabola
+from fiber_align.alignment.search2d import fit_log_paraboloid_groups
 from fiber_align.simulation import alignment_bench as ab, alignment_scenarios as sc
 
 
 def test_log_parabola_fit_is_exact_for_the_gaussian_model():
-    x = np.linspace(30e-6, 38e-6, 9)
-    p = 1e-3 * np.exp(-((x - 35.3e-6) / 5.2e-6) ** 2)
-    x0, c, lp0 = fit_log_parabola(x, p)
+    """The sweep's fit: the paraboloid fit with one group of one axis."""
+    x = np.linspace(30e-6, 38e-6, 9)[:, None]
+    p = 1e-3 * np.exp(-((x[:, 0] - 35.3e-6) / 5.2e-6) ** 2)
+    (x0,), (c,), lp0 = fit_log_paraboloid_groups(x, p, ((0,),))
     assert x0 == pytest.approx(35.3e-6, abs=1e-12)
     assert c == pytest.approx(1 / 5.2e-6 ** 2, rel=1e-6)
     assert math.exp(lp0) == pytest.approx(1e-3, rel=1e-6)
     # one side only and with a known curvature
-    x0b, _, _ = fit_log_parabola(x[:4], p[:4], curvature=c)
+    (x0b,), _, _ = fit_log_paraboloid_groups(x[:4], p[:4], ((0,),), curvature=c)
     assert x0b == pytest.approx(35.3e-6, abs=1e-12)
     # a valley is not a peak
-    assert fit_log_parabola(x, 1e-3 / p) is None
+    assert fit_log_paraboloid_groups(x, 1e-3 / p, ((0,),)) is None
 
 
 def test_commands_and_states_from_idle():
@@ -40,7 +41,7 @@ def test_commands_and_states_from_idle():
 
 
 def test_unknown_parameter_is_rejected():
-    with pytest.raises(ValueError, match='unknown sequencer parameter'):
+    with pytest.raises(ValueError, match=r'sequencer parameters: .*unknown .*dither_amplitude'):
         sq.Sequencer(dither_amplitude=1.0)
 
 

@@ -12,6 +12,7 @@ from fiber_align.simulation.seeds2d import graph_period_s
 
 W = 5.2e-6
 K = 1.0 / W ** 2                  # curvature of ln P (1/m^2), no gap
+XY = ((0, 1),)                    # one circular paraboloid of x and y
 
 
 def _min_dist(grid, path, chunk=400):
@@ -79,8 +80,8 @@ def test_paraboloid_fit_recovers_a_noisy_gaussian_peak_within_the_noise():
     for _ in range(400):
         lp = math.log(1e-3) - K * ((pts[:, 0] - x0) ** 2 + (pts[:, 1] - y0) ** 2)
         p = np.exp(lp + sigma * rng.standard_normal(len(pts)))
-        fit = s2.fit_log_paraboloid(pts[:, 0], pts[:, 1], p)
-        errs.append((fit[0] - x0, fit[1] - y0, fit[2] / K - 1))
+        (x, y), (k,), _ = s2.fit_log_paraboloid_groups(pts, p, XY)
+        errs.append((x - x0, y - y0, k / K - 1))
     e = np.asarray(errs)
     # the spread matches the least-squares prediction (400 trials: +-15 % covers it) ...
     assert np.std(e[:, 0]) == pytest.approx(sx, rel=0.15)
@@ -90,18 +91,19 @@ def test_paraboloid_fit_recovers_a_noisy_gaussian_peak_within_the_noise():
     assert abs(np.mean(e[:, 1])) < 4 * sy / math.sqrt(len(e)) + 1e-9
     # noise-free: exact
     p = np.exp(math.log(1e-3) - K * ((pts[:, 0] - x0) ** 2 + (pts[:, 1] - y0) ** 2))
-    fit = s2.fit_log_paraboloid(pts[:, 0], pts[:, 1], p)
-    assert fit[0] == pytest.approx(x0, abs=1e-12) and fit[1] == pytest.approx(y0, abs=1e-12)
-    assert fit[2] == pytest.approx(K, rel=1e-9)
-    assert fit[3] == pytest.approx(math.log(1e-3), abs=1e-9)
+    (x, y), (k,), lp0 = s2.fit_log_paraboloid_groups(pts, p, XY)
+    assert x == pytest.approx(x0, abs=1e-12) and y == pytest.approx(y0, abs=1e-12)
+    assert k == pytest.approx(K, rel=1e-9)
+    assert lp0 == pytest.approx(math.log(1e-3), abs=1e-9)
     # the prior-curvature fit extrapolates from far away (first light, 18 um off)
     far = pts + np.array([18e-6, 0.0])
     p = np.exp(math.log(1e-3) - K * ((far[:, 0] - x0) ** 2 + (far[:, 1] - y0) ** 2))
-    fit = s2.fit_log_paraboloid(far[:3, 0], far[:3, 1], p[:3], curvature=K)
-    assert fit[0] == pytest.approx(x0, abs=1e-12) and fit[1] == pytest.approx(y0, abs=1e-12)
+    (x, y), _, _ = s2.fit_log_paraboloid_groups(far[:3], p[:3], XY, curvature=K)
+    assert x == pytest.approx(x0, abs=1e-12) and y == pytest.approx(y0, abs=1e-12)
     # a valley or a line of points is no peak
-    assert s2.fit_log_paraboloid(pts[:, 0], pts[:, 1], 1.0 / p) is None
-    assert s2.fit_log_paraboloid(pts[:, 0], np.full(5, 1e-6), p) is None
+    assert s2.fit_log_paraboloid_groups(pts, 1.0 / p, XY) is None
+    assert s2.fit_log_paraboloid_groups(np.column_stack([pts[:, 0], np.full(5, 1e-6)]), p,
+                                        XY) is None
 
 
 def test_parameters_come_from_the_config_file_only():

@@ -53,3 +53,40 @@ def false_first_lights(searches, seed=0):
 
 def test_dark_readings_do_not_pass_the_first_light_threshold():
     assert false_first_lights(SEARCHES) <= 2
+
+
+def test_a_false_first_light_walks_on_instead_of_a_fault():
+    """
+    Bright readings at the start of the walk, then only dark ones around them: SEARCHING.
+
+    The station's rule (``_false_light``), now the 2-D cross's too: nothing lit in the
+    first cross around first light is a noise spike, not light lost (a lockstep rig run
+    under load ended in "light lost while peaking around (0.0, 0.0) um").
+    """
+    det = Detector(noise_floor_w=1e-10, rin_db=0.02, averaging_time_s=0.5e-3, seed=3)
+    seq = Sequencer2D(period_s=T)
+    t, bright = 0.0, [True]
+
+    def step():
+        nonlocal t
+        t += T
+        x, y = seq.setpoint
+        seq.update(t, x, y, 1e-6 if bright[0] else det.measure(0.0, T), driver_active=True)
+    bright[0] = False
+    seq.release()
+    for _ in range(int(seq.p['floor_samples']) + 3):
+        step()
+    assert seq.align()[0]
+    bright[0] = True                    # a spike of light where the walk starts
+    for _ in range(LOOK):
+        step()
+        if seq.state == PEAKING:
+            break
+    assert seq.state == PEAKING
+    bright[0] = False                   # the first cross: all dark
+    for _ in range(5000):
+        step()
+        if seq.state != PEAKING:
+            break
+    assert seq.state == SEARCHING, (seq.state, seq.fault_reason)
+    assert any(e[1] == SEARCHING and e[2] == 'resumed' for e in seq.events)

@@ -6,10 +6,12 @@ import math
 import numpy as np
 import pytest
 
+from fiber_align.alignment import search2d as s2
 from fiber_align.alignment import station as st
 from fiber_align.alignment import station_search as ss
 from fiber_align.alignment import station_serial as ser
 from fiber_align.alignment.states import FAULT, HELD, IDLE, PEAKING, SEARCHING, TRACKING
+from fiber_align.alignment.station_peak import SIDES
 from fiber_align.simulation import station_scenarios as sc
 from fiber_align.simulation.seeds2d import graph_period_s
 
@@ -58,14 +60,15 @@ def test_joint_fit_recovers_the_separable_paraboloid():
     pos = vertex + rng.uniform(-2e-6, 2e-6, (9, 4))
     lp = -3.0 - k_in * np.sum((pos[:, :2] - vertex[:2]) ** 2, 1) - \
         k_out * np.sum((pos[:, 2:] - vertex[2:]) ** 2, 1)
-    v, ki, ko, lp0 = ss.fit_log_paraboloid_sides(pos, np.exp(lp))
+    v, (ki, ko), lp0 = s2.fit_log_paraboloid_groups(pos, np.exp(lp), SIDES)
     assert np.allclose(v, vertex, atol=1e-12) and (ki, ko, lp0) == pytest.approx(
         (k_in, k_out, -3.0))
     # with a curvature prior 5 readings suffice; the right prior is exact
     lp = -3.0 - k_in * np.sum((pos - vertex) ** 2, 1)
-    v, ki, ko, _ = ss.fit_log_paraboloid_sides(pos[:5], np.exp(lp[:5]), curvature=k_in)
+    v, (ki, ko), _ = s2.fit_log_paraboloid_groups(pos[:5], np.exp(lp[:5]), SIDES,
+                                                  curvature=k_in)
     assert np.allclose(v, vertex, atol=1e-12) and ki == ko == pytest.approx(k_in)
-    assert ss.fit_log_paraboloid_sides(pos[:6], np.exp(lp[:6])) is None
+    assert s2.fit_log_paraboloid_groups(pos[:6], np.exp(lp[:6]), SIDES) is None
 
 
 @pytest.mark.parametrize('seed', [2, 5])

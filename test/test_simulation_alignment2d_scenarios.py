@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pytest
 
+from fiber_align.analysis import alignment_plots
 from fiber_align import cli
 from fiber_align.simulation import alignment2d_scenarios as sc
 from fiber_align.alignment import sequencer2d as s2d
@@ -147,7 +148,7 @@ def test_run_cli_plot(tmp_path, capsys):
     png = tmp_path / 'switch2d.png'
     ns = argparse.Namespace(scenario='switch2d', seed=1, json=False, plot=str(png), cycles=2,
                             loop='composite', unrelated='ignored')
-    assert sc.run_cli(ns) == 0
+    assert sc.run_cli(ns, alignment_plots.plot_run2d) == 0
     assert 'hillclimb' in capsys.readouterr().out        # the baseline's row, by its method
     assert png.stat().st_size > 20000
 

@@ -12,6 +12,7 @@ import json
 import pytest
 
 from fiber_align.alignment import sequencer as sq
+from fiber_align.analysis import alignment_plots
 from fiber_align.simulation import alignment_bench as ab, alignment_scenarios as sc
 
 
@@ -61,7 +62,7 @@ def test_run_cli_json_and_plot(tmp_path, capsys):
     png = tmp_path / 'align.png'
     ns = argparse.Namespace(scenario='switch', seed=2, json=True, plot=str(png),
                             cycles=2, loop='ideal', unrelated='ignored')
-    assert sc.run_cli(ns) == 0
+    assert sc.run_cli(ns, alignment_plots.plot_run) == 0
     out = json.loads(capsys.readouterr().out)
     for key in ('time_to_first_light_s', 'time_to_peak_s', 'final_loss_db', 'peak_samples',
                 'switch_rise_time_s', 'tracking_max_loss_db'):

@@ -45,10 +45,9 @@ import numpy as np
 from fiber_align.alignment import search2d as s2
 from fiber_align.alignment import station_search as ss
 from fiber_align.alignment.driver_state import DriverState
-from fiber_align.alignment.hold import um
-from fiber_align.alignment.machine import check_params, dbm, Machine
+from fiber_align.alignment.machine import check_params, Machine
 from fiber_align.alignment.multiaxis import MultiAxis
-from fiber_align.alignment.states import PEAKING, TRACKING
+from fiber_align.alignment.states import dbm, PEAKING, TRACKING, um
 from fiber_align.alignment.visit import PointPeaking
 from fiber_align.config import load_params
 from fiber_align.plant import array_optics as ao
@@ -100,9 +99,8 @@ class ArrayMachine(MultiAxis, Machine, PointPeaking):
         park = ao.actuators(p['nominal_x_m'], p['nominal_y_m'], 0.0, self.roll_arm_m)
         self._init_axes(p, park, np.full(3, float(p['range_min_m'])),
                         np.full(3, float(p['range_max_m'])), period_s, path_rate_m_per_s)
-        chord = (int(p['confirm_samples']) + 1) * self.search_speed * self.period_s
         self.line_pitch_m = s2.spiral_pitch(p['coupling_radius_m'], p['search_capture_db'],
-                                            chord)
+                                            self.confirm_chord_m)
 
     # ---- the outer channels' coordinates ---------------------------------------------
     def to_channels(self, a):
@@ -139,22 +137,12 @@ class ArrayMachine(MultiAxis, Machine, PointPeaking):
         return self._update(t_s, positions_m, None if pw2 is None else float(pw2.max()),
                             driver_active)
 
-    def status(self):
-        """Return a dict of the state (SI)."""
-        al = self.aligned
-        return dict(state=self.state, phase=self._phase, fault_reason=self.fault_reason,
-                    setpoints_m=list(self.setpoint),
-                    aligned_m=None if al is None else [float(v) for v in al],
-                    threshold_w=self.threshold_w, hold_reason=self.hold_reason,
-                    peak_samples=self.peak_samples, search_samples=self.search_samples,
-                    iterations=self.iterations)
-
     def _do_peaking(self, t, pos, pw):
         self._do_visit(t, pos, self._pw2)
 
     def _do_tracking(self, t, pos, pw):
         gm = None if self._pw2 is None else float(math.sqrt(max(np.prod(self._pw2), 0.0)))
-        MultiAxis._do_tracking(self, t, pos, gm)
+        super()._do_tracking(t, pos, gm)
 
     def _hold_center(self):
         if self.state == PEAKING and self._center is not None:

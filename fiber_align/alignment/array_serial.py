@@ -23,9 +23,8 @@ import numpy as np
 
 from fiber_align.alignment import array as ar
 from fiber_align.alignment import search2d as s2
-from fiber_align.alignment.hold import um
 from fiber_align.alignment.peak2d import PeakFitMixin
-from fiber_align.alignment.states import PEAKING
+from fiber_align.alignment.states import PEAKING, um
 from fiber_align.plant import array_optics as ao
 
 

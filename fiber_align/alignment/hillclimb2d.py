@@ -22,6 +22,7 @@ Parameters: node ``hill_climb_2d`` of ``config/sequencer2d.yaml`` (plus everythi
 import numpy as np
 
 from fiber_align.alignment import sequencer2d as s2d
+from fiber_align.alignment.machine import check_params
 from fiber_align.alignment.tracking import LossWatch
 from fiber_align.config import load_params
 
@@ -42,15 +43,8 @@ class HillClimb2D(s2d.Sequencer2D):
         :param period_s: control period (s), as :class:`~s2d.Sequencer2D`.
         """
         base = load_params(s2d.CONFIG_FILE, CONFIG_NODE)
-        hp = dict(base if hill_params is None else hill_params)
-        for k in list(overrides):
-            if k in base:
-                hp[k] = overrides.pop(k)
-        missing, unknown = sorted(set(base) - set(hp)), sorted(set(hp) - set(base))
-        if missing or unknown:
-            raise ValueError('hill_climb_2d parameters: missing %s, unknown %s'
-                             % (missing or 'none', unknown or 'none'))
-        self.hp = hp
+        self.hp = check_params(base, hill_params, {k: overrides.pop(k) for k in list(overrides)
+                                                   if k in base}, 'hill_climb_2d')
         super().__init__(params, period_s, **overrides)
 
     def switch(self, on):

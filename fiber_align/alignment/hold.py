@@ -25,15 +25,7 @@ state and says what to do next; the machine does it. SI units: s, m, W.
 
 import numpy as np
 
-from fiber_align.alignment.states import FAULT, PEAKING, SEARCHING
-
-
-def um(v):
-    """Return a position (m; one value or several) as text in um."""
-    v = np.atleast_1d(np.asarray(v, dtype=float))
-    if v.size == 1:
-        return '%.2f um' % (v[0] * 1e6)
-    return '(%s) um' % ', '.join('%.2f' % (q * 1e6) for q in v)
+from fiber_align.alignment.states import FAULT, PEAKING, SEARCHING, um
 
 
 class Hold:

@@ -9,11 +9,12 @@ the 2-D :class:`~fiber_align.alignment.sequencer2d.Sequencer2D` and the station'
 readings, HELD, health, the state's step), IDLE, RELEASING, the floor, state entry, faults
 and the event log. HELD is the one :class:`~fiber_align.alignment.hold.Hold` it owns
 (``hold``), TRACKING the one :class:`~fiber_align.alignment.tracking.Tracker`. What differs
-per machine, a subclass provides: ``sp`` (the setpoints, an array, m), ``park``, ``lo``,
-``hi`` (m), ``AXIS_NAMES``, ``_start_search()``, ``_start_repeak()`` (after ``switch(True)``;
-returns the message), ``_aligned_point()``, ``_hold_center()`` (what a re-peak after a HELD
-starts from; ``None``: search again), ``_repeak_after_hold(t, center)`` and
-``_driver_input()`` (what the drivers published, for ``update``).
+per machine, a subclass provides: ``sp`` (the setpoints, an array, m), ``aligned`` (the last
+aligned point, an array, m, or None), ``park``, ``lo``, ``hi`` (m), ``AXIS_NAMES``,
+``DITHERS`` (TRACKING's), ``_start_search()``, ``_start_repeak()`` (after ``switch(True)``;
+returns the message), ``_hold_center()`` (what a re-peak after a HELD starts from;
+``None``: search again), ``_repeak_after_hold(t, center)`` and ``_driver_input()`` (what
+the drivers published, for ``update``).
 
 What the drivers publish reaches the machine through ``driver_held``, ``driver_lifecycle``,
 ``driver_diagnostics`` and ``driver_gone`` (the rules:
@@ -26,16 +27,10 @@ import math
 
 import numpy as np
 
-from fiber_align.alignment.hold import Hold, um
-from fiber_align.alignment.states import (ACTIVE, FAULT, HELD, IDLE, PEAKING, RELEASING,
-                                          SEARCHING, TRACKING)
-
-
-def dbm(p_w):
-    """Return ``p_w`` (W) in dBm for messages; ``nan`` for ``None``."""
-    if p_w is None:
-        return float('nan')
-    return 10.0 * math.log10(max(p_w, 1e-15) / 1e-3)
+from fiber_align.alignment.hold import Hold
+from fiber_align.alignment.states import (ACTIVE, dbm, FAULT, HELD, IDLE, PEAKING,
+                                          RELEASING, SEARCHING, TRACKING, um)
+from fiber_align.alignment.tracking import Tracker
 
 
 def check_params(base, params, overrides, what):
@@ -67,6 +62,12 @@ class Machine:
 
     #: the axes' names in the order of ``sp`` and the positions (for the fault texts)
     AXIS_NAMES = ()
+    #: TRACKING's dithers: (parameter naming the frequency (Hz), axes of its sine or circle)
+    DITHERS = ()
+    #: the parameter naming the dither's amplitude (m): a sine's, a circle's radius
+    DITHER_AMPLITUDE = 'dither_radius_m'
+    #: True: the tracker pairs each reading with the positions ``power_lag_s`` earlier
+    TRACK_LAG = True
 
     def _init_machine(self, p):
         """Set the state every machine starts with (parameters ``p``, SI)."""
@@ -125,7 +126,7 @@ class Machine:
             return False, 'busy: %s' % self.state
         if self.state == TRACKING:
             return True, 'already on'
-        if self._aligned_point() is None:
+        if self.aligned is None:
             return False, 'no aligned position yet: call align first'
         why = self.drivers.refusal('switch on')
         if why:
@@ -247,12 +248,26 @@ class Machine:
         self._start_search()
 
     # ---- TRACKING (the one tracker) --------------------------------------------------
-    def _track(self, t, pos, pw):
-        """Step the tracker; return the setpoints (m), or None after a FAULT."""
+    def _curvatures(self):
+        """Return ``k`` of ``ln P`` (1/m^2): one for every axis, or one per axis."""
+        return self.curvature_per_m2
+
+    def _start_tracking(self, t):
+        """TRACKING from the aligned point (m): the dithers of ``DITHERS``."""
+        p = self.p
+        self._enter(TRACKING)
+        self._tracker = Tracker(self.aligned, self._curvatures(), p[self.DITHER_AMPLITUDE],
+                                [(p[key], axes) for key, axes in self.DITHERS], t, p,
+                                self.lo, self.hi, self.aligned_power_w,
+                                p['power_lag_s'] if self.TRACK_LAG else 0.0)
+
+    def _do_tracking(self, t, pos, pw):
         sp = self._tracker.step(t, self.dt, pos, pw)
         if sp is None:
             self._fault(self._tracker.loss.fault)
-        return sp
+        else:
+            self.aligned = self._tracker.xhat.copy()
+            self.sp = sp
 
     def _silent_or_stuck(self, t, pos, pw):
         """Return True (and fault) when a reading is missing or frozen, or an axis is stuck."""

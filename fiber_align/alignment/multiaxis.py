@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-What the 2-D and the station sequencers share: the search walk, PEAKING's start, TRACKING.
+What the multi-axis sequencers share: the search walk, the re-peak, PEAKING's start.
 
 :class:`MultiAxis` is a base of :class:`fiber_align.alignment.sequencer2d.Sequencer2D`
 and :class:`fiber_align.alignment.station.Station` (their state, parameters, setpoints
@@ -10,10 +10,7 @@ m, W).
 
 import numpy as np
 
-from fiber_align.alignment.hold import um
-from fiber_align.alignment.machine import dbm
-from fiber_align.alignment.states import PEAKING, SEARCHING, TRACKING
-from fiber_align.alignment.tracking import Tracker
+from fiber_align.alignment.states import dbm, PEAKING, SEARCHING, um
 
 #: Share of the realtime path's rate the search walks at, at most: the rest is room for
 #: the acceleration limit at the turns of the path.
@@ -21,15 +18,13 @@ PATH_RATE_SHARE = 0.9
 
 
 class MultiAxis:
-    """The search walk, PEAKING's start and TRACKING over several axes."""
+    """The search walk, the re-peak and PEAKING's start over several axes."""
 
     #: True: past first light the walk goes on to the pass's brightest reading (at most
     #: ``crest_max_samples``); False: PEAKING starts at the brightest reading so far
     CREST = False
     #: the phase of the walk to first light (``status()['phase']``)
     SEARCH_PHASE = 'search'
-    #: the dithers of TRACKING: (parameter naming the frequency (Hz), axes of the circle)
-    DITHERS = ()
 
     def _init_axes(self, p, park, lo, hi, period_s, path_rate_m_per_s):
         """Set the square (m), the period (s) and the search speed (m/s), then the machine."""
@@ -42,9 +37,33 @@ class MultiAxis:
         self.search_speed = float(p['search_speed_m_per_s'])
         if path_rate_m_per_s is not None and path_rate_m_per_s > 0:
             self.search_speed = min(self.search_speed, PATH_RATE_SHARE * path_rate_m_per_s)
+        #: the walk (m) over which first light is confirmed: the search path's design
+        self.confirm_chord_m = (int(p['confirm_samples']) + 1) * self.search_speed * self.period_s
         self.aligned = None
         self.sp = self.park.copy()
         self._init_machine(p)
+
+    def update(self, t_s, positions_m, power_w, driver_active=None):
+        """
+        Advance one control period; return the setpoints (m), one per axis.
+
+        :param t_s: time of the readings (s).
+        :param positions_m: the measured positions (m) in ``AXIS_NAMES`` order, or None.
+        :param power_w: the detector's reading (W), or None.
+        :param driver_active: None (as the drivers published), a bool for every driver,
+            or one bool per axis: False when that driver is not driving (HELD).
+        """
+        return self._update(t_s, positions_m, power_w, driver_active)
+
+    def status(self):
+        """Return a dict of the state (for topics, diagnostics and reports; SI)."""
+        al = self.aligned
+        return dict(state=self.state, phase=self._phase, fault_reason=self.fault_reason,
+                    setpoints_m=list(self.setpoint),
+                    aligned_m=None if al is None else [float(v) for v in al],
+                    threshold_w=self.threshold_w, hold_reason=self.hold_reason,
+                    peak_samples=self.peak_samples,
+                    search_samples=self.search_samples, iterations=self.iterations)
 
     def _driver_input(self):
         # pending (a re-activated driver's drive_held false on its way): no reason to hold
@@ -60,20 +79,6 @@ class MultiAxis:
         self._history = []
         self._start_pattern(self.aligned, self.p['repeak_pattern_radius_m'])
         return 'switching on to %s' % um(self.aligned)
-
-    def _start_tracking(self, t):
-        """TRACKING from the aligned point: circles of ``dither_radius_m`` (``DITHERS``)."""
-        p = self.p
-        self._enter(TRACKING)
-        self._tracker = Tracker(self.aligned, self._curvatures(), p['dither_radius_m'],
-                                [(p[key], axes) for key, axes in self.DITHERS], t, p,
-                                self.lo, self.hi, self.aligned_power_w, p['power_lag_s'])
-
-    def _do_tracking(self, t, pos, pw):
-        sp = self._track(t, pos, pw)
-        if sp is not None:
-            self.aligned = self._tracker.xhat.copy()
-            self.sp = sp
 
     # ---- SEARCHING: the floor, then the machine's path to first light ---------------
     def _do_searching(self, t, pos, pw):
@@ -143,6 +148,3 @@ class MultiAxis:
     def _start_search(self):
         self._phase = 'floor'
         self._floor_buf = list(self._idle_buf)
-
-    def _aligned_point(self):
-        return self.aligned

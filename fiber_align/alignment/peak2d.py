@@ -19,7 +19,6 @@ settled (:class:`~fiber_align.alignment.visit.Visit`). The fit is weighted by th
 import numpy as np
 
 from fiber_align.alignment import search2d as s2
-from fiber_align.alignment.machine import dbm
 from fiber_align.alignment.visit import PointPeaking
 
 AXES = ('x', 'y')
@@ -29,6 +28,11 @@ class PeakFitMixin(PointPeaking):
     """Visit points settled, fit ``ln P`` with a circular paraboloid, iterate to convergence."""
 
     PATTERN = 'cross'
+    #: True: nothing lit around the first-light point resumes the search (a noise spike
+    #: ended it: the machine's ``_false_light``); False: the host decides (its ``_fault``)
+    RESUMES_SEARCH = False
+    PRIOR_CONVERGES = False
+    AXIS_NAMES = AXES
 
     def _start_pattern(self, center, radius):
         self._phase = 'pattern'
@@ -44,48 +48,20 @@ class PeakFitMixin(PointPeaking):
         ok, w = self._weights(rows[:, 2])
         fit, prior = None, False
         if ok.sum() >= 4:
-            fit = s2.fit_log_paraboloid(rows[ok, 0], rows[ok, 1], rows[ok, 2], w[ok])
+            fit = s2.fit_log_paraboloid_groups(rows[ok, :2], rows[ok, 2], ((0, 1),), w[ok])
             r = p['curvature_ratio_max']
             # far outside the cross the vertex is an extrapolation whose error scales with
             # the curvature's: there the prior (from the mode radius) is the better guess
-            if fit is not None and (not (self.curvature_prior / r < fit[2]
+            if fit is not None and (not (self.curvature_prior / r < fit[1][0]
                                          < self.curvature_prior * r) or np.hypot(
-                    fit[0] - self._center[0], fit[1] - self._center[1]) > 2 * self._radius):
+                    *(fit[0] - self._center)) > 2 * self._radius):
                 fit = None
         if fit is None and ok.sum() >= 3:
             prior = True
-            fit = s2.fit_log_paraboloid(rows[ok, 0], rows[ok, 1], rows[ok, 2], w[ok],
-                                        curvature=self.curvature_prior)
+            fit = s2.fit_log_paraboloid_groups(rows[ok, :2], rows[ok, 2], ((0, 1),), w[ok],
+                                               curvature=self.curvature_prior)
         if fit is None:
-            if ok.sum() == 0:
-                self._fault('light lost while peaking: no reading above %.1f dBm around '
-                            '(%.1f, %.1f) um' % (dbm(p['fit_min_snr'] * self.floor[1]),
-                                                 *(self._center * 1e6)))
-                return
-            best = rows[int(np.argmax(rows[:, 2])), :2]
-            return self._iterate(best, self._radius)
-        vertex = np.array(fit[:2])
-        out = (vertex < self.lo - p['range_tolerance_m']) | \
-            (vertex > self.hi + p['range_tolerance_m'])
-        at_edge = (np.abs(self._center - self.lo) < p['settle_tolerance_m']) | \
-            (np.abs(self._center - self.hi) < p['settle_tolerance_m'])
-        bad = [a for a in range(2) if out[a] and at_edge[a]]
-        if bad and ok.sum() >= 4:
-            self._fault('target out of reach in %s: peak estimated at (%.1f, %.1f) um, '
-                        'reachable x %.1f..%.1f um, y %.1f..%.1f um'
-                        % (' and '.join(AXES[a] for a in bad), *(vertex * 1e6),
-                           self.lo[0] * 1e6, self.hi[0] * 1e6, self.lo[1] * 1e6,
-                           self.hi[1] * 1e6))
-            return
-        step = vertex - self._center
-        dist = float(np.hypot(*step))
-        self._log('cross %d at (%.2f, %.2f) um, radius %.2f um, %d lit: vertex (%.2f, %.2f) um'
-                  '%s' % (self.iterations, *(self._center * 1e6), self._radius * 1e6,
-                          ok.sum(), *(vertex * 1e6), ' (curvature prior)' if prior else ''))
-        if dist > p['max_step_m']:
-            step *= p['max_step_m'] / dist
-        self._fit = fit
-        if dist < p['converge_tolerance_m'] and not prior:
-            self.curvature_per_m2 = fit[2]
-            return self._verify_at(vertex)
-        self._iterate(self._center + step, dist=dist)
+            return self._no_fit(rows, ok.sum(), search_on=self.RESUMES_SEARCH)
+        if self._move_to(fit[0], fit, prior, ok.sum(), reach=ok.sum() >= 4):
+            self.curvature_per_m2 = fit[1][0]
+            self._verify_at(fit[0])

@@ -3,8 +3,9 @@
 The sequencer's PEAKING state: one sweep through the peak and a fit of ``ln P``.
 
 The Gaussian mode overlap makes ``ln P`` exactly quadratic in the offset, so a
-three-parameter least-squares fit (:func:`fit_log_parabola`) of one sweep's samples
-against the measured displacement locates the peak; the sequencer moves to the vertex,
+three-parameter least-squares fit of one sweep's samples against the measured
+displacement (:func:`~fiber_align.alignment.search2d.fit_log_paraboloid_groups`, one
+group of one axis) locates the peak; the sequencer moves to the vertex,
 waits for the loop to settle and checks the power against the fitted peak, re-sweeping
 locally on a miss. :class:`Peaking` holds these steps of
 :class:`fiber_align.alignment.sequencer.Sequencer` (its state and parameters, SI: s, m, W;
@@ -15,42 +16,8 @@ import math
 
 import numpy as np
 
+from fiber_align.alignment.search2d import fit_log_paraboloid_groups
 from fiber_align.alignment.states import PEAKING
-
-
-def fit_log_parabola(x_m, p_w, curvature=None):
-    """
-    Fit ``ln P = a - c (x - x0)^2`` to samples; return ``(x0, c, ln_p0)`` or ``None``.
-
-    :param x_m: positions (m).
-    :param p_w: powers (W), all > 0.
-    :param curvature: known ``c`` (1/m^2); then only ``x0`` and ``ln_p0`` are fitted.
-    :returns: vertex ``x0`` (m), curvature ``c`` (1/m^2, > 0 for a peak) and ``ln P`` at
-        the vertex, or ``None`` when the samples do not define a peak.
-    """
-    x = np.asarray(x_m, dtype=float)
-    lp = np.log(np.asarray(p_w, dtype=float))
-    if x.size < (2 if curvature else 3):
-        return None
-    xm = x.mean()
-    xs = (x - xm) * 1e6                         # um, for conditioning
-    if curvature:
-        c_um = curvature * 1e-12
-        a = np.vstack([np.ones_like(xs), xs]).T
-        coef, *_ = np.linalg.lstsq(a, lp + c_um * xs ** 2, rcond=None)
-        x0_um = coef[1] / (2.0 * c_um)
-        lp0 = coef[0] + c_um * x0_um ** 2
-        return xm + x0_um * 1e-6, curvature, float(lp0)
-    if np.ptp(xs) <= 0:
-        return None
-    a = np.vstack([np.ones_like(xs), xs, xs ** 2]).T
-    coef, *_ = np.linalg.lstsq(a, lp, rcond=None)
-    c_um = -coef[2]
-    if not c_um > 0:
-        return None
-    x0_um = coef[1] / (2.0 * c_um)
-    lp0 = coef[0] + c_um * x0_um ** 2
-    return xm + x0_um * 1e-6, c_um * 1e12, float(lp0)
 
 
 class Peaking:
@@ -186,10 +153,10 @@ class Peaking:
         fit = None
         if keep.sum() >= int(p['peak_min_fit_samples']) or (local and keep.sum() >= 2):
             curv = self.curvature_per_m2 if (local and keep.sum() < 5) else None
-            fit = fit_log_parabola(x[keep], pp[keep], curvature=curv)
+            fit = fit_log_paraboloid_groups(x[keep, None], pp[keep], ((0,),), curvature=curv)
         lo, hi = p['range_min_m'], p['range_max_m']
         tol = p['range_tolerance_m']
-        x0 = None if fit is None else fit[0]
+        x0 = None if fit is None else fit[0][0]
         if fit is None or x0 > hi + tol or x0 < lo - tol:
             if not self._first_sweep:
                 self._widen(yy)
@@ -210,7 +177,7 @@ class Peaking:
                 self._fault('peak search failed: the %d samples over %.1f..%.1f um do not '
                             'show a peak' % (len(pp), yy.min() * 1e6, yy.max() * 1e6))
             return
-        x0, c, lp0 = fit
+        (x0,), (c,), lp0 = fit
         self.curvature_per_m2 = c
         self._fit_lp0 = lp0
         self._goal = min(max(x0, lo), hi)

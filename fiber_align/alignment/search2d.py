@@ -1,14 +1,15 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-Geometry and estimators of the 2-D alignment (pure numpy, SI units).
+Geometry of the 2-D search, and the fit of ``ln P`` every machine peaks with (pure numpy, SI).
 
 - :func:`capture_radius` and :func:`spiral_pitch`: how far apart the arms of the first-light
   spiral may be for a given mode radius.
 - :class:`SpiralPath`: a straight transit to the centre of the reachable square, then an
   Archimedean spiral out to its corners, walked at a constant speed.
 - :func:`fit_log_paraboloid_groups`: weighted least squares of ``ln P`` on circular
-  paraboloids of groups of axes, the exact shape of Gaussian mode overlaps
-  (:func:`fit_log_paraboloid`: one group, x and y).
+  paraboloids of groups of axes, the exact shape of Gaussian mode overlaps: the 1-D
+  sweep's parabola (one group of one axis), the 2-D cross's paraboloid (x and y), the
+  station's two sides, the array's channels.
 """
 
 import math
@@ -104,7 +105,8 @@ def fit_log_paraboloid_groups(pos_m, p_w, groups, weights=None, curvature=None):
 
     Weighted linear least squares in ``(1, coordinates..., |r_g|^2...)`` (coordinates in um
     about their mean, for conditioning): the exact shape of Gaussian mode overlaps (one
-    group: the 2-D sequencer's; the input and the output side: the station's).
+    group of one axis: the 1-D sweep's; of x and y: the 2-D cross's; the input and the
+    output side: the station's).
 
     :param pos_m: ``(n, d)`` sample positions (m).
     :param p_w: sample powers (W), > 0.
@@ -144,15 +146,3 @@ def fit_log_paraboloid_groups(pos_m, p_w, groups, weights=None, curvature=None):
     v = coef[1:1 + d] / (2.0 * kk)
     lp0 = coef[0] + float(np.sum(kk * v * v))
     return mean + v * 1e-6, [q * 1e12 for q in ks], float(lp0)
-
-
-def fit_log_paraboloid(x_m, y_m, p_w, weights=None, curvature=None):
-    """
-    Fit ``ln P = ln P0 - k ((x - x0)^2 + (y - y0)^2)``; return ``(x0, y0, k, ln P0)``.
-
-    :func:`fit_log_paraboloid_groups` with one group (x, y; m, W, 1/m^2): 3 samples with
-    ``curvature`` given, else 4; None when they do not define a peak.
-    """
-    fit = fit_log_paraboloid_groups(np.column_stack([x_m, y_m]), p_w, ((0, 1),), weights,
-                                    curvature)
-    return None if fit is None else (fit[0][0], fit[0][1], fit[1][0], fit[2])

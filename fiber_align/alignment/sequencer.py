@@ -50,59 +50,35 @@ All quantities are SI (s, m, W); dB only for ratios. Defaults: ``config/sequence
 import numpy as np
 
 from fiber_align.alignment.driver_state import DriverState
-from fiber_align.alignment.machine import dbm as _dbm, Machine
+from fiber_align.alignment.machine import check_params, Machine
 from fiber_align.alignment.peaking import Peaking
-from fiber_align.alignment.states import (ACTIVE, FAULT, HELD, IDLE, PEAKING,  # noqa: F401
-                                          RELEASING, SEARCHING, TRACKING)
-from fiber_align.alignment.tracking import Tracker
-from fiber_align.config import ConfigError, load_params
+from fiber_align.alignment.states import (ACTIVE, dbm, FAULT, HELD, IDLE,  # noqa: F401
+                                          PEAKING, RELEASING, SEARCHING, TRACKING)
+from fiber_align.config import load_params
 
 CONFIG_FILE = 'sequencer.yaml'
 CONFIG_NODE = 'alignment_sequencer'
-
-
-# The sequencer's parameters (SI); their values live in config/sequencer.yaml only.
-KEYS = (
-    'range_min_m', 'range_max_m', 'park_position_m',
-    'floor_samples', 'threshold_sigma', 'floor_max_w', 'min_threshold_w',
-    'confirm_samples', 'search_speed_m_per_s', 'search_timeout_s',
-    'peak_speed_m_per_s', 'peak_drop_db', 'peak_fit_window_db',
-    'peak_min_fit_samples', 'power_lag_s', 'range_tolerance_m',
-    'settle_tolerance_m', 'settle_samples', 'settle_timeout_s',
-    'verify_samples', 'verify_tolerance_db', 'max_refits',
-    'repeak_span_m', 'repeak_speed_m_per_s', 'repeak_widen_max', 'switch_ramp_time_s',
-    'dither_amplitude_m', 'dither_frequency_hz', 'tracking_bandwidth_rad_s',
-    'gradient_time_s', 'track_loss_db', 'track_loss_timeout_s',
-    'sensor_timeout_s', 'dark_floor_w', 'meter_frozen_timeout_s', 'follow_error_m',
-    'follow_timeout_s',
-    'release_tolerance_m', 'release_timeout_s', 'driver_down_timeout_s',
-)
 
 
 class Sequencer(Machine, Peaking):
     """Find, peak, track and switch the light on one axis (see the module docstring)."""
 
     AXIS_NAMES = ('the actuator',)
+    DITHERS = (('dither_frequency_hz', (0,)),)
+    DITHER_AMPLITUDE = 'dither_amplitude_m'
+    TRACK_LAG = False           # each reading with the same period's displacement
 
     def __init__(self, params=None, **overrides):
         """
         Build a sequencer from a parameter mapping (``None``: config/sequencer.yaml).
 
-        :param params: every key of :data:`KEYS` (SI units).
-        :param overrides: keys of :data:`KEYS` that win over ``params``.
-        :raises ValueError: an unknown key; ConfigError: a missing one.
+        :param params: every key of the file's ``alignment_sequencer`` node (SI units; the
+            file is the one source of defaults).
+        :param overrides: keys that win over ``params``.
+        :raises ValueError: a missing or unknown key.
         """
-        if params is None:
-            params = load_params(CONFIG_FILE, CONFIG_NODE)
-        unknown = sorted((set(params) | set(overrides)) - set(KEYS))
-        if unknown:
-            raise ValueError('unknown sequencer parameter(s): %s' % ', '.join(unknown))
-        p = dict(params, **overrides)
-        missing = [k for k in KEYS if k not in p]
-        if missing:
-            raise ConfigError('%s: node %s lacks %s' % (CONFIG_FILE, CONFIG_NODE,
-                                                        ', '.join(missing)))
-        p = {k: p[k] for k in KEYS}
+        p = check_params(load_params(CONFIG_FILE, CONFIG_NODE), params, overrides,
+                         'sequencer')
         if not p['range_max_m'] > p['range_min_m']:
             raise ValueError('range_max_m must exceed range_min_m')
         self.aligned_position_m = None
@@ -117,8 +93,14 @@ class Sequencer(Machine, Peaking):
     def _start_search(self):
         self._phase = 'start'
 
-    def _aligned_point(self):
-        return self.aligned_position_m
+    @property
+    def aligned(self):
+        """Return the last aligned position as the one entry of an array (m), or None."""
+        return None if self.aligned_position_m is None else np.array([self.aligned_position_m])
+
+    @aligned.setter
+    def aligned(self, value):
+        self.aligned_position_m = float(np.asarray(value, dtype=float).reshape(-1)[0])
 
     @property
     def sp(self):
@@ -193,7 +175,7 @@ class Sequencer(Machine, Peaking):
         if self._elapsed(t) > p['search_timeout_s']:
             self._fault('no light found: search timed out after %.0f ms at %.1f um '
                         '(threshold %.1f dBm)' % (self._elapsed(t) * 1e3, y * 1e6,
-                                                  _dbm(self.threshold_w)))
+                                                  dbm(self.threshold_w)))
             return
         if self._phase == 'start':
             self._setpoint = p['range_min_m']
@@ -232,21 +214,7 @@ class Sequencer(Machine, Peaking):
                             '(threshold %.1f dBm): broken fiber, no source, or the slot is '
                             'outside the reachable range'
                             % (p['range_min_m'] * 1e6, p['range_max_m'] * 1e6,
-                               _dbm(self.threshold_w)))
-
-    # TRACKING -------------------------------------------------------------------------
-    def _start_tracking(self, t):
-        p = self.p
-        self._enter(TRACKING)
-        self._tracker = Tracker([self._goal], self.curvature_per_m2, p['dither_amplitude_m'],
-                                [(p['dither_frequency_hz'], (0,))], t, p, p['range_min_m'],
-                                p['range_max_m'], self.aligned_power_w)
-
-    def _do_tracking(self, t, y, pw):
-        sp = self._track(t, y, pw)
-        if sp is not None:
-            self.aligned_position_m = float(self._tracker.xhat[0])
-            self._setpoint = float(sp[0])
+                               dbm(self.threshold_w)))
 
     def status(self):
         """Return a dict describing the state (for topics, diagnostics and reports)."""

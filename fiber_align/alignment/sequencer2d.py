@@ -43,10 +43,10 @@ import numpy as np
 
 from fiber_align.alignment import search2d as s2
 from fiber_align.alignment.driver_state import DriverState
-from fiber_align.alignment.machine import check_params, dbm as _dbm, Machine
+from fiber_align.alignment.machine import check_params, Machine
 from fiber_align.alignment.multiaxis import MultiAxis, PATH_RATE_SHARE  # noqa: F401
 from fiber_align.alignment.peak2d import AXES, PeakFitMixin
-from fiber_align.alignment.states import (ACTIVE, FAULT, HELD, IDLE,  # noqa: F401
+from fiber_align.alignment.states import (ACTIVE, dbm, FAULT, HELD, IDLE,  # noqa: F401
                                           PEAKING, RELEASING, SEARCHING, STATES,
                                           TRACKING)
 from fiber_align.config import load_params
@@ -67,6 +67,7 @@ class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
 
     CREST = False
     SEARCH_PHASE = 'spiral'
+    RESUMES_SEARCH = True
     DITHERS = (('dither_frequency_hz', (0, 1)),)
     AXIS_NAMES = AXES
 
@@ -95,20 +96,17 @@ class Sequencer2D(MultiAxis, Machine, PeakFitMixin):
         self._init_axes(p, [p['park_x_m'], p['park_y_m']],
                         [p['range_x_min_m'], p['range_y_min_m']],
                         [p['range_x_max_m'], p['range_y_max_m']], period_s, path_rate_m_per_s)
-        chord = (int(p['confirm_samples']) + 1) * self.search_speed * self.period_s
         self.capture_radius_m = s2.capture_radius(p['mode_radius_m'], p['spiral_capture_db'])
-        self.pitch_m = s2.spiral_pitch(p['mode_radius_m'], p['spiral_capture_db'], chord)
+        self.pitch_m = s2.spiral_pitch(p['mode_radius_m'], p['spiral_capture_db'],
+                                       self.confirm_chord_m)
         self.curvature_prior = 1.0 / p['mode_radius_m'] ** 2
 
     # ---- commands (Machine: align, release, switch) ----------------------------------
-    def _curvatures(self):
-        return self.curvature_per_m2
-
     def _no_light_text(self):
         return ('no light found anywhere in the reachable square x %.1f..%.1f um, y %.1f..%.1f '
                 'um (threshold %.1f dBm): broken fiber, no source, or the target is out of '
                 'reach' % (self.lo[0] * 1e6, self.hi[0] * 1e6, self.lo[1] * 1e6,
-                           self.hi[1] * 1e6, _dbm(self.threshold_w)))
+                           self.hi[1] * 1e6, dbm(self.threshold_w)))
 
     def _hold_center(self):
         """Return what a re-peak after a HELD starts from: the last aligned point, or None."""

@@ -35,22 +35,15 @@ import numpy as np
 
 from fiber_align.alignment import station_search as ss
 from fiber_align.alignment.driver_state import DriverState
-from fiber_align.alignment.machine import check_params, dbm, Machine
+from fiber_align.alignment.machine import check_params, Machine
 from fiber_align.alignment.multiaxis import MultiAxis
-from fiber_align.alignment.states import PEAKING, TRACKING
+from fiber_align.alignment.states import dbm, PEAKING, TRACKING
 from fiber_align.alignment.station_peak import AXES4, JointPeakMixin
 from fiber_align.config import load_params
 
 CONFIG_FILE = 'station.yaml'
 CONFIG_NODE = 'station_sequencer'
 NOMINAL_KEYS = ('nominal_in_x_m', 'nominal_in_y_m', 'nominal_out_x_m', 'nominal_out_y_m')
-
-
-def load_station_params(**overrides):
-    """Return the parameters of node ``station_sequencer``, ``overrides`` applied."""
-    p = dict(load_params(CONFIG_FILE, CONFIG_NODE))
-    p.update(overrides)
-    return p
 
 
 #: The drivers of the four axes, as :attr:`Station.drivers` names them (the station
@@ -91,10 +84,9 @@ class Station(MultiAxis, Machine, JointPeakMixin):
         self._history = []
         self._init_axes(p, [p[k] for k in NOMINAL_KEYS], np.full(4, float(p['range_min_m'])),
                         np.full(4, float(p['range_max_m'])), period_s, path_rate_m_per_s)
-        chord = (int(p['confirm_samples']) + 1) * self.search_speed * self.period_s
         self.grid_n, self.lines_m = ss.search_design(
-            p['coupling_radius_m'], p['search_capture_db'], p['search_slow_share'], chord,
-            p['search_half_width_m'])
+            p['coupling_radius_m'], p['search_capture_db'], p['search_slow_share'],
+            self.confirm_chord_m, p['search_half_width_m'])
         self.curvature_prior = 1.0 / p['coupling_radius_m'] ** 2
 
     # ---- commands (Machine) --------------------------------------------------------
@@ -123,27 +115,3 @@ class Station(MultiAxis, Machine, JointPeakMixin):
         v = ss.search_vertices(start, self.park[:2], self.park[2:], p['search_half_width_m'],
                                self.grid_n, self.lines_m, self.lo, self.hi)
         return ss.Polyline(v)
-
-    # ---- the control-period step ---------------------------------------------------
-    def update(self, t_s, positions_m, power_w, driver_active=None):
-        """
-        Advance one control period; return the four setpoints (m).
-
-        :param t_s: time of the readings (s).
-        :param positions_m: the measured ``(x_in, y_in, x_out, y_out)`` (m), or None.
-        :param power_w: output detector reading (W), or None.
-        :param driver_active: None (as the drivers published), a bool for all four
-            drivers, or four bools (``x_in, y_in, x_out, y_out``): False when that driver
-            is not driving (HELD).
-        """
-        return self._update(t_s, positions_m, power_w, driver_active)
-
-    def status(self):
-        """Return a dict of the state (SI)."""
-        al = self.aligned
-        return dict(state=self.state, phase=self._phase, fault_reason=self.fault_reason,
-                    setpoints_m=list(self.setpoint),
-                    aligned_m=None if al is None else [float(v) for v in al],
-                    threshold_w=self.threshold_w, hold_reason=self.hold_reason,
-                    peak_samples=self.peak_samples,
-                    search_samples=self.search_samples, iterations=self.iterations)

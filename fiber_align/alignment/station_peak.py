@@ -12,16 +12,16 @@ search); the visits, weights and the verifying reading are the shared
 One iteration reads ``1 + 4`` settled points: the centre and one point ``h`` away along
 each of the four axes, on the ``+`` side in odd iterations and the ``-`` side in even ones.
 ``ln P`` of the two Gaussian overlaps is exactly a separable paraboloid everywhere
-(:func:`~fiber_align.alignment.station_search.fit_log_paraboloid_sides`), so the fit pools
-the readings of the last ``fit_history_patterns`` patterns whose centres lie near the
-present one: with both sides of every axis it fits a curvature per side; otherwise (a
-pattern alone: 5 unknowns, 5 points), or when that vertex lies outside the pattern (an
-extrapolation) or a curvature far from the prior, it fits with the curvature prior. Near
-first light the steps away from the peak read dark: then the mirror points of those axes
-(``-h`` where ``+h`` was dark) complete the pattern before the fit. The centre moves to the
-vertex; converged when the vertex is within ``converge_tolerance_m`` of the centre; a
-reading at the vertex then verifies the fit's peak (a miss runs another pattern, pooled
-with this one, so with both sides of every axis).
+(:func:`~fiber_align.alignment.search2d.fit_log_paraboloid_groups` of the two ``SIDES``),
+so the fit pools the readings of the last ``fit_history_patterns`` patterns whose centres
+lie near the present one: with both sides of every axis it fits a curvature per side;
+otherwise (a pattern alone: 5 unknowns, 5 points), or when that vertex lies outside the
+pattern (an extrapolation) or a curvature far from the prior, it fits with the curvature
+prior. Near first light the steps away from the peak read dark: then the mirror points of
+those axes (``-h`` where ``+h`` was dark) complete the pattern before the fit. The centre
+moves to the vertex; converged when the vertex is within ``converge_tolerance_m`` of the
+centre; a reading at the vertex then verifies the fit's peak (a miss runs another pattern,
+pooled with this one, so with both sides of every axis).
 
 Both sides move in every iteration: each axis costs one point, the centre reading is
 shared by all four, where the serial 2-D method reads two points an axis and a centre per
@@ -30,16 +30,21 @@ side. SI units.
 
 import numpy as np
 
-from fiber_align.alignment import station_search as ss
-from fiber_align.alignment.hold import um  # noqa: F401 (the station's text of positions)
-from fiber_align.alignment.machine import dbm
+from fiber_align.alignment import search2d as s2
 from fiber_align.alignment.visit import PointPeaking
 
 AXES4 = ('x_in', 'y_in', 'x_out', 'y_out')
+#: the two circular paraboloids of ``ln P``: the input side's axes, the output side's
+SIDES = ((0, 1), (2, 3))
 
 
 class JointPeakMixin(PointPeaking):
     """Visit points settled in four axes, fit both sides together, iterate to convergence."""
+
+    #: a vertex this close, even with the prior curvature, is off by at most the step
+    #: times the prior's error; the reading at the vertex checks the fit's peak (a wrong
+    #: curvature shows there) and a miss pools another pattern
+    PRIOR_CONVERGES = True
 
     def _start_pattern(self, center, radius):
         self._phase = 'pattern'
@@ -77,11 +82,11 @@ class JointPeakMixin(PointPeaking):
         ok, w = self._weights(data[:, 4])
         fit, prior = None, False
         if ok.sum() >= 7:
-            fit = ss.fit_log_paraboloid_sides(data[ok, :4], data[ok, 4], w[ok])
+            fit = s2.fit_log_paraboloid_groups(data[ok, :4], data[ok, 4], SIDES, w[ok])
             r = p['curvature_ratio_max']
             if fit is not None and (
                     not all(self.curvature_prior / r < k < self.curvature_prior * r
-                            for k in fit[1:3])
+                            for k in fit[1])
                     or np.linalg.norm(fit[0] - self._center) > self._radius):
                 fit = None
         ok_last = self._weights(rows[:, 4])[0]
@@ -89,40 +94,10 @@ class JointPeakMixin(PointPeaking):
             return self._complete(rows, ok_last)
         if fit is None and ok.sum() >= 5:
             prior = True
-            fit = ss.fit_log_paraboloid_sides(data[ok, :4], data[ok, 4], w[ok],
-                                              curvature=self.curvature_prior)
+            fit = s2.fit_log_paraboloid_groups(data[ok, :4], data[ok, 4], SIDES, w[ok],
+                                               curvature=self.curvature_prior)
         if fit is None:
-            if ok.sum() == 0 and self.iterations == 1:
-                return self._false_light()
-            if ok.sum() == 0:
-                self._fault('light lost while peaking: no reading above %.1f dBm around %s'
-                            % (dbm(p['fit_min_snr'] * self.floor[1]), um(self._center)))
-                return
-            best = rows[int(np.argmax(rows[:, 4])), :4]
-            return self._iterate(best, self._radius)
-        vertex = np.asarray(fit[0])
-        out = (vertex < self.lo - p['range_tolerance_m']) | \
-            (vertex > self.hi + p['range_tolerance_m'])
-        at_edge = (np.abs(self._center - self.lo) < p['settle_tolerance_m']) | \
-            (np.abs(self._center - self.hi) < p['settle_tolerance_m'])
-        bad = [AXES4[a] for a in range(4) if out[a] and at_edge[a]]
-        if bad:
-            self._fault('target out of reach in %s: peak estimated at %s, reachable %.1f..'
-                        '%.1f um' % (' and '.join(bad), um(vertex), self.lo[0] * 1e6,
-                                     self.hi[0] * 1e6))
-            return
-        step = vertex - self._center
-        dist = float(np.linalg.norm(step))
-        self._log('pattern %d at %s, radius %.2f um, %d lit: vertex %s%s'
-                  % (self.iterations, um(self._center), self._radius * 1e6, ok.sum(),
-                     um(vertex), ' (curvature prior)' if prior else ''))
-        if dist > p['max_step_m']:
-            step *= p['max_step_m'] / dist
-        self._fit = fit
-        if dist < p['converge_tolerance_m']:
-            # a vertex this close, even with the prior curvature, is off by at most the
-            # step times the prior's error; the reading at the vertex checks the fit's peak
-            # (a wrong curvature shows there) and a miss pools another pattern
-            self.curvatures_per_m2 = (fit[1], fit[2])
-            return self._verify_at(vertex)
-        self._iterate(self._center + step, dist=dist)
+            return self._no_fit(rows, ok.sum(), search_on=True)
+        if self._move_to(fit[0], fit, prior, ok.sum()):
+            self.curvatures_per_m2 = tuple(fit[1])
+            self._verify_at(fit[0])

@@ -1,13 +1,11 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-Geometry and estimators of the coupled station (four axes; pure numpy, SI units).
+Geometry of the coupled station's search (four axes; pure numpy, SI units).
 
 - :func:`search_design`: how many input-side grid points and output-side raster lines the
   first-light search needs so that it cannot pass the joint peak by.
 - :func:`search_vertices` and :class:`Polyline`: the search path in the four coordinates
   ``(x_in, y_in, x_out, y_out)`` (m), walked at a constant speed.
-- :func:`fit_log_paraboloid_sides`: weighted least squares of ``ln P`` on the separable
-  paraboloid of the two facets' Gaussian overlaps.
 """
 
 import math
@@ -101,15 +99,3 @@ class Polyline:
         span = self.cum[i + 1] - self.cum[i]
         f = 0.0 if span <= 0 else (self.s - self.cum[i]) / span
         return self.v[i] + f * (self.v[i + 1] - self.v[i])
-
-
-def fit_log_paraboloid_sides(pos_m, p_w, weights=None, curvature=None):
-    """
-    Fit ``ln P = ln P0 - k_in |r_in - a|^2 - k_out |r_out - b|^2`` (m, W, 1/m^2).
-
-    :func:`~fiber_align.alignment.search2d.fit_log_paraboloid_groups` with the two sides
-    of ``(x_in, y_in, x_out, y_out)``; returns ``(vertex (4,) m, k_in, k_out, ln P0)``, or
-    None when the readings do not define a peak.
-    """
-    fit = s2.fit_log_paraboloid_groups(pos_m, p_w, ((0, 1), (2, 3)), weights, curvature)
-    return None if fit is None else (fit[0], fit[1][0], fit[1][1], fit[2])

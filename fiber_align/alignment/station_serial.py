@@ -18,10 +18,8 @@ import math
 import numpy as np
 
 from fiber_align.alignment import station as st
-from fiber_align.alignment.machine import dbm
 from fiber_align.alignment.peak2d import PeakFitMixin
-from fiber_align.alignment.states import PEAKING
-from fiber_align.alignment.station_peak import um
+from fiber_align.alignment.states import dbm, PEAKING, um
 
 SIDE_NAMES = ('input', 'output')
 

@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from fiber_align.alignment.machine import dbm
+from fiber_align.alignment.states import dbm
 
 
 class JointDemodulator:

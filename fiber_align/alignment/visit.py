@@ -19,8 +19,8 @@ import math
 
 import numpy as np
 
-from fiber_align.alignment.hold import um
 from fiber_align.alignment.search2d import LN10_OVER_10
+from fiber_align.alignment.states import dbm, um
 
 
 class Visit:
@@ -79,6 +79,9 @@ class PointPeaking:
 
     #: what one iteration's point set is called in the events
     PATTERN = 'pattern'
+    #: True: a fit with the curvature prior may end the iterations (its vertex is checked
+    #: by the reading there); False: only a fit of its own curvature does
+    PRIOR_CONVERGES = True
 
     def _visit(self, points, done):
         """Read each point of ``points`` (m) settled; then call ``done(rows)``."""
@@ -98,6 +101,56 @@ class PointPeaking:
         ok = pw > p['fit_min_snr'] * max(sigma, 1e-300)
         var = ((sigma / np.maximum(pw, 1e-300)) ** 2 + rin * rin) / int(p['point_samples'])
         return ok, 1.0 / var
+
+    def _no_fit(self, rows, lit, search_on=False):
+        """
+        No fit of a pattern's ``rows``: the next pattern around its brightest reading.
+
+        None of them lit (``lit`` 0): the light is lost (FAULT), or, at the first pattern
+        with ``search_on``, a noise spike ended the search there: it walks on.
+        """
+        n = len(self.lo)
+        if lit == 0 and search_on and self.iterations == 1:
+            return self._false_light()
+        if lit == 0:
+            return self._fault('light lost while peaking: no reading above %.1f dBm around %s'
+                               % (dbm(self.p['fit_min_snr'] * self.floor[1]), um(self._center)))
+        self._iterate(rows[int(np.argmax(rows[:, n])), :n], self._radius)
+
+    def _move_to(self, vertex, fit, prior, lit, reach=True):
+        """
+        Move the pattern to the fit's ``vertex`` (m); return True when it converged there.
+
+        FAULT (``reach``: the fit can tell) when the vertex lies more than
+        ``range_tolerance_m`` beyond the range on an axis where the pattern is at its edge;
+        a step longer than ``max_step_m`` is cut to it; converged (the caller verifies the
+        vertex) when the step is within ``converge_tolerance_m``, else the next pattern.
+        """
+        p = self.p
+        names = self.AXIS_NAMES
+        out = (vertex < self.lo - p['range_tolerance_m']) | \
+            (vertex > self.hi + p['range_tolerance_m'])
+        at_edge = (np.abs(self._center - self.lo) < p['settle_tolerance_m']) | \
+            (np.abs(self._center - self.hi) < p['settle_tolerance_m'])
+        bad = [a for a in range(len(vertex)) if out[a] and at_edge[a]]
+        if bad and reach:
+            self._fault('target out of reach in %s: peak estimated at %s, reachable %s'
+                        % (' and '.join(names[a] for a in bad), um(vertex), ', '.join(
+                            '%s %.1f..%.1f um' % (names[a], self.lo[a] * 1e6, self.hi[a] * 1e6)
+                            for a in bad)))
+            return False
+        step = vertex - self._center
+        dist = float(np.linalg.norm(step))
+        self._log('%s %d at %s, radius %.2f um, %d lit: vertex %s%s'
+                  % (self.PATTERN, self.iterations, um(self._center), self._radius * 1e6, lit,
+                     um(vertex), ' (curvature prior)' if prior else ''))
+        if dist > p['max_step_m']:
+            step *= p['max_step_m'] / dist
+        self._fit = fit
+        if dist < p['converge_tolerance_m'] and (self.PRIOR_CONVERGES or not prior):
+            return True
+        self._iterate(self._center + step, dist=dist)
+        return False
 
     def _iterate(self, center, radius=None, dist=0.0):
         """Next pattern at ``center`` (m): of ``radius``, or one after a step ``dist`` (m)."""

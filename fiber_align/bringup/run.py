@@ -151,6 +151,10 @@ class Bringup:
             r.wait_samples(k_off + k(sm.SWITCH_OFF_S), wall, alive)
             k_on = r.command('switch', True, alive)
             r.wait_samples(k_on + k(sm.SWITCH_ON_S), wall, alive)
+            # the re-peak takes about 55 of the 60 samples: a status a few samples late (a
+            # loaded machine) is waited for, within the alignment's own bound
+            r.wait_samples(k_on + k(sm.ALIGN_MAX_S), wall, alive,
+                           lambda: r.status.get('state') in ('TRACKING', 'FAULT'))
             events['cycles'].append((k_off, k_on, r.samples))
             if r.status.get('state') == 'FAULT':
                 break

@@ -32,7 +32,6 @@ import numpy as np
 
 from fiber_align.alignment import hillclimb2d as hc
 from fiber_align.alignment import sequencer2d as s2d
-from fiber_align.alignment.plots2d import plot_run2d
 from fiber_align.plant import optics2d as o2
 from fiber_align.simulation import harness as hs
 from fiber_align.simulation.alignment_bench import LoopRig
@@ -152,6 +151,10 @@ def run(name, seed=0, loop='composite', record=False, rig=None, **kw):
     return out
 
 
-def run_cli(args):
-    """Run ``fiber-align simulate --scenario align2d|track2d|switch2d``; return an exit code."""
-    return hs.run_cli(args, run, plot_run2d, ('cycles', 'duration', 'drift', 'target'))
+def run_cli(args, plot=None):
+    """
+    Run ``fiber-align simulate --scenario align2d|track2d|switch2d``; return an exit code.
+
+    :param plot: ``plot(res, path)`` for ``--plot`` (the caller's figure; None: no figure).
+    """
+    return hs.run_cli(args, run, plot, ('cycles', 'duration', 'drift', 'target'))

@@ -30,7 +30,6 @@ fuzzy PID) or ``ideal`` (a first-order stand-in, fast, for tests); see
 import numpy as np
 
 from fiber_align.alignment import sequencer as sq
-from fiber_align.alignment.plots import plot_run
 from fiber_align.config import load_params
 from fiber_align.simulation import harness as hs
 from fiber_align.simulation.alignment_bench import build
@@ -108,6 +107,10 @@ def align_trials(n=20, seed=0, loop='ideal', **kw):
     return trials, summary
 
 
-def run_cli(args):
-    """Run ``fiber-align simulate --scenario align|switch|track``; return an exit code."""
-    return hs.run_cli(args, run, plot_run, ('cycles', 'duration', 'slot', 'drift'))
+def run_cli(args, plot=None):
+    """
+    Run ``fiber-align simulate --scenario align|switch|track``; return an exit code.
+
+    :param plot: ``plot(res, path)`` for ``--plot`` (the caller's figure; None: no figure).
+    """
+    return hs.run_cli(args, run, plot, ('cycles', 'duration', 'slot', 'drift'))

@@ -4,6 +4,7 @@
 import json
 import math
 
+from fiber_align.analysis import alignment_plots
 from fiber_align.config import load_params
 from fiber_align.control.factory import CONTROLLERS
 from fiber_align.jsonout import json_clean
@@ -68,6 +69,9 @@ STATION_SCENARIOS = (scenarios.MACHINE_SCENARIOS['station']
 MACHINES = {name: module for module in (alignment_scenarios, alignment2d_scenarios,
                                         station_scenarios, array_scenarios)
             for name in module.SCENARIOS}
+#: The figure of a machine's run (``--plot``), where it has one.
+PLOTS = {alignment_scenarios: alignment_plots.plot_run,
+         alignment2d_scenarios: alignment_plots.plot_run2d}
 
 
 def _check_alignment_args(args):
@@ -110,11 +114,13 @@ def cmd_simulate(args):
     record = runs_cli.recorder(args)     # None without --catalog (or with none)
     if args.scenario in MACHINES:
         _check_alignment_args(args)
+        module = MACHINES[args.scenario]
+        plot = {'plot': PLOTS[module]} if module in PLOTS else {}
         if record is None:
-            return MACHINES[args.scenario].run_cli(args)
+            return module.run_cli(args, **plot)
         args.on_result, finish = record
         try:
-            return MACHINES[args.scenario].run_cli(args)
+            return module.run_cli(args, **plot)
         finally:
             finish()
     extra = [o for o, v in (('--loop', args.loop), ('--cycles', args.cycles),
