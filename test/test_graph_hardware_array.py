@@ -45,10 +45,10 @@ def test_hardware_array_description():
     assert seq['machine'] == 'array' and seq['sensorless'] is True and seq['rate_hz'] == 100.0
     assert len({seq[k] for k in ('dither_x_frequency_hz', 'dither_left_frequency_hz',
                                  'dither_right_frequency_hz')}) == 3
-    for args, why in ((dict(visa_resource='TCPIP::127.0.0.1::1::SOCKET'),
-                       'visa_resource'), (dict(record='b'), 'record: not available with '
-                                                               'array:=true hardware:=true'),
-                      (dict(station='true'), 'station:=true')):
+    refused = ((dict(visa_resource='TCPIP::127.0.0.1::1::SOCKET'), 'visa_resource'),
+               (dict(record='b'), 'record: not available with array:=true hardware:=true'),
+               (dict(station='true'), 'station:=true'))
+    for args, why in refused:
         with pytest.raises(GraphError) as exc:
             describe(dict(array='true', hardware='true', **args))
         assert str(exc.value).startswith(why) and '\n' not in str(exc.value), exc.value

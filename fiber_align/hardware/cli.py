@@ -127,8 +127,8 @@ def options(args):
             raise ValueError('--model must be MDT693B or MDT694B, got %r' % args.model)
         emu['model'] = args.model
         if (args.rig or args.array) and args.model == 'MDT694B':
-            raise ValueError('--rig and --array need several channels; the MDT694B has x '
-                             'only')
+            raise ValueError('%s needs %s channels; the MDT694B has x only'
+                             % (('--array', 'three') if args.array else ('--rig', 'two')))
     if args.v_limit is not None:
         v = _number('--v-limit', args.v_limit)
         if v not in LIMIT_SWITCHES_V:
