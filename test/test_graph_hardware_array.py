@@ -131,3 +131,23 @@ def test_a_meter_unplugged_mid_tracking_faults_naming_it_without_drift(j, name):
         finally:
             codes = hw.stop()
     assert all(c == 0 for c in codes.values()), codes
+
+
+@pytest.mark.ros  # starts a process (the launch file imports launch_ros)
+def test_the_launch_file_reads_the_hardware_array():
+    import subprocess
+    from pathlib import Path
+
+    from test_bringup_hardware_rig import LAUNCH_DESCRIBE
+    from test_ros2_cli import ros2_environment
+    env = ros2_environment(Path(sys.prefix)) or dict(os.environ)
+    launch = str(Path(__file__).resolve().parents[1] / 'launch' / 'fiber_align.launch.py')
+    args = dict(array='true', hardware='true', port='/dev/ttyMDT', visa_resource=TWO)
+    # subprocess.run kills the child on its timeout
+    proc = subprocess.run([sys.executable, '-c', LAUNCH_DESCRIBE, launch, json.dumps(args)],
+                          env=env, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out['kind'] == 'HardwareRigGraph' and out['port'] == '/dev/ttyMDT', out
+    assert {'mdt693b_driver', 'power_meter', 'power_meter_n', 'array_sequencer'} <= set(
+        out['nodes'])
