@@ -118,6 +118,11 @@ def test_the_emulated_link_takes_the_byte_times_and_the_turnaround(emu):
      "--x-channel and --y-channel name the same channel 'z'"),
     (['--rig', '--x-channel', 'w'], "--x-channel must be x, y or z, got 'w'"),
     (['--rig', '--slot', '1e-5'], '--slot is 1-D; the rig takes --target-x and --target-y'),
+    (['--array', '--rig'], '--rig: not available with --array'),
+    (['--array', '--x-channel', 'z'], '--x-channel: not available with --array'),
+    (['--roll', '1e-3'], '--roll: only with --array'),
+    (['--array', '--roll', '0.2'], "--roll must be within -0.1..0.1, got '0.2'"),
+    (['--array', '--model', 'MDT694B'], '--array needs three channels; the MDT694B has x only'),
 ])
 def test_emulate_refuses_bad_rig_options_in_one_line(argv, why):
     import argparse

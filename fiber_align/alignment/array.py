@@ -94,6 +94,8 @@ class ArrayMachine(MultiAxis, Machine, PointPeaking):
         self.roll_arm_m = float(g['roll_arm_m'])
         u = ao.positions_along(g['channels'], g['pitch_m'])
         self.u_outer = np.array([u[0], u[-1]])
+        #: the outer channels as a fault names them, and those whose reading is missing now
+        self.outer_names, self._silent = ('1', 'N (%d)' % len(u)), []
         self.curvature_prior = 1.0 / p['coupling_radius_m'] ** 2
         self._history, self._pw2, self._center, self._path = [], None, None, None
         park = ao.actuators(p['nominal_x_m'], p['nominal_y_m'], 0.0, self.roll_arm_m)
@@ -131,11 +133,18 @@ class ArrayMachine(MultiAxis, Machine, PointPeaking):
         :param driver_active: None (as the drivers published), a bool, or three bools.
         """
         pw2 = None
-        if powers_w is not None and all(v is not None and math.isfinite(v) for v in powers_w):
+        ok = [v is not None and math.isfinite(v) for v in (powers_w or (None, None))]
+        self._silent = [c for c, k in zip(self.outer_names, ok) if not k]
+        if all(ok):
             pw2 = np.asarray(powers_w, dtype=float)
         self._pw2 = pw2                 # the search, the floor, HELD: the brighter channel
         return self._update(t_s, positions_m, None if pw2 is None else float(pw2.max()),
                             driver_active)
+
+    def _power_text(self):
+        """Name the meters without a reading: ``channel N (8)'s power meter`` (the readings)."""
+        return ' and '.join("channel %s's power meter" % c for c in self._silent) or \
+            'optical power'
 
     def _do_peaking(self, t, pos, pw):
         self._do_visit(t, pos, self._pw2)

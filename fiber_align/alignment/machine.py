@@ -273,7 +273,7 @@ class Machine:
         """Return True (and fault) when a reading is missing or frozen, or an axis is stuck."""
         p = self.p
         t0 = self._state_t if self._state_t is not None else t
-        for key, what in (('p', 'optical power'), ('y', 'displacement')):
+        for key, what in (('p', self._power_text()), ('y', 'displacement')):
             last = max(self._last[key] if self._last[key] is not None else t0, t0)
             if t - last > p['sensor_timeout_s']:
                 self._fault('sensor silent: no %s reading for %.0f ms'
@@ -299,6 +299,10 @@ class Machine:
         else:
             self._follow_since = None
         return False
+
+    def _power_text(self):
+        """Return what a silent power reading is called in a fault (the array: which meter)."""
+        return 'optical power'
 
     def _meter_frozen(self, t, pos, pw):
         """

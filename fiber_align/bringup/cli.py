@@ -72,7 +72,7 @@ NOTES = {
     'rig': '; align2d, in lockstep compared with fiber-align simulate --scenario align2d',
     'station': '; align, in lockstep compared with fiber-align simulate --scenario station',
     'array': '; align, in lockstep compared with fiber-align simulate --scenario array',
-    'hardware': '; align, --cycles, --hold; with --rig both axes on one MDT693B',
+    'hardware': '; align, --cycles, --hold; with --rig or --array the axes on one MDT693B',
 }
 
 
@@ -136,8 +136,9 @@ def parse_args(argv):
         ap.error('--emulate, --slot and --hold need --hardware')
     if a.meter_floor is not None and not a.emulate:
         ap.error('--meter-floor needs --hardware --emulate')
-    if a.slot is not None and a.rig:
-        ap.error('--slot is not available with --rig (--seed picks the emulated target)')
+    if a.slot is not None and (a.rig or a.array):
+        ap.error('--slot is not available with --rig or --array (--seed picks the emulated '
+                 'target or chip)')
     if a.emulate and (a.port or a.visa_resource):
         ap.error('--emulate chooses the port and the VISA resource itself')
     if a.cycles is not None and a.cycles < 0:

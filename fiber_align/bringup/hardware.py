@@ -2,9 +2,12 @@
 """
 ``bringup --hardware``: the sensorless bench graph on a real or emulated MDT693B + PM100.
 
-The graph is ``hardware:=true``'s (:mod:`fiber_align.graph.hardware`; with ``--rig``
-:mod:`fiber_align.graph.hardware_rig`). ``--emulate`` first starts ``fiber-align
-emulate`` as a child (``--rig``: with the target of the run seed, as the simulated rig's).
+The graph is ``hardware:=true``'s (:mod:`fiber_align.graph.hardware`; with ``--rig`` or
+``--array`` :mod:`fiber_align.graph.hardware_rig`). ``--emulate`` first starts
+``fiber-align emulate`` as a child (``--rig``: with the target of the run seed, as the
+simulated rig's; ``--array``: the chip and layout of the run seed, as the simulated
+array's) and, once the hold is over, asks it for the truth (``truth`` in the summary:
+:meth:`~fiber_align.hardware.emulators.physics.Bench.truth`).
 The steps (ready, ``align``, ``--cycles``, ``--hold``, stop, the JSON summary) and the
 exit codes: docs/hardware.md ("The hardware graph: launch and ``bringup --hardware``").
 """
@@ -19,8 +22,10 @@ from fiber_align.bringup.observer import BringupError, Refused
 from fiber_align.graph.hardware import emulator_priority
 from fiber_align.graph.params import LIFECYCLE_MANAGER
 from fiber_align.hardware.errors import DeviceError
-from fiber_align.hardware.process import emulator_options, start_emulator, stop_process
+from fiber_align.hardware.process import (emulator_options, emulator_truth, start_emulator,
+                                          stop_process)
 from fiber_align.nodes.ros.qos import REALTIME_QOS
+from fiber_align.simulation.array_scenarios import random_chip
 from fiber_align.simulation.seeds2d import random_target
 
 #: Bounds (s, wall) of the steps; the align bound is the issue's 3 s goal plus margin.
@@ -137,9 +142,10 @@ def run(args):
         port, resource = args.port or '', args.visa_resource or ''
         if args.emulate:
             seed = args.seed if args.seed is not None else 0
-            # --rig: the target of the simulated rig's run seed (graph/rig.py)
-            extra = emulator_options(seed, random_target(seed) if args.rig else None,
-                                     args.slot, args.meter_floor)
+            # --rig: the target of the simulated rig's run seed (graph/rig.py); --array: the
+            # chip of the simulated array's (graph/array.py)
+            extra = emulator_options(seed, random_target(seed) if args.rig else random_chip(
+                seed) if args.array else None, args.slot, args.meter_floor)
             parts['emu'], info = start_emulator(extra, quiet=args.quiet,
                                                 priority=emulator_priority())
             port, resource = info['serial_link'], info['visa_resource']
@@ -165,6 +171,8 @@ def run(args):
             return 0
         if hw.power:
             summary['last_power_w'] = hw.power[-1][1]
+        if parts.get('emu') is not None:
+            summary['truth'] = emulator_truth(parts['emu'])
         summary['final_state'] = hw.status.get('state')
         return 0 if ok and summary['final_state'] == 'TRACKING' else 1
 

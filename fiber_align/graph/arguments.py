@@ -23,7 +23,7 @@ from fiber_align.graph.array import ARRAY_NAMESPACE, build_array
 from fiber_align.graph.catalog import with_catalog
 from fiber_align.graph.description import build, parse_bool
 from fiber_align.graph.hardware import build_hardware
-from fiber_align.graph.hardware_rig import build_hardware_rig
+from fiber_align.graph.hardware_rig import build_hardware_array, build_hardware_rig
 from fiber_align.graph.live import check_endpoint, live_settings, with_live
 from fiber_align.graph.params import GraphError, PLANT, SCENARIO_RUNNER
 from fiber_align.control.factory import CONTROLLERS
@@ -66,7 +66,8 @@ ARGUMENTS = (
     ('hardware', 'false', 'true: the sensorless bench (MDT693B + PM100) instead of the '
      'simulated actuator', ['true', 'false']),
     ('port', '', 'hardware: MDT693B serial device ("" = config/hardware.yaml)', None),
-    ('visa_resource', '', 'hardware: PM100 VISA resource ("" = config/hardware.yaml)', None),
+    ('visa_resource', '', 'hardware: PM100 VISA resource ("" = config/hardware.yaml; the '
+     "array: A,B, channel 1's meter and channel N's)", None),
     ('live', 'false', 'true: the Foxglove live view (ws://live_host:live_port, '
      'docs/live_view.md)', ['true', 'false']),
     ('live_port', '', 'live view TCP port ("" = config/live_view.yaml: 8765)', None),
@@ -128,6 +129,8 @@ MACHINES = {
                                          'hardware:=true'),
     (True, False, False, True): Machine(build_hardware_rig, HARDWARE,
                                         'rig:=true hardware:=true', RIG_NAMESPACE),
+    (False, False, True, True): Machine(build_hardware_array, HARDWARE,
+                                        'array:=true hardware:=true', ARRAY_NAMESPACE),
 }
 
 
@@ -177,7 +180,8 @@ def describe(arguments, overrides=None):
     g = with_live(m.build(overrides=over, **kw), *[args.get(k, '') for k in LIVE_ARGS])
     g = with_snapshots(g, args.get('snapshots', ''))
     # last: its parameters are the whole graph's; the live view does not show its topics
-    g = with_catalog(g, args.get('catalog', ''), m.build in (build_hardware, build_hardware_rig))
+    g = with_catalog(g, args.get('catalog', ''), m.build in (build_hardware, build_hardware_rig,
+                                                             build_hardware_array))
     check_graph(g)              # every declared range, the drive limits: before any start
     served = live_settings(g)
     if served:                  # a port in use: one line before any process starts

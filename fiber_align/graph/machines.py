@@ -67,7 +67,7 @@ MACHINES = {
                        lambda c: c.setpoint),
     'array': Machine(ar, ARRAY_AXES, ar.ArrayMachine,
                      lambda c, t, x, p: c.update(t, None if None in x else list(x), p),
-                     lambda c: c.setpoint, powers=ARRAY_POWERS),
+                     lambda c: c.setpoint, amplifier=AMPLIFIER, powers=ARRAY_POWERS),
 }
 #: The params files of the machines' cores, where each sequencer node's section is.
 CONFIG_FILES = tuple(dict.fromkeys(m.module.CONFIG_FILE for m in MACHINES.values()))

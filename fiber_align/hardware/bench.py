@@ -30,7 +30,7 @@ from fiber_align.control.driver import DriverCore
 from fiber_align.control.feedforward import Feedforward
 from fiber_align.hardware import errors as er
 from fiber_align.hardware.emulators.mdt693b import MDT693BEmulator
-from fiber_align.hardware.emulators.physics import Bench, RigBench
+from fiber_align.hardware.emulators.physics import ArrayBench, Bench, RigBench
 from fiber_align.hardware.emulators.pm100 import PM100Emulator
 from fiber_align.hardware.mdt693b_channels import MDT693BOutput
 from fiber_align.hardware.pm100 import PM100
@@ -48,9 +48,14 @@ def load_hardware(node, path=CONFIG_FILE, **overrides):
 
 
 @contextlib.contextmanager
-def emulated(seed=0, emulator_params=None, rig=False, **optics):
+def emulated(seed=0, emulator_params=None, rig=False, array=False, **optics):
     """
     Start an MDT693B and a PM100 emulator on one bench; yield ``(bench, mdt, pm)``.
+
+    ``array``: the fiber array (:class:`ArrayBench`: the holder on channels
+    ``array_x_channel``, ``array_y_left_channel``, ``array_y_right_channel``, the array
+    optics); ``pm`` is then a list of two PM100 emulators, channel 1's and channel N's
+    (the second on ``pm100_port + 1`` when that is not 0).
 
     :param seed: detector noise seed.
     :param emulator_params: overrides of the ``emulator`` section of hardware.yaml.
@@ -60,7 +65,11 @@ def emulated(seed=0, emulator_params=None, rig=False, **optics):
         ...; rig: ``position_x_m``, ``position_y_m``, ``drift_x_m_per_s``, ...).
     """
     e = load_hardware('emulator', **(emulator_params or {}))
-    if rig:
+    if array:
+        bench = ArrayBench(v_limit=float(e['v_limit']), seed=seed, step_s=float(e['step_s']),
+                           axes={a: e['array_%s_channel' % a] for a in ArrayBench.AXES},
+                           **optics)
+    elif rig:
         bench = RigBench(v_limit=float(e['v_limit']), seed=seed, step_s=float(e['step_s']),
                          axes={'x': e['rig_x_channel'], 'y': e['rig_y_channel']}, **optics)
     else:
@@ -72,12 +81,19 @@ def emulated(seed=0, emulator_params=None, rig=False, **optics):
                               link_dir=e.get('serial_link_dir') or None,
                               response_delay_s=float(e['response_delay_s']),
                               baud=int(e['baud']), turnaround_s=float(e['turnaround_s']))
-        pm = PM100Emulator(bench, port=int(e['pm100_port']),
-                           sample_time_s=float(e['sample_time_s']))
+        port = int(e['pm100_port'])
+        if array:
+            pm = []
+            for j in range(2):
+                pm.append(PM100Emulator(bench.meter(j), port=port + j if port else 0,
+                                        sample_time_s=float(e['sample_time_s'])))
+        else:
+            pm = PM100Emulator(bench, port=port, sample_time_s=float(e['sample_time_s']))
         yield bench, mdt, pm
     finally:
-        if pm is not None:
-            pm.stop()
+        for m in (pm if isinstance(pm, list) else [pm]):
+            if m is not None:
+                m.stop()
         if mdt is not None:
             mdt.stop()
 

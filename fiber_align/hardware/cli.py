@@ -5,7 +5,10 @@
 Prints one JSON line (``serial_port``: the pty, ``serial_link``: a stable symlink to it,
 ``visa_resource``, ``slot_position_m``, ``seed``, ``pid``, ...) and serves until SIGINT
 or SIGTERM (or until the process that started it is gone), then stops both emulators and
-exits 0. Defaults: ``config/hardware.yaml`` (section ``emulator``) and
+exits 0. On SIGUSR1 it prints one JSON line of the truth now (``{"truth": ...}``:
+:meth:`~fiber_align.hardware.emulators.physics.Bench.truth`). ``--array``: the fiber
+array, one MDT693B (x, y_left, y_right on x, y, z) and two PM100s (``visa_resource``
+``A,B``: channel 1's, channel N's). Defaults: ``config/hardware.yaml`` (section ``emulator``) and
 ``config/plant.yaml`` / ``config/optics.yaml``. Bad options exit 2 with one line.
 """
 
@@ -46,9 +49,12 @@ def register(subparsers):
                    'down to multiples of this (W): a quantised reading; default 0 (none)')
     p.add_argument('--rig', action='store_true', help='the two-axis rig: bimorphs on '
                    'channels x and y (--x-channel, --y-channel), 2-D optics')
+    p.add_argument('--array', action='store_true', help='the fiber array: bimorphs x, '
+                   'y_left, y_right on channels x, y, z, the array optics, two PM100s')
     p.add_argument('--target-x', metavar='M', help='rig: output core x (m), default '
-                   'config/optics2d.yaml')
-    p.add_argument('--target-y', metavar='M', help='rig: output core y (m)')
+                   "config/optics2d.yaml; array: the chip's x0 (config/array.yaml)")
+    p.add_argument('--target-y', metavar='M', help="rig: output core y (m); array: y0")
+    p.add_argument('--roll', metavar='RAD', help="array: the chip's roll0 (rad)")
     p.add_argument('--drift-y', metavar='M_PER_S', help='rig: target drift along y (m/s); '
                    '--drift is along x')
     p.add_argument('--x-channel', metavar='x|y|z', help='rig: channel of the x bimorph')
@@ -75,6 +81,19 @@ def options(args):
     rig_only = [o for o, v in (('--target-x', args.target_x), ('--target-y', args.target_y),
                                ('--drift-y', args.drift_y), ('--x-channel', args.x_channel),
                                ('--y-channel', args.y_channel)) if v is not None]
+    if args.array:
+        bad = [o for o in rig_only if o not in ('--target-x', '--target-y')] + [
+            o for o, v in (('--rig', args.rig), ('--slot', args.slot), ('--drift', args.drift))
+            if v not in (None, False)]
+        if bad:
+            raise ValueError('%s: not available with --array' % ', '.join(bad))
+        optics.update({k: _number(o, v, -lim, lim) for o, k, v, lim in (
+            ('--target-x', 'chip_x_m', args.target_x, 1e-3),
+            ('--target-y', 'chip_y_m', args.target_y, 1e-3),
+            ('--roll', 'chip_roll_rad', args.roll, 0.1)) if v is not None}, layout_seed=seed)
+        rig_only = []
+    elif args.roll is not None:
+        raise ValueError('--roll: only with --array')
     if rig_only and not args.rig:
         raise ValueError('%s: only with --rig' % ', '.join(rig_only))
     if args.rig and args.slot is not None:
@@ -86,7 +105,7 @@ def options(args):
             '--drift-y': 'drift_y_m_per_s'}
     for opt, text in (('--target-x', args.target_x), ('--target-y', args.target_y),
                       ('--drift', args.drift), ('--drift-y', args.drift_y)):
-        if text is not None:
+        if text is not None and not args.array:
             optics[keys[opt]] = _number(opt, text, -1e-3, 1e-3)
     for opt, key, text in (('--x-channel', 'rig_x_channel', args.x_channel),
                            ('--y-channel', 'rig_y_channel', args.y_channel)):
@@ -107,8 +126,9 @@ def options(args):
         if args.model not in ('MDT693B', 'MDT694B'):
             raise ValueError('--model must be MDT693B or MDT694B, got %r' % args.model)
         emu['model'] = args.model
-        if args.rig and args.model == 'MDT694B':
-            raise ValueError('--rig needs two channels; the MDT694B has x only')
+        if (args.rig or args.array) and args.model == 'MDT694B':
+            raise ValueError('%s needs %s channels; the MDT694B has x only'
+                             % (('--array', 'three') if args.array else ('--rig', 'two')))
     if args.v_limit is not None:
         v = _number('--v-limit', args.v_limit)
         if v not in LIMIT_SWITCHES_V:
@@ -133,17 +153,24 @@ def _run(args):
     stop = []       # a handler only appends: a lock taken there can deadlock the loop
 
     def on_signal(signum, frame):
-        stop.append(signum)
+        (asked if signum == signal.SIGUSR1 else stop).append(signum)
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    asked = []
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM,
+                                                    signal.SIGUSR1)}
     lifeline.watch_parent(lifeline.PARENT_PID, signal.SIGTERM)   # as on SIGTERM
     try:
-        with emulated(seed=seed, emulator_params=emu, rig=args.rig, **optics) as (
-                bench, mdt, pm):
+        with emulated(seed=seed, emulator_params=emu, rig=args.rig, array=args.array,
+                      **optics) as (bench, mdt, pm):
+            meters = pm if isinstance(pm, list) else [pm]
             info = dict(serial_port=mdt.slave_path, serial_link=mdt.port,
-                        visa_resource=pm.resource, model=mdt.model,
+                        visa_resource=','.join(m.resource for m in meters), model=mdt.model,
                         v_limit_v=bench.v_limit, echo=mdt.echo, seed=seed, pid=os.getpid())
-            if args.rig:
+            if args.array:
+                c = bench.array
+                info.update(array=True, axes=bench.axes, chip=list(c.chip),
+                            layout_seed=seed, best_pose=list(c.best()))
+            elif args.rig:
                 t = bench.coupling2d.target
                 info.update(rig=True, axes=bench.axes, target_x_m=t.p0[0], target_y_m=t.p0[1],
                             drift_x_m_per_s=t.v[0], drift_y_m_per_s=t.v[1])
@@ -153,9 +180,13 @@ def _run(args):
                             slot_drift_m_per_s=bench.coupling.slot_drift_m_per_s)
             print(json.dumps(info), flush=True)
             while not stop:
-                time.sleep(0.2)
+                if asked:
+                    del asked[:]
+                    print(json.dumps(dict(truth=bench.truth())), flush=True)
+                time.sleep(0.05)
             stats = dict(stopped=True, mdt693b_commands=mdt.commands,
-                         voltage_commands=len(mdt.command_log), pm100_readings=pm.readings)
+                         voltage_commands=len(mdt.command_log),
+                         pm100_readings=sum(m.readings for m in meters))
             try:
                 print(json.dumps(stats), file=sys.stderr, flush=True)
             except OSError:     # a launcher killed with SIGKILL took the reader along

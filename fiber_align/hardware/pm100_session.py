@@ -112,3 +112,41 @@ class MeterReader:
         self.stop.set()
         self.thread.join(timeout_s)
         self.meter.close()
+
+
+#: Sensorless: the most control periods one set of readings advances the sequencer's clock.
+MAX_GAP_PERIODS = 1.5
+
+
+class ReadingSets:
+    """
+    Several meters' readings (W) as one set per step of a sensorless sequencer, and its clock.
+
+    Each meter reads on its own clock. A set goes out when every meter has a reading in
+    it; a second reading of a meter before the others' goes out with what the set has
+    (``None`` for a meter without a reading: after a run of them, the sequencer's
+    ``sensor_timeout_s`` names that meter silent). One meter: every reading is a set.
+    The sequencer's clock (s) starts at 0 and advances by the wall time between two sets,
+    at most :data:`MAX_GAP_PERIODS` control periods (an overrun is not a jump).
+    """
+
+    def __init__(self, n, period_s):
+        """Hold no reading of any of the ``n`` meters yet; ``period_s``: the control period."""
+        self.pending = [None] * int(n)
+        self.max_gap_s = MAX_GAP_PERIODS * float(period_s)
+        self.t_s, self._wall = None, None
+
+    def add(self, j, value_w, wall_s):
+        """Add meter ``j``'s reading (W) at ``wall_s`` (s); return ``(t_s, set)`` or None."""
+        out = None
+        if self.pending[j] is not None:     # a repeat before the others: the set as it is
+            out, self.pending = self.pending, [None] * len(self.pending)
+        self.pending[j] = float(value_w)
+        if out is None and all(v is not None for v in self.pending):
+            out, self.pending = self.pending, [None] * len(self.pending)
+        if out is None:
+            return None
+        self.t_s = 0.0 if self.t_s is None else self.t_s + min(max(wall_s - self._wall, 0.0),
+                                                               self.max_gap_s)
+        self._wall = wall_s
+        return self.t_s, out

@@ -25,11 +25,15 @@ def emulator_options(seed, target_m=None, slot_m=None, meter_floor_w=None):
     Return the options of ``fiber-align emulate`` for a run (``bringup --hardware --emulate``).
 
     :param seed: the emulators' seed; :param target_m: the rig's output core ``(x, y)``
-        (m; ``None``: the 1-D bench); :param slot_m: the 1-D slot position (m);
+        (m; ``None``: the 1-D bench), or the array's chip ``(x0, y0, roll0)`` (m, m, rad:
+        ``--array``); :param slot_m: the 1-D slot position (m);
         :param meter_floor_w: the PM100's reading floor (W); ``None``: the emulator's.
     """
     extra = ['--seed', str(seed)]
-    if target_m is not None:
+    if target_m is not None and len(target_m) == 3:
+        extra += ['--array', '--target-x', repr(target_m[0]), '--target-y',
+                  repr(target_m[1]), '--roll', repr(target_m[2])]
+    elif target_m is not None:
         extra += ['--rig', '--target-x', repr(target_m[0]), '--target-y', repr(target_m[1])]
     if slot_m is not None:
         extra += ['--slot', repr(float(slot_m))]
@@ -68,6 +72,22 @@ def start_emulator(extra=(), quiet=True, priority=0):
                'its first line is not JSON')
         raise er.DeviceError('fiber-align emulate', er.NO_REPLY,
                              '%s (%r)' % (why, line.strip())) from None
+
+
+def emulator_truth(proc, timeout_s=2.0):
+    """
+    Return the truth of a running ``fiber-align emulate`` (its SIGUSR1 line), or ``None``.
+
+    :param proc: the Popen of :func:`start_emulator`; waits at most ``timeout_s`` (s).
+    """
+    if proc.poll() is not None:
+        return None
+    proc.send_signal(signal.SIGUSR1)
+    ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
+    try:
+        return json.loads(proc.stdout.readline()).get('truth') if ready else None
+    except ValueError:
+        return None
 
 
 def stop_process(proc, grace_s=5.0):

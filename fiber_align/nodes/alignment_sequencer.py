@@ -15,8 +15,8 @@ Relative names, SI units, ``<a>/`` an axis's namespace (none in 1-D):
 - the drivers' ``<a>/drive_held``, ``<a>/actuator_driver/transition_event`` and
   ``/diagnostics`` go to the core (:mod:`fiber_align.alignment.driver_state`).
 
-Pairing (``lockstep``: by index; ``realtime``: the latest; ``sensorless``: one step per
-power reading) and the rest: docs/ros_interface.md, docs/alignment2d.md, docs/station.md.
+Pairing (``lockstep``: by index; ``realtime``: the latest; ``sensorless``: one step per set
+of the meters' readings, ``ReadingSets``) and the rest: docs/ros_interface.md, docs/array.md.
 """
 
 import json
@@ -37,6 +37,7 @@ from fiber_align.alignment.states import FAULT, HELD
 from fiber_align.config import load_params
 from fiber_align.control.trajectory import stamp_to_s
 from fiber_align.graph.machines import CONFIG_FILES, MACHINES
+from fiber_align.hardware.pm100_session import ReadingSets
 from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import ERROR, Health, OK, WARN
 from fiber_align.nodes.ros.params import declare, declare_graph_values, declare_si
@@ -47,8 +48,6 @@ from fiber_align.nodes.ros.qos import (DIAG_QOS, LATCHED_QOS, REALTIME_QOS,
 from fiber_align.nodes.ros.runtime import run_node
 
 POWER_QUEUE_LIMIT = 5
-#: Sensorless: the most control periods one reading advances the sequencer's clock by.
-MAX_GAP_PERIODS = 1.5
 #: s from a driver's last ``drive_held`` writer unmatched to "gone".
 GONE_GRACE_S = 0.05
 
@@ -76,8 +75,8 @@ class AlignmentSequencerNode(Node):
         pre = self.pre = [a + '/' if a else '' for a in m.axes]
         self.pub_sp = [Pub(self, Float64, p + 'setpoint', sample_pub_qos(self.lockstep), bus)
                        for p in pre]
-        # sensorless: the newest references (m), the control clock (s) and its wall time
-        self.ref, self._t, self._wall = [None] * len(pre), None, None
+        # sensorless: the newest references (m), the meters' readings in sets and the clock
+        self.ref, self.sets = [None] * len(pre), ReadingSets(len(m.powers), self.period_s)
         self.sensorless, qos = bool(g['sensorless']), sample_qos(self.lockstep)
         for i, p in enumerate(pre):
             if self.sensorless:
@@ -88,9 +87,9 @@ class AlignmentSequencerNode(Node):
                 subscription(self, JointState, p + 'displacement',
                              lambda msg, i=i: self._on_position(i, msg), qos, bus)
         for j, topic in enumerate(m.powers):        # paired by index, as the positions
-            subscription(self, Float64, topic, self._on_reading if self.sensorless else (
-                lambda msg, j=j: self._on_power(j, msg)), REALTIME_QOS if self.sensorless
-                else qos, bus)
+            subscription(self, Float64, topic, lambda msg, j=j: (
+                self._on_power, self._on_reading)[self.sensorless](j, msg),
+                REALTIME_QOS if self.sensorless else qos, bus)
         self.pub_state, self.n_state, self._last, self.part = self.create_publisher(
             String, 'alignment_state', STATE_QOS), 0, None, declare_part(self, d)
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, DIAG_QOS)
@@ -178,14 +177,12 @@ class AlignmentSequencerNode(Node):
         else:
             del self.q_p[j][:-1]
 
-    def _on_reading(self, msg):
-        """Sensorless: one step per reading (W) at the commanded positions (m)."""
-        w = time.monotonic()
-        self._t = 0.0 if self._t is None else self._t + min(max(w - self._wall, 0.0),
-                                                            MAX_GAP_PERIODS * self.period_s)
-        self._wall = w
-        self._step(self._t, [s if r is None else r for r, s in
-                             zip(self.ref, self.m.setpoints(self.seq))], [float(msg.data)])
+    def _on_reading(self, j, msg):
+        """Sensorless: one step per set of readings (W) at the commanded positions (m)."""
+        got = self.sets.add(j, msg.data, time.monotonic())
+        if got is not None:
+            self._step(got[0], [s if r is None else r for r, s in
+                                zip(self.ref, self.m.setpoints(self.seq))], got[1])
 
     def _pair(self):
         while all(self.q) and (all(self.q_p) or len(self.q[0]) > POWER_QUEUE_LIMIT):

@@ -14,13 +14,18 @@ displacement sensor on the bench); :attr:`position_m` is the true tip position (
 rides on one channel; the MDT693B and PM100 emulators share one Bench.
 :class:`RigBench` is the two-axis rig: the input fiber rides on two bimorphs, on two
 amplifier channels (``x`` and ``y`` by default), and the PM100 reads the 2-D coupling of
-:mod:`fiber_align.plant.optics2d` (the simulated rig's).
+:mod:`fiber_align.plant.optics2d` (the simulated rig's). :class:`ArrayBench` is the fiber
+array: the holder on three bimorphs (``x``, ``y_left``, ``y_right`` on channels ``x``,
+``y``, ``z`` by default), the array optics of :mod:`fiber_align.plant.array_optics`, one
+PM100 per outer channel (:meth:`ArrayBench.meter`).
 """
 
+import math
 import threading
 import time
 
 from fiber_align.config import load_params
+from fiber_align.plant import array_optics as ao
 from fiber_align.plant.actuator import SimulatedActuator
 from fiber_align.plant.optics import OpticalLink
 from fiber_align.plant.optics2d import OpticalLink2D
@@ -160,6 +165,10 @@ class Bench:
         with self.lock:
             return self.detector.measure(self.true_power_w(), dt_s)
 
+    def truth(self):
+        """Return what only the emulator knows now: ``loss_db``, the true loss (dB)."""
+        return dict(loss_db=self.true_loss_db())
+
 
 class RigBench(Bench):
     """
@@ -209,3 +218,94 @@ class RigBench(Bench):
     def slot_position_m(self):
         """Return the target (output core) ``(x, y)`` (m) now."""
         return self.coupling2d.target.position(self.elapsed())
+
+
+class ArrayBench(Bench):
+    """
+    The emulated fiber array: the holder on three channels, one meter per outer channel.
+
+    :param axes: ``{'x': ch, 'y_left': ch, 'y_right': ch}``: the channel of each bimorph
+        (three distinct of ``x``, ``y``, ``z``).
+    :param seed: the first detector's noise seed (the second's: ``seed + 1``).
+    :param optics: keys of ``optics.yaml``'s source and detector and of ``array.yaml``'s
+        ``simulated_array_optics`` (``chip_x_m``, ``chip_y_m``, ``chip_roll_rad``,
+        ``layout_seed``, ...).
+    """
+
+    AXES = ('x', 'y_left', 'y_right')
+
+    def __init__(self, plant_params=None, optics_params=None, v_limit=100.0,
+                 axes=None, seed=0, step_s=1e-4, clock=time.monotonic, **optics):
+        """Build the channels at rest and the array's link."""
+        axes = dict(axes or dict(zip(self.AXES, ('x', 'y', 'z'))))
+        if sorted(axes) != sorted(self.AXES) or sorted(axes.values()) != ['x', 'y', 'z']:
+            raise ValueError('axes must map x, y_left, y_right to the channels x, y, z, '
+                             'got %r' % (axes,))
+        super().__init__(plant_params, optics_params, v_limit, axes['x'], seed, step_s,
+                         clock)
+        self.axes = axes
+        self.link = ao.ArrayLink.from_params(optics_params, seed=seed, **optics)
+        self.array = self.link.coupling
+
+    def advance(self):
+        """Bring every channel up to now; return ``(x, y_left, y_right)`` (m)."""
+        with self.lock:
+            now = self.clock()
+            for ch in self.channels.values():
+                ch.advance(now)
+            return tuple(self.channels[self.axes[a]].position_m for a in self.AXES)
+
+    def outer_powers_w(self, now=None):
+        """Return the noise-free powers (W) of the measured channels 1 and N now."""
+        with self.lock:
+            p = self.array.powers_w(self.elapsed(now), self.advance())
+            return tuple(float(p[i]) for i in self.link.measured)
+
+    def true_power_w(self, now=None):
+        """Return the noise-free power (W) of channel 1 now."""
+        return self.outer_powers_w(now)[0]
+
+    def true_loss_db(self):
+        """Return the worst channel's loss (dB) now against the best joint pose."""
+        with self.lock:
+            return self.array.loss_at(self.elapsed(), self.advance())
+
+    def slot_position_m(self):
+        """Return the chip's ideal pose ``(x0, y0, roll0)`` (m, m, rad)."""
+        return self.array.chip
+
+    def meter(self, j):
+        """Return the reading of measured channel ``j`` (0: channel 1, 1: channel N)."""
+        return _Meter(self, j)
+
+    def truth(self):
+        """
+        Return the truth now (SI, dB): the pose, the best joint pose, the outer channels' loss.
+
+        ``outer_loss_db``: each measured channel's ``10 log10(c(best) / c(now))`` with
+        ``best`` the pose that maximises the worst channel's coupling
+        (:func:`~fiber_align.plant.array_optics.best_pose`); ``worst_channel_loss_db``:
+        :func:`~fiber_align.plant.array_optics.worst_channel_loss_db`.
+        """
+        a = self.array
+        with self.lock:
+            pos = self.advance()
+        now, best = ao.pose(pos, a.roll_arm_m), a.best()
+        c, ref = (ao.couplings(q, a.chip, a.u_m, a.offsets_m, a.gains, a.mode_radius_m)
+                  for q in (now, best))
+        return dict(positions_m=list(pos), pose=list(now), best_pose=list(best),
+                    outer_loss_db=[10.0 * math.log10(ref[i] / c[i]) for i in self.link.measured],
+                    worst_channel_loss_db=a.loss_at(0.0, pos))
+
+
+class _Meter:
+    """One measured channel of an :class:`ArrayBench`: what its PM100 emulator reads."""
+
+    def __init__(self, bench, j):
+        self.bench, self.j = bench, int(j)
+
+    def detector_sample(self, dt_s):
+        """Take one sample (W) of channel ``j``'s detector, ``dt_s`` (s) after its last."""
+        with self.bench.lock:
+            return self.bench.link.detectors[self.j].measure(
+                self.bench.outer_powers_w()[self.j], dt_s)
