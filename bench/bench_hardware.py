@@ -127,7 +127,7 @@ def graph_trial(seed, slot_m=None, target_m=None, composed=None, settle_s=0.2,
                                'watchdog_count', '-') for a in ('x', 'y')))
         finally:
             codes = hw.stop()
-        out['exit_codes'] = codes
+        out['exit_codes'], out['children'] = codes, hw.summary.get('children', {})
         return out
 
 

@@ -100,6 +100,8 @@ def test_diagnostics_keep_the_newest_distinct_errors_and_the_worst_window_inside
     for msg in ('amplifier lost', 'amplifier lost', 'watchdog'):
         d.add(status('/actuator_driver', 2, msg), 15.0)
     assert d.errors == {'actuator_driver': ['amplifier lost', 'watchdog']}
+    assert d.level('actuator_driver') == 2 and d.level('simulated_actuator') == 0
+    assert d.level('power_meter') is None                       # no report yet
 
 
 def test_a_command_caused_the_next_state_and_lockstep_align_counts_as_the_sequencer_does():

@@ -71,7 +71,7 @@ def test_unplugged_amplifier_errors_graph_runs_on_and_reconnects(tmp_path):
             assert hw.align()[0], hw.status
             t_unplug = time.monotonic()
             mdt.unplug()
-            hw.wait(lambda: hw.level('actuator_driver') == 2, 1.0, 'driver ERROR in 1 s')
+            hw.wait(lambda: hw.obs.watch.level('actuator_driver') == 2, 1.0, 'driver ERROR in 1 s')
             assert time.monotonic() - t_unplug < 1.0
             msg = hw.diag['actuator_driver'][1]
             assert msg.startswith('device lost: MDT693B: ') and '\n' not in msg
@@ -86,7 +86,7 @@ def test_unplugged_amplifier_errors_graph_runs_on_and_reconnects(tmp_path):
             startup = hw.obs.node.create_client(Trigger, 'lifecycle_manager/startup')
             assert hw.call(startup, Trigger.Request(), 10.0).success
             # OK once the loss's latched ERROR (Health.hold_s, 2 s) has run out
-            hw.wait(lambda: hw.level('actuator_driver') == 0, 4.0, 'driver OK again')
+            hw.wait(lambda: hw.obs.watch.level('actuator_driver') == 0, 4.0, 'driver OK again')
             # the re-armed driver: the sequencer re-peaks from the held point by itself
             hw.wait(lambda: hw.status.get('state') == 'TRACKING', 5.0, 'TRACKING again')
             assert hw.align()[0], hw.status        # the reconnected bench aligns again

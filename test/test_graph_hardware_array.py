@@ -124,7 +124,7 @@ def test_a_meter_unplugged_mid_tracking_faults_naming_it_without_drift(j, name):
             assert max(abs(bench.output_v(ch) - v) for ch, v in zip('xyz', v0)) < 0.05
             assert hw.status['state'] == st['state']
             meter = ('power_meter', 'power_meter_n')[j]
-            hw.wait(lambda: hw.level(meter) == 2, 2.0, 'the meter ERROR')
+            hw.wait(lambda: hw.obs.watch.level(meter) == 2, 2.0, 'the meter ERROR')
             assert hw.diag[meter][1].startswith('PM100: ')
             hw.alive()                              # every process runs on
             print('unplug -> %s in %.0f ms: %s' % (st['state'], dt * 1e3, why))

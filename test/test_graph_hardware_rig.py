@@ -50,7 +50,7 @@ def test_the_rig_aligns_through_the_graph_on_one_mdt693b():
     assert 0.0 <= lo and hi <= 100.0
     # both axes drove their channels; z (no axis) only re-sent its read-back, 0 V
     assert r['commands']['x'] > 50 and r['commands']['y'] > 50
-    assert all(code == 0 for code in r['exit_codes'].values()), r['exit_codes']
+    assert all(code == 0 for code in r['exit_codes'].values()), r['children']
 
 
 @pytest.mark.ros  # starts processes
@@ -69,7 +69,7 @@ def test_unplug_mid_align_error_in_1s_and_recover_on_replug():
             # the amplifier unplugged mid-spiral: ERROR within 1 s, one line
             t0 = time.monotonic()
             mdt.unplug()
-            hw.wait(lambda: hw.level(AMP) == 2, 1.0, 'amplifier ERROR within 1 s')
+            hw.wait(lambda: hw.obs.watch.level(AMP) == 2, 1.0, 'amplifier ERROR within 1 s')
             msg = hw.diag[AMP][1]
             assert msg.startswith('device lost: MDT693B: ') and '\n' not in msg, msg
             assert time.monotonic() - t0 < 1.0
@@ -80,7 +80,7 @@ def test_unplug_mid_align_error_in_1s_and_recover_on_replug():
             n = len(mdt.command_log)
             startup = hw.obs.node.create_client(Trigger, 'lifecycle_manager/startup')
             assert hw.call(startup, Trigger.Request(), 10.0).success
-            hw.wait(lambda: hw.level(AMP) == 0, 4.0, 'amplifier OK again')
+            hw.wait(lambda: hw.obs.watch.level(AMP) == 0, 4.0, 'amplifier OK again')
             after = list(mdt.command_log)[n:]
             for ch in 'xy':
                 v = [row[3] for row in after if row[1] == ch]
@@ -116,7 +116,7 @@ def test_a_meter_that_stops_answering_mid_spiral():
             # the sequencer, no feedforward: both watchdogs trip)
             t1 = time.monotonic()
             pm.silent = True
-            hw.wait(lambda: hw.level('power_meter') == 2, 1.5, 'meter ERROR')
+            hw.wait(lambda: hw.obs.watch.level('power_meter') == 2, 1.5, 'meter ERROR')
             assert time.monotonic() - t1 < 1.5
             msg = hw.diag['power_meter'][1]
             assert msg.startswith('PM100: ') and '\n' not in msg, msg
@@ -124,7 +124,7 @@ def test_a_meter_that_stops_answering_mid_spiral():
                     'both axes at 0 V')
             hw.alive()                              # every process runs on
             pm.silent = False                       # the meter answers again
-            hw.wait(lambda: hw.level('power_meter') == 0, 5.0, 'meter OK again')
+            hw.wait(lambda: hw.obs.watch.level('power_meter') == 0, 5.0, 'meter OK again')
         finally:
             codes = hw.stop()
     assert all(c == 0 for c in codes.values()), codes

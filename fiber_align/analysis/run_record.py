@@ -198,6 +198,10 @@ class DiagnosticsRecord:
         self.by_status = {'latest': {}, 'worst': {}}
         self.run_from = self.run_to = None
 
+    def level(self, node):
+        """Return the newest level of ``node`` (0 OK .. 3 STALE; ``None`` before any)."""
+        return self.latest.get(node, {}).get('level')
+
     def add(self, status, now):
         """Fold in one ``diagnostic_msgs/DiagnosticStatus`` arrived at ``now`` (monotonic s)."""
         node, values = diag_entry(status, now)

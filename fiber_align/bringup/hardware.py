@@ -3,11 +3,10 @@
 ``bringup --hardware``: the sensorless bench graph on a real or emulated MDT693B + PM100.
 
 The graph is ``hardware:=true``'s (:mod:`fiber_align.graph.hardware`; with ``--rig`` or
-``--array`` :mod:`fiber_align.graph.hardware_rig`). ``--emulate`` first starts
-``fiber-align emulate`` as a child (``--rig``: with the target of the run seed, as the
-simulated rig's; ``--array``: the chip and layout of the run seed, as the simulated
-array's) and, once the hold is over, asks it for the truth (``truth`` in the summary:
-:meth:`~fiber_align.hardware.emulators.physics.Bench.truth`).
+``--array`` :mod:`fiber_align.graph.hardware_rig`, whose machine row gives the emulator
+the simulated machine's truth of the run seed). ``--emulate`` first starts ``fiber-align
+emulate`` as a child and, after the hold, asks it for its state (``truth`` in the
+summary: :meth:`~fiber_align.hardware.emulators.physics.Bench.truth`).
 The steps (ready, ``align``, ``--cycles``, ``--hold``, stop, the JSON summary) and the
 exit codes: docs/hardware.md ("The hardware graph: launch and ``bringup --hardware``").
 """
@@ -20,13 +19,12 @@ from fiber_align.bringup.cli import graph
 from fiber_align.bringup.harness import Harness, session
 from fiber_align.bringup.observer import BringupError, Refused
 from fiber_align.graph.hardware import emulator_priority
+from fiber_align.graph.hardware_rig import HARDWARE_ARRAY, HARDWARE_RIG
 from fiber_align.graph.params import LIFECYCLE_MANAGER
 from fiber_align.hardware.errors import DeviceError
 from fiber_align.hardware.process import (emulator_options, emulator_truth, start_emulator,
                                           stop_process)
 from fiber_align.nodes.ros.qos import REALTIME_QOS
-from fiber_align.simulation.array_scenarios import random_chip
-from fiber_align.simulation.seeds2d import random_target
 
 #: Bounds (s, wall) of the steps; the align bound is the issue's 3 s goal plus margin.
 FLOOR_WAIT_S = 0.3
@@ -66,10 +64,6 @@ class HardwareRun(Harness):
         return {n: (v['level'], v['message']) for n, v in dict(
             self.obs.watch.latest if self.obs else {}).items()}
 
-    def level(self, node):
-        """Return the newest /diagnostics level of ``node`` (None before any)."""
-        return self.diag.get(node, (None, ''))[0]
-
     def start(self):
         """Start the graph; wait until it is ready to align (the meter reading, IDLE)."""
         self._starting = True
@@ -89,15 +83,15 @@ class HardwareRun(Harness):
 
     def _ready(self):
         """Return True when the graph can align; raise when the start-up failed."""
-        if self.level(LIFECYCLE_MANAGER) == 2:
+        if self.obs.watch.level(LIFECYCLE_MANAGER) == 2:
             # the driver sends its own reason at once; this process may read /diagnostics
             # late on a loaded machine, so it waits a few seconds for it
             self._failed = self._failed or time.monotonic()
-            if self.level(self.driver) != 2 and time.monotonic() - self._failed < 5.0:
+            if self.obs.watch.level(self.driver) != 2 and time.monotonic() - self._failed < 5.0:
                 return False
             raise BringupError('%s (driver: %s)' % (self.diag[LIFECYCLE_MANAGER][1],
                                                     self.diag.get(self.driver)))
-        return (self.level(self.driver) == 0 and self.status.get('state') == 'IDLE'
+        return (self.obs.watch.level(self.driver) == 0 and self.status.get('state') == 'IDLE'
                 and len(self.obs.data['p']) > 5 and self.recorder_reads())
 
     def wait(self, cond, timeout_s, what):
@@ -142,10 +136,8 @@ def run(args):
         port, resource = args.port or '', args.visa_resource or ''
         if args.emulate:
             seed = args.seed if args.seed is not None else 0
-            # --rig: the target of the simulated rig's run seed (graph/rig.py); --array: the
-            # chip of the simulated array's (graph/array.py)
-            extra = emulator_options(seed, random_target(seed) if args.rig else random_chip(
-                seed) if args.array else None, args.slot, args.meter_floor)
+            m = HARDWARE_ARRAY if args.array else HARDWARE_RIG if args.rig else None
+            extra = emulator_options(seed, m and m.truth(seed), args.slot, args.meter_floor)
             parts['emu'], info = start_emulator(extra, quiet=args.quiet,
                                                 priority=emulator_priority())
             port, resource = info['serial_link'], info['visa_resource']

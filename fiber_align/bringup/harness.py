@@ -288,7 +288,7 @@ class Harness:
         for ch in self.children:
             s.setdefault('sent', {}).update(ch.sent)
         s['children'] = {ch.name: {'pid': ch.proc.pid, 'exit_code': ch.proc.returncode,
-                                   'stop_s': ch.stop_s}
+                                   'stop_s': ch.stop_s, 'last_error': ch.last_error}
                          for ch in self.children}
         s['stop_s'] = time.monotonic() - t_stop
         counts = Path(self.graph.record or '/nonexistent') / 'recorder_counts.json'

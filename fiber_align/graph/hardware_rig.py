@@ -37,7 +37,7 @@ the array sequencer and two PM100s: ``power_meter`` (channel 1, ``optical_power`
 import copy
 from dataclasses import dataclass
 import os
-from typing import Tuple
+from typing import Callable, Tuple
 
 from fiber_align.config import config_dir
 from fiber_align.graph import description as g
@@ -48,6 +48,8 @@ from fiber_align.graph.params import (AMPLIFIER, ARRAY_SEQUENCER, check_user, CO
 from fiber_align.graph.registry import ARRAY_AXES, ARRAY_POWERS
 from fiber_align.graph.rig import (_axis_ns, AXES, RIG_FILES, RIG_NAMESPACE, RigGraph,
                                    SEQUENCER_2D)
+from fiber_align.simulation.array_scenarios import random_chip
+from fiber_align.simulation.seeds2d import random_target
 
 #: The amplifier's ROS arguments: the one driver executable under the rig's node name
 #: (a node-specific rule: in a composed process it renames the driver alone).
@@ -71,6 +73,8 @@ class HardwareMachine:
     :ivar files: params files after the area files (names in ``config/``).
     :ivar meters: ``(node, power topic)`` of each PM100, in ``visa_resource``'s order.
     :ivar scenario: the offline scenario the graph's alignment is.
+    :ivar truth: the emulator's truth of a run seed (the simulated machine's: the rig's
+        target, the array's chip), ``fiber-align emulate``'s option of ``--emulate``.
     """
 
     name: str
@@ -79,6 +83,7 @@ class HardwareMachine:
     files: Tuple[str, ...]
     meters: Tuple[Tuple[str, str], ...]
     scenario: str
+    truth: Callable
 
     @property
     def root_nodes(self):
@@ -87,12 +92,12 @@ class HardwareMachine:
 
 
 HARDWARE_RIG = HardwareMachine('rig', AXES, SEQUENCER_2D, RIG_FILES + HARDWARE_RIG_FILES,
-                               ((POWER_METER, 'optical_power'),), 'align2d')
+                               ((POWER_METER, 'optical_power'),), 'align2d', random_target)
 HARDWARE_ARRAY = HardwareMachine('array', ARRAY_AXES, ARRAY_SEQUENCER,
                                  tuple(g.NODES[ARRAY_SEQUENCER].configs) + (
                                      'hardware.yaml', 'hardware_array.yaml'),
                                  tuple(zip((POWER_METER, POWER_METER_N), ARRAY_POWERS)),
-                                 'array')
+                                 'array', random_chip)
 #: Nodes at the rig namespace (not per axis): name -> executable.
 ROOT_NODES = HARDWARE_RIG.root_nodes
 
