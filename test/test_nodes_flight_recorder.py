@@ -92,3 +92,45 @@ def test_a_driver_deactivation_writes_one_snapshot_analyze_reads(ctx, tmp_path):
     assert gap <= 1.5 * PERIOD_NS or missing <= missed, (gap, missing, missed)
     assert len(paths) == 1 and sorted(paths[0]) == [str(p) for p in folders], paths
     assert not list(tmp_path.glob('fiber_align_*')), 'a full bag was written'
+
+
+def test_a_snapshot_written_at_the_stop_is_linked_in_the_catalogue(ctx, tmp_path):
+    """
+    A snapshot asked for 1 s before the run ends: written at the recorder's close, linked.
+
+    Its window ends after the run: the recorder writes it when it stops, and announces it
+    on ``snapshot_written``; bringup stops the catalogue after the recorder, so the run's
+    row has it (with the catalogue stopped beside the recorder, a late snapshot was on
+    disk but not in ``snapshot_paths``: a full-suite run, 2026-12-06).
+    """
+    import rclpy
+    from std_srvs.srv import Trigger
+    snaps, db, log = tmp_path / 'snaps', tmp_path / 'catalog.db', tmp_path / 'bringup.log'
+    proc = spawn(dict(os.environ), BRINGUP + [
+        '--scenario', 'sine', '--sync', 'realtime', '--duration', '4', '--quiet',
+        '--snapshots', str(snaps), '--catalog', str(db)], log)
+    try:
+        assert procs.wait_log(log, 'bringup: graph up', 60.0, proc), log.read_text()[-3000:]
+        context, nodes = ctx
+        node = rclpy.create_node('test_snapshot', context=context)
+        nodes.append(node)
+        executor = rclpy.executors.SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        client = node.create_client(Trigger, '/bag_recorder/snapshot')
+        assert procs.spin_until(executor, client.service_is_ready, 20.0)
+        procs.spin_until(executor, lambda: False, 3.0)
+        fut = client.call_async(Trigger.Request())
+        assert procs.spin_until(executor, fut.done, 10.0), 'no answer to ~/snapshot'
+        assert fut.result().success, fut.result().message
+        executor.remove_node(node)
+        proc.wait(30.0)
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+        procs.stop(proc, 20.0)
+    folders = sorted(str(p) for p in snaps.iterdir() if p.is_dir())
+    assert any(f.endswith('_service') for f in folders), folders
+    con = sqlite3.connect(str(db))
+    paths = [json.loads(r[0] or '[]') for r in con.execute('SELECT snapshot_paths FROM runs')]
+    con.close()
+    assert len(paths) == 1 and sorted(paths[0]) == folders, (paths, folders)

@@ -27,7 +27,7 @@ from fiber_align.bringup.observer import BadInput, BringupError, Observer
 from fiber_align.graph.description import dds_environment
 from fiber_align.graph.endpoints import (graph_names, node_fqn, surplus_publishers,
                                          unconnected)
-from fiber_align.graph.params import effective, merge_params, PLANT, RECORDER
+from fiber_align.graph.params import effective, merge_params, PLANT, RECORDER, RUN_CATALOG
 from fiber_align.jsonout import json_default
 from fiber_align.nodes.ros.diagnostics import endpoint_node_name
 from fiber_align.nodes.ros.owners import refuse_taken
@@ -255,7 +255,9 @@ class Harness:
         # the recorder's process: its own (stopped after the others) or the composed one
         rec = [ch for ch in self.children if host is not None and ch.name == host.name]
         separate = bool(rec) and host.name == RECORDER
-        nodes = [ch for ch in self.children if not (separate and ch in rec)]
+        # the catalogue last: it links the snapshots the recorder writes at its close
+        last = [ch for ch in self.children if ch.name == RUN_CATALOG]
+        nodes = [ch for ch in self.children if not (separate and ch in rec or ch in last)]
         if self.obs is not None:
             self.obs.active = False
             if self.plants and all(ch.alive() for ch in nodes):
@@ -280,13 +282,12 @@ class Harness:
         for ch in nodes:
             ch.interrupt()
         wait_all(nodes, deadline - (1.5 if separate else 0.0) - time.monotonic())
-        for ch in (rec if separate else ()):
+        for ch in (rec if separate else []) + last:
             ch.interrupt()
             # at least 4 s: the recorder drains while the graph still publishes, then
             # closes the bag; a SIGKILL before that leaves it without metadata
             ch.wait(max(deadline - time.monotonic(), 4.0))
-        for ch in self.children:
-            s.setdefault('sent', {}).update(ch.sent)
+        s['sent'] = {node: sent for ch in self.children for node, sent in ch.sent.items()}
         s['children'] = {ch.name: {'pid': ch.proc.pid, 'exit_code': ch.proc.returncode,
                                    'stop_s': ch.stop_s, 'last_error': ch.last_error}
                          for ch in self.children}
