@@ -5,6 +5,7 @@ import contextlib
 import ctypes
 import os
 import subprocess
+import sys
 import time
 
 import pytest
@@ -61,6 +62,19 @@ def run_bounded(cmd, timeout, grace_s=10.0):
     finally:
         stop(proc, grace_s)
     return proc.returncode, out
+
+
+def run_bringup(tmp_path, *options, timeout=60):
+    """
+    Run ``bringup OPTIONS --quiet --summary`` (bounded, s); return ``(code, output, summary)``.
+
+    ``summary`` is the JSON summary as a dict (empty when bringup wrote none).
+    """
+    import json
+    path = tmp_path / 'summary.json'
+    code, out = run_bounded([sys.executable, '-m', 'fiber_align.bringup', *options,
+                             '--quiet', '--summary', str(path)], timeout)
+    return code, out, json.loads(path.read_text()) if path.exists() else {}
 
 
 def spin_until(executor, cond, bound_s, slice_s=0.01):

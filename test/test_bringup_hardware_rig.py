@@ -8,19 +8,22 @@ import sys
 
 import pytest
 
-from procs import run_bounded
+from procs import run_bounded, run_bringup
+
+
+def tracked_on_the_emulator(tmp_path, machine, hold_s):
+    """Run ``bringup --MACHINE --hardware --emulate --seed 2``; assert TRACKING in 5 s."""
+    code, out, s = run_bringup(tmp_path, '--' + machine, '--hardware', '--emulate', '--seed',
+                               '2', '--hold', str(hold_s))
+    assert code == 0, out[-2000:]
+    assert s['aligned'] and s['final_state'] == 'TRACKING' and s['align_wall_s'] < 5.0, s
+    assert s['emulator'][machine] is True
+    return s
 
 
 @pytest.mark.ros  # starts processes
 def test_bringup_rig_hardware_emulate(tmp_path):
-    summary = tmp_path / 's.json'
-    code, out = run_bounded([sys.executable, '-m', 'fiber_align.bringup', '--rig',
-                             '--hardware', '--emulate', '--seed', '2', '--hold', '0.3',
-                             '--quiet', '--summary', str(summary)], timeout=60)
-    assert code == 0, out[-2000:]
-    s = json.loads(summary.read_text())
-    assert s['aligned'] and s['final_state'] == 'TRACKING' and s['align_wall_s'] < 5.0, s
-    assert s['emulator']['rig'] is True
+    s = tracked_on_the_emulator(tmp_path, 'rig', 0.3)
     assert all(c == 0 for c in s['exit_codes'].values()), s['exit_codes']
     assert not os.path.exists(s['emulator']['serial_link'])
 

@@ -20,7 +20,7 @@ from fiber_align.graph.arguments import describe
 from fiber_align.graph.hardware_rig import build_hardware_array
 from fiber_align.graph.params import GraphError
 from fiber_align.hardware.pm100_session import ReadingSets
-from procs import run_bounded
+from test_bringup_hardware_rig import tracked_on_the_emulator
 
 AMP = 'mdt693b_driver'
 TWO = 'TCPIP::127.0.0.1::1::SOCKET,TCPIP::127.0.0.1::2::SOCKET'
@@ -72,14 +72,7 @@ def test_reading_sets_pair_two_meters_and_let_a_silent_one_show():
 
 @pytest.mark.ros  # starts processes
 def test_bringup_array_hardware_emulate_tracks_within_0_1_db(tmp_path):
-    summary = tmp_path / 's.json'
-    code, out = run_bounded([sys.executable, '-m', 'fiber_align.bringup', '--array',
-                             '--hardware', '--emulate', '--seed', '2', '--hold', '0.5',
-                             '--quiet', '--summary', str(summary)], timeout=60)
-    assert code == 0, out[-2000:]
-    s = json.loads(summary.read_text())
-    assert s['aligned'] and s['final_state'] == 'TRACKING' and s['align_wall_s'] < 5.0, s
-    assert s['emulator']['array'] is True
+    s = tracked_on_the_emulator(tmp_path, 'array', 0.5)
     truth = s['truth']                  # the emulator's, at the end of the hold
     assert truth['best_pose'] == pytest.approx(s['emulator']['best_pose'])
     assert len(truth['outer_loss_db']) == 2, truth
