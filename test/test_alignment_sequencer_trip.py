@@ -246,7 +246,7 @@ def test_trip_mid_align_on_the_graph_ends_tracking_at_the_peak():
     g = build(scenario='align', sync_mode='realtime')
     h = Harness(g, dict(streams={'y': 'displacement'}, clock='y'))
     try:
-        h.start(check_alone=False)
+        h.start()
         h.obs.start()
         h.run(True)
         _wait(h, lambda: h.obs.samples > 200 and h.obs.status.get('state') == 'IDLE',

@@ -132,7 +132,7 @@ def test_a_driver_disabled_mid_align_holds_the_station_which_resumes_after_the_r
         with h.obs.lock:
             return [st for _, st in h.obs.states[since:] if st['state'] == state]
     try:
-        h.start(check_alone=False)
+        h.start()
         h.obs.start()
         h.run(True)
         time.sleep(0.3)

@@ -30,7 +30,6 @@ from fiber_align.graph.endpoints import (graph_names, node_fqn, surplus_publishe
 from fiber_align.graph.params import effective, merge_params, PLANT, RECORDER, RUN_CATALOG
 from fiber_align.jsonout import json_default
 from fiber_align.nodes.ros.diagnostics import endpoint_node_name
-from fiber_align.nodes.ros.owners import refuse_taken
 
 EXIT_OK, EXIT_FAIL, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -104,12 +103,12 @@ class Harness:
         #: the recorded and sent counts when the recorder had matched every writer
         self.rec_base, self._rec_topics = None, None
 
-    def start(self, check_alone=False, ready=None):
+    def start(self, ready=None):
         """
         Observe, spawn every process, wait for the nodes, the active drivers, the topics.
 
-        :param check_alone: refuse first when another graph owns these names (``bringup``'s
-            main looks before any mode starts: :func:`~fiber_align.nodes.ros.owners.refuse_taken`).
+        Another graph of these names is refused before any mode starts, by ``bringup``'s
+        main (:func:`~fiber_align.nodes.ros.owners.refuse_taken`), not here.
         """
         t0 = time.monotonic()
         g = self.graph
@@ -118,8 +117,6 @@ class Harness:
         self.obs.stall_s = float(self.gp['stall_timeout_s'])
         self.obs.start_stall_s = float(self.gp['start_stall_timeout_s'])
         want = graph_names(g)
-        if check_alone:         # another graph of these names: one line, nothing started
-            refuse_taken(g, float(self.gp['discovery_wait_s']))
         env = dds_environment()
         # the recorder first: it is subscribed before the first sample is published
         for p in sorted(g.processes, key=lambda p: p.name != RECORDER):
