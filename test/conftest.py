@@ -108,6 +108,12 @@ def _guard_targets():
 def pytest_sessionstart(session):
     """Install the guard (once, however many sessions nest)."""
     if _GUARD['depth'] == 0:
+        # matplotlib's first import on a machine builds its font cache by running
+        # fc-list: a set-up step, done before the guard, not a process a test starts
+        try:
+            import matplotlib.font_manager  # noqa: F401
+        except ImportError:
+            pass
         for owner, name, what in _guard_targets():
             _wrap(owner, name, what)
     _GUARD['depth'] += 1

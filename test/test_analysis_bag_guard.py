@@ -92,3 +92,38 @@ def test_a_bag_closed_normally_leaves_no_reserve(tmp_path):
     assert names == ['bag.mcap', 'metadata.yaml']
     with Reader(tmp_path / 'bag') as r:
         assert r.message_count == 10
+
+
+def test_its_own_message_records_make_the_file_the_writer_makes(tmp_path):
+    """
+    The records GuardedBag packs itself equal the rosbags writer's, byte for byte.
+
+    Three topics, out-of-order stamps, more than a chunk (1 MiB) of messages and a flush
+    between: the two mcap files and their metadata are the same.
+    """
+    ts = typestore()
+    files = []
+    for name, guarded in (('theirs', False), ('ours', True)):
+        # the same bag name in both (the mcap's own metadata carries it)
+        (tmp_path / name).mkdir()
+        w = _open(tmp_path / name / 'bag')
+        bag = GuardedBag(w) if guarded else w
+        conns = [bag.add_connection(t, 'std_msgs/msg/String', typestore=ts)
+                 for t in ('/a', '/b', '/c')]
+        for i in range(1500):
+            t_ns = 1_000_000_000 + 1000 * i - (5000 if i % 7 == 3 else 0)
+            bag.write(conns[i % 3], t_ns, _message(ts, i))
+            if i == 700:
+                bag.flush() if guarded else w.storage.close_chunk()
+        if guarded:
+            assert bag._pack and bag.close() is None
+        else:
+            w.close()
+        files.append(tmp_path / name / 'bag')
+    (ours_mcap,) = files[1].glob('*.mcap')
+    (theirs_mcap,) = files[0].glob('*.mcap')
+    assert ours_mcap.read_bytes() == theirs_mcap.read_bytes()
+    assert (files[1] / 'metadata.yaml').read_text() == (
+        files[0] / 'metadata.yaml').read_text()
+    with Reader(files[1]) as r:
+        assert r.message_count == 1500

@@ -86,7 +86,13 @@ def test_launch_arguments_override_the_files(tmp_path):
         assert g.node_params(node)['controller'] == 'pid'
     assert g.node_params('hysteresis_compensator')['model_file'] == str(model)
     assert g.node_params('bag_recorder')['output'] == str(bag)
-    assert g.processes[-1].executable == 'bag_recorder'
+    # composed (the default) the recorder is hosted beside the loop: no DDS between them
+    assert g.processes[0].nodes[-1] == 'bag_recorder'
+    assert g.node_params('simulated_actuator')['start_after_reader'] == ''
+    apart = graph.build(record=str(bag), composed='false')
+    assert apart.processes[-1].executable == 'bag_recorder'
+    # multi-process the clock waits for the recorder's subscriptions
+    assert apart.node_params('simulated_actuator')['start_after_reader'] == 'bag_recorder'
     assert not bag.exists()                     # describing the graph creates nothing
 
 
@@ -119,11 +125,11 @@ def test_composed_layout_is_one_control_graph_process(tmp_path):
     g = graph.build(composed='true', scenario='align', record=str(tmp_path / 'b'))
     first = g.processes[0]
     assert first.executable == 'control_graph' and first.node_name is None
-    nodes = CONTROL + ('alignment_sequencer',)
+    nodes = CONTROL + ('alignment_sequencer', 'bag_recorder')
     assert first.nodes == nodes
     assert first.argv('/p.yaml') == ['--nodes', ','.join(nodes), '--ros-args',
                                      '--params-file', '/p.yaml']
-    assert [p.executable for p in g.processes[1:]] == ['lifecycle_manager', 'bag_recorder']
+    assert [p.executable for p in g.processes[1:]] == ['lifecycle_manager']
     assert not any(p.ends_graph for p in g.processes)   # align runs until stopped
     assert g.managed_nodes == ('actuator_driver',)
 

@@ -50,3 +50,56 @@ def test_later_messages_change_their_bytes_as_the_fields_change():
     enc = encoder(bagio.typestore(), 'std_msgs/msg/Float64', Float64)
     seen = [bytes(enc(Float64(data=v))) for v in (0.0, 1.5, -2.0)]
     assert len(set(seen)) == 3 and not enc.fallback
+
+
+def _sample_messages():
+    """Return the control period's message types, with empty, one- and many-element fields."""
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension, String
+    out = [Float64(data=2.5e-5), String(data=''), String(data='TRACKING ü'),
+           Float64MultiArray(), JointState()]
+    for n in (1, 3):
+        js = JointState(name=['a' * (i + n) for i in range(n)], position=[0.5 * i for i in
+                        range(n)], velocity=[], effort=[1.0] * n)
+        js.header.stamp.sec, js.header.stamp.nanosec = 12, 34
+        js.header.frame_id = 'f' * n
+        out.append(js)
+        ma = Float64MultiArray(data=[float(i) - 0.25 for i in range(2 * n)])
+        ma.layout.dim = [MultiArrayDimension(label='l' * (i + 1), size=1, stride=1)
+                         for i in range(n)]
+        ma.layout.data_offset = n
+        out.append(ma)
+    return out
+
+
+@pytest.mark.parametrize('index', range(9))
+def test_the_packer_writes_the_bytes_rosbags_writes(index):
+    """Each planned type: the packed CDR equals rosbags' serialisation byte for byte."""
+    from fiber_align.graph.endpoints import type_name
+    from fiber_align.nodes.ros.cdr import packer
+    msg = _sample_messages()[index]
+    ts, msgtype = bagio.typestore(), type_name(type(msg))
+    enc = encoder(ts, msgtype, type(msg))
+    reference = bytes(ts.serialize_cdr(enc._adapt(msg) if enc._adapt else msg, msgtype))
+    pack = packer(type(msg))
+    assert pack is not None and pack(msg) == reference
+    assert bytes(enc(msg)) == reference and enc.route == 'packer'
+    assert bytes(enc(msg)) == reference        # the planned route after the first check
+
+
+def test_a_nan_in_the_first_message_keeps_the_fast_route():
+    """A derivative's first sample is NaN; NaN != NaN took the topic to rclpy's route."""
+    import math
+    from std_msgs.msg import Float64MultiArray
+    enc = encoder(bagio.typestore(), 'std_msgs/msg/Float64MultiArray', Float64MultiArray)
+    data = bytes(enc(Float64MultiArray(data=[1.0, math.nan])))
+    assert enc.fallback == '' and enc.route == 'packer'
+    back = bagio.typestore().deserialize_cdr(data, 'std_msgs/msg/Float64MultiArray')
+    assert back.data[0] == 1.0 and math.isnan(back.data[1])
+
+
+def test_types_it_cannot_plan_keep_the_rosbags_or_rclpy_route():
+    """An octet field (a diagnostic level) is not planned: the existing routes serve."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from fiber_align.nodes.ros.cdr import packer
+    assert packer(DiagnosticStatus) is None

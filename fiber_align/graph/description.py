@@ -340,7 +340,7 @@ def build(namespace='', composed=None, sync_mode='', controller='', params_file=
         (:func:`~fiber_align.graph.params.check_user`).
     :param model_file: PI model file: ``hysteresis_compensator.model_file`` (absolute).
     :param record: bag directory (must not exist): ``bag_recorder.output``; adds the
-        recorder process.
+        recorder (composed: hosted in the control process; else a process of its own).
     :param scenario: a name of :data:`SCENARIOS`: ``scenario_runner.scenario``; other
         than ``none`` adds ``scenario_runner`` (and ``alignment_sequencer`` for align).
     :param config_directory: where the shipped files are (default: :func:`config_dir`).
@@ -364,8 +364,10 @@ def build(namespace='', composed=None, sync_mode='', controller='', params_file=
     if record:
         record = check_record(record)
         over[RECORDER] = {'output': record}
-        # realtime per-sample topics are volatile: the clock waits for the recorder
-        over[PLANT] = {'start_after_reader': RECORDER}
+        if not composed:
+            # realtime per-sample topics are volatile: the clock waits for the recorder
+            # (composed, it reads them in-process from before the first sample)
+            over[PLANT] = {'start_after_reader': RECORDER}
     if scenario:
         # under launch the runner ends the graph when its scenario is over
         over[SCENARIO_RUNNER] = {'scenario': _choice('scenario', scenario, SCENARIOS),
@@ -385,14 +387,17 @@ def build(namespace='', composed=None, sync_mode='', controller='', params_file=
         over.setdefault(SCENARIO_RUNNER, {}).setdefault('reach_m', plant_reach_m(
             merge_params(files, over)))
     if composed:
-        procs = [Process(COMPOSED_EXECUTABLE, COMPOSED_EXECUTABLE, nodes,
-                         ('--nodes', ','.join(nodes)), ends_graph=SCENARIO_RUNNER in nodes)]
+        # one process; the recorder hosted in it reads the loop's topics from the bus,
+        # no DDS between them (as the multi-axis graphs, graph/rig.py)
+        hosted = nodes + ((RECORDER,) if record else ())
+        procs = [Process(COMPOSED_EXECUTABLE, COMPOSED_EXECUTABLE, hosted,
+                         ('--nodes', ','.join(hosted)), ends_graph=SCENARIO_RUNNER in nodes)]
     else:
         procs = [Process(n, n, (n,), node_name=n, ends_graph=n == SCENARIO_RUNNER)
                  for n in nodes]
     procs.append(Process(LIFECYCLE_MANAGER, LIFECYCLE_MANAGER, (LIFECYCLE_MANAGER,),
                          node_name=LIFECYCLE_MANAGER))
-    if record:
+    if record and not composed:
         procs.append(Process(RECORDER, RECORDER, (RECORDER,), node_name=RECORDER))
     managed = tuple(n for n in nodes if NODES[n].lifecycle)
     over[LIFECYCLE_MANAGER] = {'node_names': list(managed)}

@@ -214,7 +214,10 @@ def expected_endpoints(graph, observed=()):
     out = {t: (pubs.get(t, 0), n) for t, n in subs.items()}
     if graph.sync_mode == 'lockstep':
         out['/clock'] = (1, 0)
+    # a recorder hosted beside a topic's publisher takes it from the bus, not from DDS
+    beside = {t for p in graph.processes if RECORDER in p.nodes for n in p.nodes
+              for t in publishes(n)}
     recorded = {t.lstrip('/') for t in (graph.node_params(RECORDER).get('topics', ())
-                                        if graph.record else ())}
+                                        if graph.record else ())} - beside
     return {k: (p, s + (1 if p and k.lstrip('/') in recorded else 0))
             for k, (p, s) in out.items()}

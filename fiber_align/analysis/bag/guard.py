@@ -14,6 +14,13 @@ the graph it records runs on.
 The mcap file is written through :class:`ExactFile` (unbuffered, every byte accounted
 for): a buffered file would keep the failed chunk's bytes and write them on its close.
 Other storages (sqlite3) are closed with the reserve released, without the cut.
+
+A message goes into the mcap writer's pending chunk by :meth:`GuardedBag.write` itself,
+the record packed at once (:data:`MESSAGE_RECORD`) with the writer's own bookkeeping
+(chunk index, times, counts): the same bytes as the writer's ``write``, which builds
+the record field by field and takes about 17 us a message here against 3 us, and a
+recorder hosted on a control thread writes thousands a second
+(``test/test_analysis_bag_guard.py`` compares the files).
 """
 
 import errno
@@ -32,6 +39,13 @@ RESERVE_BYTES = 256 * 1024
 WHAT = {errno.ENOSPC: 'the disk is full', errno.EDQUOT: 'the disk quota is exceeded'}
 #: what a failed write raises (sqlite3: "database or disk is full")
 FAILED = (OSError, sqlite3.Error)
+#: an mcap Message record's head: opcode 0x05, record length, channel id, sequence (0,
+#: as rosbags), log time and publish time (ns); the CDR bytes follow
+MESSAGE_RECORD = struct.Struct('<BQHIQQ')
+#: the record's length before the data (channel id, sequence, two times)
+_MESSAGE_FIELDS = 22
+#: a pending chunk past this many bytes is closed (rosbags' own limit)
+CHUNK_BYTES = 2 ** 20
 
 
 def mount_point(path):
@@ -134,6 +148,8 @@ class GuardedBag:
             storage.bio = exact
             self._close_chunk = storage.close_chunk
             storage.close_chunk = self._guarded_close_chunk
+        # packed here unless the writer compresses each message (its own write then)
+        self._pack = self.mcap and writer.compression_mode.name != 'MESSAGE'
 
     # -- writing ----------------------------------------------------------------------
     def add_connection(self, *args, **kwargs):
@@ -145,11 +161,40 @@ class GuardedBag:
         if self.stopped or self.closed:
             return False
         try:
-            self.writer.write(conn, t_ns, data)
+            if self._pack:
+                self._write_mcap(conn, t_ns, data)
+            else:
+                self.writer.write(conn, t_ns, data)
         except FAILED as exc:
             self._stop(exc)
             return False
         return True
+
+    def _write_mcap(self, conn, t_ns, data):
+        """Append one Message record to the pending chunk, as the writer's ``write`` does."""
+        w = self.writer
+        st, cid = w.storage, conn.id
+        ch = st.chunk
+        bio = ch.bio
+        if t_ns < ch.message_start_time:
+            ch.message_start_time = t_ns
+        if t_ns > ch.message_end_time:
+            ch.message_end_time = t_ns
+        if t_ns < st.message_start_time:
+            st.message_start_time = t_ns
+        if t_ns > st.message_end_time:
+            st.message_end_time = t_ns
+        if t_ns < w.min_timestamp:
+            w.min_timestamp = t_ns
+        if t_ns > w.max_timestamp:
+            w.max_timestamp = t_ns
+        ch.msgs[cid].append((t_ns, bio.tell()))
+        bio.write(MESSAGE_RECORD.pack(5, _MESSAGE_FIELDS + len(data), cid, 0, t_ns, t_ns))
+        bio.write(data)
+        st.channel_stats[cid] += 1
+        w.counts[cid] += 1
+        if bio.tell() > CHUNK_BYTES:
+            st.close_chunk()
 
     def flush(self):
         """Write the pending chunk to the file; return False once recording has stopped."""
