@@ -268,9 +268,11 @@ class Harness:
             s['recording_stopped_early'] = stopped
             if self.quiet:              # else the recorder's own line was relayed
                 print('bringup: %s' % stopped, flush=True)
-        if rec and rec[0].alive() and self.obs is not None:
+        if rec and rec[0].alive() and self.obs is not None and self.graph.record:
             # the graph is held: the recorder works through its backlog before the
-            # publishers go (a writer that exits takes its undelivered samples with it)
+            # publishers go (a writer that exits takes its undelivered samples with it);
+            # a snapshots-only recorder keeps no bag to complete (waiting on its counts
+            # took the 30 s bound once: a flight-recorder test, 2026-12-06)
             limit = (deadline - 2.5 - time.monotonic()) if interrupted else 30.0
             waited, short = self._wait_recorder(latest, rec[0], max(0.5, limit))
             s['recorder_catch_up_s'] = waited
