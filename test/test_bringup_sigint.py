@@ -82,12 +82,11 @@ def test_sigint_mid_scenario_stops_cleanly_and_finalises_the_bag(tmp_path):
         code = proc.wait(timeout=STOP_LIMIT_S + 5)
         stop_s = time.monotonic() - t0
         reader.join(timeout=2)
-        # the recorder, the control_graph process, lifecycle_manager and the machine's
-        # floor probe of the realtime run
+        # the control_graph process (the recorder hosted in it), lifecycle_manager, the
+        # catalogue and the machine's floor probe of the realtime run
         pids = _pids(lines)
         assert sorted(re.findall(r'bringup: started (\S+) \(pid', ''.join(lines))) == [
-            'bag_recorder', 'control_graph', 'lifecycle_manager', 'machine_floor',
-            'run_catalog'], \
+            'control_graph', 'lifecycle_manager', 'machine_floor', 'run_catalog'], \
             ''.join(lines)
         left = [p for p in pids if alive(p)]
         assert stop_s <= STOP_LIMIT_S, 'bringup took %.2f s to exit' % stop_s
