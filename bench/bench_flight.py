@@ -2,7 +2,8 @@
 """
 Benchmark the flight recorder: the recorder's CPU and memory in three modes, one run.
 
-One realtime 1-D run (``bringup --scenario sine --sync realtime --record BAG``, 1 kHz)
+One realtime 1-D run (``bringup --scenario sine --sync realtime --record BAG
+--multi-process``, 1 kHz: the recorder a process of its own, as composed it is not)
 with, beside the graph's own recorder (full recording), two more recorder processes of
 the same executable reading the same topics: ``flight_full`` (full recording and
 snapshots) and ``flight_only`` (``record`` false, snapshots only). Halfway, each
@@ -82,7 +83,9 @@ def main(argv=None):
     graph = subprocess.Popen([sys.executable, '-m', 'fiber_align.bringup', '--scenario', 'sine',
                               '--sync', 'realtime', '--duration', str(a.duration),
                               '--record', os.path.join(tmp, 'bag'), '--catalog', 'none',
-                              '--quiet'], stdout=log, stderr=subprocess.STDOUT,
+                              # the graph's recorder a process, as the two beside it
+                              # (composed, it is hosted in control_graph)
+                              '--multi-process', '--quiet'], stdout=log, stderr=subprocess.STDOUT,
                              start_new_session=True)
     procs = {n: subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT,
                                  start_new_session=True) for n, cmd in extra.items()}

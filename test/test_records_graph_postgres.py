@@ -1,0 +1,166 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The run catalogue on PostgreSQL, written by running graphs (docs/records.md).
+
+The server is the tests' own (``test/pg_cluster.py``: ``initdb`` and ``pg_ctl`` in a
+temporary folder, a loopback port), each test a new database on it. ``bringup`` runs the
+graphs with ``--catalog postgresql://...``, as a line of stations would: the rows equal a
+SQLite run's; two graphs in two namespaces write at once, none lost or doubled; the server
+stopped for 10 s in a realtime run: the rows of that time arrive after its restart, and
+the loop keeps its periods as a run without the catalogue does.
+"""
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+
+from fiber_align.records import backends
+from procs import run_bounded, stop
+
+pytestmark = [pytest.mark.ros, pytest.mark.postgres]
+
+#: the figures of an alignment row a deterministic (lockstep) run repeats exactly
+FIGURES = ('seq', 'part_id', 'final_state', 'fault_reason', 'time_to_first_light_s',
+           'time_to_peak_s', 'peak_power_w', 'final_loss_db', 'samples')
+
+
+def _bringup_cmd(summary, *options):
+    # not --quiet: the catalogue's WARN is relayed into the log
+    return [sys.executable, '-m', 'fiber_align.bringup', *options, '--summary',
+            str(summary)]
+
+
+def _summary(path):
+    return json.loads(path.read_text(encoding='utf-8')) if path.exists() else {}
+
+
+def _query(url, sql):
+    db = backends.connect(url)
+    try:
+        rows, cols = db.query(sql)
+        return [dict(zip(cols, r)) for r in rows]
+    finally:
+        db.close()
+
+
+def _alignments(url):
+    return _query(url, 'SELECT * FROM alignments ORDER BY run_id, seq')
+
+
+def test_a_rig_run_writes_the_same_rows_to_postgresql_as_to_sqlite(tmp_path, pg_url):
+    """The lockstep rig, 5 alignments a part each: PostgreSQL's rows are SQLite's."""
+    rows = {}
+    for name, url in (('postgresql', pg_url), ('sqlite', str(tmp_path / 'catalog.db'))):
+        summary = tmp_path / ('%s.json' % name)
+        code, out = run_bounded(_bringup_cmd(summary, '--rig', '--sync', 'lockstep',
+                                             '--seed', '1', '--cycles', '4', '--part', 'P',
+                                             '--catalog', url), 240)
+        assert code == 0, out
+        runs = _query(url, 'SELECT * FROM runs')
+        assert len(runs) == 1 and runs[0]['machine'] == 'rig', runs
+        assert runs[0]['sync_mode'] == 'lockstep' and not runs[0]['hardware']
+        rows[name] = [{k: a[k] for k in FIGURES} for a in _alignments(url)]
+    assert [(a['seq'], a['part_id'], a['final_state']) for a in rows['postgresql']] == [
+        (k, 'P-%d' % k, 'TRACKING') for k in range(1, 6)]
+    # lockstep is the same run sample for sample: the same figures, to the last digit the
+    # two databases keep (REAL and DOUBLE PRECISION are both 8-byte floats)
+    assert rows['postgresql'] == rows['sqlite']
+
+
+def test_two_graphs_in_two_namespaces_write_at_once(tmp_path, pg_url):
+    """Two rigs (``/line1``, ``/line2``) align 20 times each, at once: 40 rows, once each."""
+    procs, logs = [], []
+    try:
+        for k in (1, 2):
+            log = open(tmp_path / ('line%d.log' % k), 'w')
+            logs.append(log)
+            procs.append(subprocess.Popen(
+                _bringup_cmd(tmp_path / ('line%d.json' % k), '--rig', '--namespace',
+                             'line%d' % k, '--sync', 'lockstep', '--seed', str(k),
+                             '--cycles', '19', '--part', 'L%d' % k, '--catalog', pg_url),
+                env=dict(os.environ), stdout=log, stderr=subprocess.STDOUT))
+        codes = [p.wait(timeout=400) for p in procs]
+    finally:
+        for p in procs:
+            stop(p, 10.0)
+        for log in logs:
+            log.close()
+    outs = [(tmp_path / ('line%d.log' % k)).read_text() for k in (1, 2)]
+    assert codes == [0, 0], outs
+    runs = _query(pg_url, 'SELECT run_id, parameters FROM runs')
+    assert len(runs) == 2, runs
+    spaces = sorted({k.split('/')[1] for r in runs for k in json.loads(r['parameters'])
+                     if k.startswith('/line')})
+    assert spaces == ['line1', 'line2'], spaces
+    rows = _alignments(pg_url)
+    assert len(rows) == 40, [(a['run_id'][:8], a['seq']) for a in rows]
+    assert len({(a['run_id'], a['seq']) for a in rows}) == 40
+    for r in runs:
+        mine = [a for a in rows if a['run_id'] == r['run_id']]
+        assert [a['seq'] for a in mine] == list(range(1, 21))
+        # a record never mixes two graphs' parts
+        assert len({a['part_id'].split('-')[0] for a in mine}) == 1, mine
+        assert all(a['final_state'] == 'TRACKING' for a in mine), mine
+
+
+def _missed(summary):
+    """Return the worst axis's missed share of a realtime run's summary."""
+    shares = [a.get('realtime', a).get('missed_share')
+              for a in (summary.get('axes') or {}).values() if isinstance(a, dict)]
+    shares = [x for x in shares if x is not None]
+    return max(shares) if shares else None
+
+
+def test_a_server_stopped_for_10_s_in_a_realtime_run(tmp_path, pg_server):
+    """
+    The server is down 10 s from the first alignment: its rows arrive after the restart.
+
+    The catalogue's writer is a process of its own; the loop keeps its periods as the
+    same run without a catalogue does, in the same test.
+    """
+    url = pg_server.create_database('outage_graph')
+    figures = {}
+    for case in ('none', 'outage'):
+        summary = tmp_path / ('%s.json' % case)
+        log = tmp_path / ('%s.log' % case)
+        with open(log, 'w') as f:
+            proc = subprocess.Popen(_bringup_cmd(
+                summary, '--rig', '--sync', 'realtime', '--seed', '2', '--cycles', '20',
+                '--duration', '14', '--catalog', url if case == 'outage' else 'none'),
+                env=dict(os.environ), stdout=f, stderr=subprocess.STDOUT)
+        restarted = case == 'none'
+        try:
+            if case == 'outage':
+                end = time.monotonic() + 90.0
+                while time.monotonic() < end and proc.poll() is None and \
+                        'graph up' not in log.read_text(errors='replace'):
+                    time.sleep(0.1)
+                pg_server.stop('immediate')
+                time.sleep(10.0)
+                pg_server.start()
+                restarted = True
+            proc.wait(timeout=240)
+        finally:
+            stop(proc, 10.0)
+            if not restarted:
+                pg_server.start()
+        s = _summary(summary)
+        assert proc.returncode == 0 and s.get('state') == 'TRACKING', log.read_text()[-3000:]
+        figures[case] = s
+    out = (tmp_path / 'outage.log').read_text()
+    # the outage said on /diagnostics (the relayed WARN), and the rows all there, once
+    assert 'rows wait in' in out or 'spool' in out, out[-3000:]
+    rows = _alignments(url)
+    assert [a['seq'] for a in rows] == list(range(1, 22)), rows
+    assert all(a['final_state'] == 'TRACKING' for a in rows)
+    runs = _query(url, 'SELECT run_id, ended_at, end_reason FROM runs')
+    assert len(runs) == 1 and runs[0]['ended_at'], runs
+    # no period missed because of the catalogue: as many kept as without it (a loaded
+    # machine's run-to-run spread: 0.1 % of the periods)
+    missed = {k: _missed(v) for k, v in figures.items()}
+    assert None not in missed.values(), figures
+    assert missed['outage'] <= missed['none'] + 1e-3, missed
