@@ -91,6 +91,29 @@ def test_a_snapshot_is_a_bag_analyze_reads(tmp_path):
     assert fr.state()['snapshots_written'] == 1
 
 
+def test_a_snapshot_of_several_chunks_reads_each_topic_in_time_order(tmp_path):
+    """
+    Two topics over the same 60 s at 1 kHz, five chunks (1 MiB each): both read in order.
+
+    Written topic after topic, a chunk held one topic's tail and the next one's head,
+    started at the head's time, and was read before the first topic's middle: its
+    stamps went backwards (the flight recorder test, 2026-12-06).
+    """
+    from fiber_align.analysis.bag.flight import write_snapshot
+    n = 60000
+    rows = encode_float64(np.arange(n) * 1e-9)
+    # 120,000 records of 43 bytes: five chunks, the third the first topic's tail and the
+    # second's head
+    cuts = {t: (FLOAT64, [(T0 + k * S // 1000 + i, rows[k].tobytes()) for k in range(n)])
+            for i, t in enumerate(('/drive_voltage', '/feedback_voltage'))}
+    path = str(tmp_path / 'snap')
+    assert write_snapshot(path, cuts) == {t: n for t in cuts}
+    streams = read_streams(path)[0]
+    for key in ('drive_voltage', 'feedback_voltage'):
+        t = np.asarray(streams[key].t_ns, np.int64)
+        assert t.size == n and (np.diff(t) > 0).all(), key
+
+
 def test_triggers_are_edges():
     tr = Triggers()
     assert tr.on_state(json.dumps({'state': 'SEARCHING'})) is None

@@ -233,6 +233,38 @@ def test_a_durable_writer_without_readers_sends_its_newest_once_per_refresh(node
         s.stop()
 
 
+def test_a_kept_one_value_message_is_the_value_at_its_publish(node):
+    """
+    A Float64 kept without readers is its value, not a C copy: read at the publish.
+
+    The nodes reuse their message objects; a change after the publish is not sent.
+    A message of more fields (JointState) is still converted at once.
+    """
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+
+    from fiber_align.nodes.ros.qos import CONTROL_QOS, LATCHED_QOS
+    from fiber_align.nodes.ros.sender import Sender
+    pub = node.create_publisher(Float64, 'kept', LATCHED_QOS)
+    s = Sender(refresh_s=0.05)
+    w = s.writer(pub, False)
+    assert w.field == 'data'
+    assert s.writer(node.create_publisher(JointState, 'kept_js', LATCHED_QOS),
+                    False).field is None
+    assert s.start()
+    try:
+        msg = Float64(data=7.0)
+        w.readers = 0
+        w.publish(msg)
+        msg.data = -1.0                 # the node's next sample, not published
+        got = []
+        node.create_subscription(Float64, 'kept', lambda m: got.append(m.data), CONTROL_QOS)
+        assert _spin_until(node, lambda: got, 5.0)
+        assert got[-1] == 7.0, got
+    finally:
+        s.stop()
+
+
 def _rosout_reader(node):
     from rcl_interfaces.msg import Log
     from rclpy.qos import QoSDurabilityPolicy, QoSProfile

@@ -75,8 +75,10 @@ def build_hardware(port='', visa_resource='', namespace='', composed=None, param
         raise GraphError('the hardware graph needs actuator_driver.backend mdt693b and '
                          'sensorless true (a params file changed them)')
     if base.composed:
+        # the recorder hosted beside the loop, as in the simulated graph (description.py)
+        hosted = SENSORLESS_NODES + ((RECORDER,) if base.record else ())
         procs = [gr.Process(gr.COMPOSED_EXECUTABLE, gr.COMPOSED_EXECUTABLE,
-                            SENSORLESS_NODES, ('--nodes', ','.join(SENSORLESS_NODES)))]
+                            hosted, ('--nodes', ','.join(hosted)))]
     else:
         procs = [gr.Process(n, n, (n,), node_name=n) for n in SENSORLESS_NODES]
     procs.append(gr.Process(POWER_METER, POWER_METER, (POWER_METER,),

@@ -38,7 +38,7 @@ from fiber_align.config import load_params
 from fiber_align.control.trajectory import stamp_to_s
 from fiber_align.graph.machines import CONFIG_FILES, MACHINES
 from fiber_align.hardware.pm100_session import ReadingSets
-from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
+from fiber_align.nodes.ros.bus import local_too, Pub, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import ERROR, Health, OK, WARN
 from fiber_align.nodes.ros.params import declare, declare_graph_values, declare_si
 from fiber_align.nodes.ros.params import declare_part, node_defaults, PRIORITY
@@ -92,6 +92,7 @@ class AlignmentSequencerNode(Node):
                 REALTIME_QOS if self.sensorless else qos, bus)
         self.pub_state, self.n_state, self._last, self.part = self.create_publisher(
             String, 'alignment_state', STATE_QOS), 0, None, declare_part(self, d)
+        self._state_out = local_too(self.pub_state, bus, self, 'alignment_state')
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diag, DIAG_QOS)
         self.create_service(Trigger, 'align', lambda q, r: self._answer(r, self.seq.align(), 1))
         self.create_service(Trigger, 'release', lambda q, r: self._answer(r, self.seq.release()))
@@ -212,7 +213,7 @@ class AlignmentSequencerNode(Node):
         if (s['state'], s['fault_reason']) == self._last:
             return
         self._last, self.p_peak = (s['state'], s['fault_reason']), None
-        self.pub_state.publish(String(data=json.dumps(s)))
+        self._state_out(String(data=json.dumps(s)))
         self.n_state += 1
         log = self.get_logger()
         level, text, say = (ERROR, 'FAULT: %s' % s['fault_reason'], log.error) \

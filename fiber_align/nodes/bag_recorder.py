@@ -109,8 +109,8 @@ class BagRecorder(Node):
         if bus is not None:
             for topic in self.wanted:
                 if topic in bus.topics:
+                    self.counts[topic] = 0      # a latched message arrives at once
                     self.local[topic] = _Local(self, topic)
-                    self.counts[topic] = 0
             # the control thread's slack runs the discovery and the writes
             self.timer = self.create_timer(period, lambda: bus.slack.submit(self.discover))
         else:
@@ -294,6 +294,7 @@ class _Local:
         self.rec, self.topic = rec, topic
         self.encode = None
         self.conn = None
+        self.connected = False          # a snapshots-only bag gives no connection (None)
         self.msgtype = ''
         self.keep = None
         self.sub = LocalSub(rec.bus, topic, self._on_message)
@@ -305,7 +306,7 @@ class _Local:
         if self.encode is None:
             self.msgtype = type_name(type(msg))
             self.encode = encoder(rec.typestore, self.msgtype, type(msg))
-        if self.conn is None:
+        if not self.connected:
             self.connect()
         # written at once, a few microseconds; so is the chunk close when due: its cost
         # grows with the chunk, so it is kept small and regular (deferred to a later
@@ -322,6 +323,7 @@ class _Local:
         """Add the bag connection (once, on the first write)."""
         self.conn = self.rec.bag.add_connection(self.topic, self.msgtype,
                                                 typestore=self.rec.typestore)
+        self.connected = True
         self.keep = self.rec.flight.keeper(self.topic, self.msgtype)
         self.rec.get_logger().info('recording %s (%s) in-process'
                                    % (self.topic, self.msgtype))

@@ -29,6 +29,7 @@ transition from active to inactive; the ``~/snapshot`` service is the reason ``s
 
 from collections import deque
 from datetime import datetime
+import heapq
 import json
 import os
 import queue
@@ -282,14 +283,20 @@ def write_snapshot(path, cuts, storage='mcap'):
     ts = typestore()
     counts = {}
     try:
-        for topic, (msgtype, items) in sorted(cuts.items()):
-            conn = bag.add_connection(topic, msgtype, typestore=ts)
-            n = 0
-            for t_ns, data in items:
-                if not bag.write(conn, t_ns, data):
-                    break
-                n += 1
-            counts[topic] = n
+        conns = {topic: bag.add_connection(topic, msgtype, typestore=ts)
+                 for topic, (msgtype, _) in sorted(cuts.items())}
+        counts = {topic: 0 for topic in conns}
+        # in time order, as a recording: a chunk holding one topic's tail and the next
+        # one's head starts at the head's time, and readers that take the chunks in time
+        # order (this package's own, analysis/bag/reader.py) read the first topic's
+        # messages out of order
+        merged = heapq.merge(*[[(t_ns, topic, data) for t_ns, data in items]
+                               for topic, (_, items) in sorted(cuts.items())],
+                             key=lambda x: (x[0], x[1]))
+        for t_ns, topic, data in merged:
+            if not bag.write(conns[topic], t_ns, data):
+                break
+            counts[topic] += 1
     finally:
         why = bag.close()
     if bag.stopped or why:

@@ -62,6 +62,17 @@ class LocalBus:
         """Return the (live) list of in-process callbacks of ``topic``."""
         return self._subs.setdefault(topic, [])
 
+    def deliver(self, node, topic, msg):
+        """
+        Hand ``msg`` of a plain rclpy publisher of ``node`` to the in-process readers.
+
+        Latched: a reader built later (the recorder, built last) gets the newest at once.
+        """
+        key = self.key(node, topic)
+        self.latch(key, msg)
+        for cb in tuple(self._subs.get(key, ())):
+            cb(msg)
+
     def latch(self, topic, msg):
         """Keep ``msg`` as the latched message of ``topic`` (given to late subscribers)."""
         self._last[topic] = msg
@@ -69,6 +80,23 @@ class LocalBus:
     def last(self, topic):
         """Return the latched message of ``topic`` or ``None``."""
         return self._last.get(topic)
+
+
+def local_too(pub, bus, node, topic):
+    """
+    Return ``msg -> None``: ``pub.publish(msg)``, then the in-process readers of ``topic``.
+
+    For a low-rate topic kept on its own rclpy publisher (its QoS history as it is, not
+    the per-sample path of :class:`Pub`) that a node of the process also reads from the
+    bus (the composed recorder: ``alignment_state`` went unrecorded without it).
+    """
+    if bus is None:
+        return pub.publish
+
+    def publish(msg):
+        pub.publish(msg)
+        bus.deliver(node, topic, msg)
+    return publish
 
 
 class Pub:

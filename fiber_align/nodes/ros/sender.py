@@ -70,6 +70,30 @@ class QueuedLogger:
     fatal = _at(LoggingSeverity.FATAL)
 
 
+#: rclpy field types read and rebuilt whole (:meth:`Sender.keep`)
+_PLAIN = frozenset(('double', 'float', 'boolean', 'int8', 'uint8', 'int16', 'uint16',
+                    'int32', 'uint32', 'int64', 'uint64', 'string'))
+
+
+def _single_field(msg_type):
+    """Return the field name of a message of one plain value, else None."""
+    fields = msg_type.get_fields_and_field_types()
+    if len(fields) == 1:
+        (name, typ), = fields.items()
+        if typ in _PLAIN:
+            return name
+    return None
+
+
+class _Value:
+    """The kept value of a one-field message (:meth:`Sender.keep`)."""
+
+    __slots__ = ('value',)
+
+    def __init__(self, value):
+        self.value = value
+
+
 class Writer:
     """
     One rclpy publisher as the control thread sees it: :meth:`publish` never waits on DDS.
@@ -82,10 +106,13 @@ class Writer:
     matched reader keeps its newest message, and the sender publishes that once per
     refresh: a reader that joins gets the present (at most one refresh old, then the
     newest; until the next refresh sees it, the messages in between are folded into the
-    newest), and a latched topic set every period costs one DDS publish per refresh.
+    newest), and a latched topic set every period costs one DDS publish per refresh. A
+    message of one number, bool or string (a latched ``reference``, Float64) is kept as
+    that value, and converted only when the refresh sends it: a conversion every period
+    took 2 % of a 1-D control process for a message sent four times a second.
     """
 
-    __slots__ = ('pub', 'volatile', 'readers', 'sender', 'ptr', 'ctype', 'pending')
+    __slots__ = ('pub', 'volatile', 'readers', 'sender', 'ptr', 'ctype', 'pending', 'field')
 
     def __init__(self, pub, volatile, sender=None):
         """Wrap rclpy publisher ``pub``; ``volatile``: its durability is volatile."""
@@ -96,6 +123,8 @@ class Writer:
         self.ptr = pub.handle.pointer if sender is not None else None
         self.ctype = MessageType(pub.msg_type) if sender is not None else None
         self.pending = None     # durable, no reader: the newest C message, not yet sent
+        #: the one field of a message of one plain value (kept as the value), or None
+        self.field = _single_field(pub.msg_type)
 
     def publish(self, msg):
         """Publish ``msg`` (queued while the sender runs, else at once)."""
@@ -271,7 +300,11 @@ class Sender:
             self._wake.set()
 
     def keep(self, writer, msg):
-        """Convert ``msg`` and keep it as ``writer``'s newest (durable, no reader yet)."""
+        """Keep ``msg`` as ``writer``'s newest (durable, no reader yet): its value, or C."""
+        if writer.field is not None:
+            # one plain value: read at once (the node reuses its message), no conversion
+            writer.pending = _Value(getattr(msg, writer.field))
+            return
         ptr = writer.ctype.to_c(msg)
         with self._keep_lock:
             old, writer.pending = writer.pending, ptr
@@ -281,7 +314,7 @@ class Sender:
     def _drop_pending(self, writer):
         with self._keep_lock:
             ptr, writer.pending = writer.pending, None
-        if ptr is not None:
+        if ptr is not None and not isinstance(ptr, _Value):
             writer.ctype.destroy(ptr)
 
     def _take_pending(self):
@@ -290,6 +323,8 @@ class Sender:
             if w.pending is not None:
                 with self._keep_lock:
                     ptr, w.pending = w.pending, None
+                if isinstance(ptr, _Value):
+                    ptr = w.ctype.to_c(w.pub.msg_type(**{w.field: ptr.value}))
                 if ptr is not None:
                     self._q.append((w, ptr))
 
