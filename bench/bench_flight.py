@@ -2,12 +2,12 @@
 """
 Benchmark the flight recorder: the recorder's CPU and memory in three modes, one run.
 
-One realtime 1-D run (``bringup --scenario sine --sync realtime --record BAG
---multi-process``, 1 kHz: the recorder a process of its own, as composed it is not)
-with, beside the graph's own recorder (full recording), two more recorder processes of
-the same executable reading the same topics: ``flight_full`` (full recording and
-snapshots) and ``flight_only`` (``record`` false, snapshots only). Halfway, each
-flight recorder is asked for one snapshot (``~/snapshot``), so its write is in the
+One realtime 1-D run (``bringup --scenario sine --sync realtime``, 1 kHz, composed,
+no recorder of its own) with three recorder processes of the same executable beside it,
+reading the same topics through DDS: ``full_only`` (the full recording, as the graph's
+own recorder in a multi-process graph), ``flight_full`` (full recording and snapshots)
+and ``flight_only`` (``record`` false, snapshots only). Halfway, each flight recorder
+is asked for one snapshot (``~/snapshot``), so its write is in the
 figures. Every second: each recorder's CPU (s/s, ``/proc/<pid>/stat`` utime + stime)
 and RSS (MB, ``VmRSS``); the medians over the steady part (from ``--skip`` s) and the
 largest RSS, the ratios to the full recorder's.
@@ -29,22 +29,7 @@ import numpy as np
 
 from fiber_align.procstat import cpu_time_s, rss_bytes
 
-MODES = ('bag_recorder', 'flight_full', 'flight_only')
-
-
-def _recorder_pid(name, exclude=()):
-    """Return the pid of the live process whose command line has ``name`` (or None)."""
-    for d in os.listdir('/proc'):
-        if not d.isdigit() or int(d) in exclude:
-            continue
-        try:
-            with open('/proc/%s/cmdline' % d, 'rb') as f:
-                cmd = f.read().split(b'\0')
-        except OSError:
-            continue
-        if any(b'bag_recorder' in c for c in cmd) and any(name.encode() in c for c in cmd):
-            return int(d)
-    return None
+MODES = ('full_only', 'flight_full', 'flight_only')
 
 
 def _snapshot(name):
@@ -74,6 +59,7 @@ def main(argv=None):
     tmp = tempfile.mkdtemp(prefix='bench_flight_')
     exe = [sys.executable, '-m', 'fiber_align.nodes.bag_recorder', '--ros-args']
     extra = {
+        'full_only': exe + ['-r', '__node:=full_only', '-p', 'output:=%s/bag' % tmp],
         'flight_full': exe + ['-r', '__node:=flight_full', '-p', 'output:=%s/full' % tmp,
                               '-p', 'snapshots:=%s/snaps_full' % tmp],
         'flight_only': exe + ['-r', '__node:=flight_only', '-p', 'record:=false',
@@ -82,11 +68,14 @@ def main(argv=None):
     log = open(os.path.join(tmp, 'bringup.log'), 'wb')
     graph = subprocess.Popen([sys.executable, '-m', 'fiber_align.bringup', '--scenario', 'sine',
                               '--sync', 'realtime', '--duration', str(a.duration),
-                              '--record', os.path.join(tmp, 'bag'), '--catalog', 'none',
-                              # the graph's recorder a process, as the two beside it
-                              # (composed, it is hosted in control_graph)
-                              '--multi-process', '--quiet'], stdout=log, stderr=subprocess.STDOUT,
-                             start_new_session=True)
+                              '--catalog', 'none', '--quiet'], stdout=log,
+                             stderr=subprocess.STDOUT, start_new_session=True)
+    # the recorders once the graph is up: four processes starting at once on two cores
+    # held the driver's lifecycle service past bringup's 5 s (2026-12-06)
+    end = time.monotonic() + 60.0
+    while graph.poll() is None and time.monotonic() < end and b'graph up' not in open(
+            os.path.join(tmp, 'bringup.log'), 'rb').read():
+        time.sleep(0.2)
     procs = {n: subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT,
                                  start_new_session=True) for n, cmd in extra.items()}
     pids = {n: p.pid for n, p in procs.items()}
@@ -94,10 +83,6 @@ def main(argv=None):
     t0, asked, prev = time.monotonic(), False, {}
     try:
         while graph.poll() is None and time.monotonic() - t0 < a.duration + 60:
-            if 'bag_recorder' not in pids:
-                pid = _recorder_pid('bag_recorder', set(pids.values()))
-                if pid:
-                    pids['bag_recorder'] = pid
             now = time.monotonic()
             for n, pid in pids.items():
                 c, r = cpu_time_s(pid), rss_bytes(pid) / 2 ** 20
@@ -109,7 +94,7 @@ def main(argv=None):
                 prev[n] = (now, c)
             if not asked and now - t0 > a.skip + 0.4 * (a.duration - a.skip):
                 asked = True
-                for n in extra:
+                for n in ('flight_full', 'flight_only'):
                     print('%s: snapshot %s' % (n, _snapshot(n)))
             time.sleep(1.0)
     finally:
@@ -129,7 +114,7 @@ def main(argv=None):
         rows[n] = (float(np.median(s[:, 1])) if len(s) else float('nan'),
                    float(np.median(s[:, 2])) if len(s) else float('nan'),
                    float(np.max(s[:, 2])) if len(s) else float('nan'), len(s))
-    base = rows['bag_recorder']
+    base = rows['full_only']
     print('recorder       mode                 CPU s/s (median)  RSS MB (median, max)  '
           'CPU / full  RSS / full  samples')
     for n, what in zip(MODES, ('full recording', 'full + snapshots', 'snapshots only')):

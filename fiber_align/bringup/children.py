@@ -86,7 +86,11 @@ class Child:
             self.killed = True
             self._dump_stacks()
             self.proc.kill()
-            self.proc.wait(timeout=5)
+            try:
+                self.proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:   # not even SIGKILL ends it yet (the kernel)
+                print('bringup: %s (pid %d) still runs 5 s after SIGKILL' % (
+                    self.name, self.proc.pid), flush=True)
         if self.t_interrupt is not None and self.stop_s is None:
             self.stop_s = time.monotonic() - self.t_interrupt
         self.thread.join(timeout=1.0)
