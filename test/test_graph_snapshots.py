@@ -11,13 +11,16 @@ def _where(graph):
     return [p.name for p in graph.processes if 'bag_recorder' in p.nodes]
 
 
-def test_a_composed_1d_graph_hosts_its_snapshots_only_recorder(tmp_path):
-    """Composed: in the control process (the bus, not DDS); its bag off, snapshots on."""
+def test_a_snapshots_only_recorder_is_a_process_of_its_own(tmp_path):
+    """
+    Beside a composed graph too: its snapshot writes stay off the control process.
+
+    Hosted in control_graph, a 12 s snapshot written by a Python thread held the control
+    thread's GIL: 166-242 periods of a 17 s run missed.
+    """
     for args in ({'scenario': 'sine'}, {'hardware': 'true'}):
         g = describe(dict(args, snapshots=str(tmp_path / 's')))
-        assert _where(g) == ['control_graph'], [p.nodes for p in g.processes]
-        host = g.processes[0]
-        assert host.arguments == ('--nodes', ','.join(host.nodes))
+        assert _where(g) == ['bag_recorder'], [p.nodes for p in g.processes]
         rec = g.node_params('bag_recorder')
         assert rec['record'] is False and rec['snapshots'] == str(tmp_path / 's')
 

@@ -6,9 +6,8 @@ The flight recorder added to a described graph (pure Python: no rclpy).
 ``bag_recorder``'s ``snapshots`` set to the folder (absolute): a graph that records
 (``record``) keeps its full bag and takes snapshots beside it; the 1-D graphs (simulated
 or hardware) without ``record`` get the recorder with ``record`` false (snapshots only;
-docs/records.md): hosted in the composed control process, else a process of its own.
-The multi-axis graphs (rig, station, array) record their own topic lists: without
-``record`` they are refused in one line. Used by
+docs/records.md), a process of its own. The multi-axis graphs (rig, station, array)
+record their own topic lists: without ``record`` they are refused in one line. Used by
 the launch file (``snapshots:=DIR``) and ``bringup --snapshots DIR``.
 """
 
@@ -39,23 +38,9 @@ def with_snapshots(graph, snapshots=''):
                              'station, the array: the recorder records their topics; the '
                              'rig records none)')
         overrides[RECORDER]['record'] = False
-        procs = _hosted(procs) or procs + (
-            gd.Process(RECORDER, RECORDER, (RECORDER,), node_name=RECORDER),)
+        # a process of its own, also beside a composed graph: hosted in control_graph,
+        # its snapshot writes (a 12 s window, 100,000 messages, in a Python thread) held
+        # the control thread's GIL: the plant missed 166-242 periods of a 17 s run, and
+        # the missed-cycles trigger asked for more (flight recorder test, 2026-12-06)
+        procs = procs + (gd.Process(RECORDER, RECORDER, (RECORDER,), node_name=RECORDER),)
     return dataclasses.replace(graph, processes=procs, overrides=overrides)
-
-
-def _hosted(procs):
-    """
-    Return ``procs`` with the recorder hosted in the composed control process, or None.
-
-    Composed, the recorder's rings take the loop's topics from the in-process bus, as a
-    recording composed graph's recorder does: a recorder of its own read every sample
-    through DDS (0.27 s/s against 0.2 for the whole loop) and once answered ``~/snapshot``
-    only after 10 s.
-    """
-    for i, p in enumerate(procs):
-        if p.executable == gd.COMPOSED_EXECUTABLE and p.namespace is None:
-            nodes = p.nodes + (RECORDER,)
-            host = dataclasses.replace(p, nodes=nodes, arguments=('--nodes', ','.join(nodes)))
-            return procs[:i] + (host,) + procs[i + 1:]
-    return None
