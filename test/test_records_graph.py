@@ -63,9 +63,14 @@ def test_lockstep_rig_five_alignments_a_part_each(tmp_path):
     params = json.loads(r['parameters'])
     assert params['/rig/alignment_sequencer_2d']['machine'] == 'rig'
     rows = _rows(db, 'SELECT * FROM alignments ORDER BY seq')
+    assert {a['run_id'] for a in rows} == {r['run_id']}
+    assert_five_parts(rows, s)
+
+
+def assert_five_parts(rows, s):
+    """Check the 5 rows of a lockstep rig run (``--cycles 4 --part P``) against summary ``s``."""
     assert [(a['seq'], a['part_id'], a['final_state']) for a in rows] == [
         (k, 'P-%d' % k, 'TRACKING') for k in range(1, 6)]
-    assert {a['run_id'] for a in rows} == {r['run_id']}
     # lockstep: the catalogue's times are bringup's, counted in periods (1 ms)
     want = [s['time_to_peak_s']] + list(s['cycle_time_to_peak_s'])
     assert [a['time_to_peak_s'] for a in rows] == pytest.approx(want, abs=1e-9)

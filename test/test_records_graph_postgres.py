@@ -20,6 +20,7 @@ import pytest
 
 from fiber_align.records import backends
 from procs import run_bounded, stop
+from test_records_graph import assert_five_parts
 
 pytestmark = [pytest.mark.ros, pytest.mark.postgres]
 
@@ -66,15 +67,7 @@ def test_a_rig_run_writes_the_rows_its_summary_reports(tmp_path, pg_url):
     assert (r['machine'], r['sync_mode'], bool(r['hardware'])) == ('rig', 'lockstep', False)
     assert r['ended_at'] > r['started_at'] and r['end_reason'].startswith('stopped'), r
     assert json.loads(r['parameters'])['/rig/alignment_sequencer_2d']['machine'] == 'rig'
-    rows = _alignments(pg_url)
-    assert [(a['seq'], a['part_id'], a['final_state']) for a in rows] == [
-        (k, 'P-%d' % k, 'TRACKING') for k in range(1, 6)]
-    want = [s['time_to_peak_s']] + list(s['cycle_time_to_peak_s'])
-    assert [a['time_to_peak_s'] for a in rows] == pytest.approx(want, abs=1e-9)
-    for a in rows:
-        assert 0.0 <= a['time_to_first_light_s'] < a['time_to_peak_s']
-        assert a['samples'] > 0 and 0.0 < a['peak_power_w'] <= 1.01e-3
-        assert -0.045 < a['final_loss_db'] < 0.5, a
+    assert_five_parts(_alignments(pg_url), s)
 
 
 def test_two_graphs_in_two_namespaces_write_at_once(tmp_path, pg_url):
