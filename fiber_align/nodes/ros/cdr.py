@@ -19,8 +19,8 @@ slack, so this is the period's cost: 1-3 us a message against 2-16 us through ro
 
 Each encoder checks its first message: the packed bytes must equal rosbags' (else the
 packer is dropped for the type), and rclpy must decode the bytes back to the same
-message (rclpy's own bytes of both equal: a NaN is not equal to itself), else the topic
-falls back for good (:attr:`Encoder.fallback` says why).
+message (field by field, a NaN equal to a NaN), else the topic falls back for good
+(:attr:`Encoder.fallback` says why).
 """
 
 import struct
@@ -176,6 +176,21 @@ def packer(cls):
     return scope['pack']
 
 
+def _same(a, b):
+    """Return True when rclpy messages (or field values) ``a`` and ``b`` are equal, NaN too."""
+    if hasattr(a, 'get_fields_and_field_types'):
+        return type(a) is type(b) and all(_same(getattr(a, f), getattr(b, f))
+                                          for f in a.get_fields_and_field_types())
+    if isinstance(a, float) and isinstance(b, float):
+        return a == b or (a != a and b != b)
+    if isinstance(a, (str, bytes, bool, int)) or a is None:
+        return a == b
+    try:
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    except TypeError:
+        return a == b
+
+
 class _View:
     """A message's fields as rosbags reads them (attribute access only)."""
 
@@ -252,12 +267,11 @@ class Encoder:
             self._checked = True
             if self._pack is not None and self._packed(msg) != bytes(data):
                 self._pack = None           # rosbags' bytes are the reference
-            from rclpy.serialization import deserialize_message, serialize_message
+            from rclpy.serialization import deserialize_message
             try:
-                # compared as rclpy's bytes, not with ==: a NaN (a derivative's first
-                # sample) is not equal to itself, and was taken for another message
-                same = serialize_message(deserialize_message(bytes(data), self.cls)) == \
-                    serialize_message(msg)
+                # NaN-aware: a NaN (a derivative's first sample) is not equal to itself,
+                # and == took it for another message
+                same = _same(deserialize_message(bytes(data), self.cls), msg)
             except Exception as exc:  # noqa: BLE001 - bytes rclpy cannot read
                 same, exc_text = False, str(exc)
             else:
