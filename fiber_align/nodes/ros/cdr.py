@@ -15,7 +15,8 @@ sequences and nested messages: ``Float64``, ``JointState``, ``Float64MultiArray`
 :func:`packer`, the type's fields packed in order with :mod:`struct` by a plan made once
 (CDR, little endian, each number aligned to its size up to 8 from the start of the
 payload). A recorder writes thousands of messages a second from the control thread's
-slack, so this is the period's cost: 1-3 us a message against 2-16 us through rosbags.
+slack, so this is the period's cost: Float64 1.2, Float64MultiArray 3.4, JointState
+6.9 us a message here, against 2.4, 7.8 and 15.7 us through rosbags.
 
 Each encoder checks its first message: the packed bytes must equal rosbags' (else the
 packer is dropped for the type), and rclpy must decode the bytes back to the same
