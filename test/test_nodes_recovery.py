@@ -2,9 +2,11 @@
 """
 Realtime recovery of hand-started nodes: plant restart, watchdog latch, field limits.
 
-The graph is the four node processes of ``test_nodes_realtime`` (same client), with the
-driver's watchdog latching after one trip (``-p latch_trips:=1``) so the latch is seen
-within the test's time. Each defect here was seen on the realtime graph before: a
+The graph is the four node processes of ``test_nodes_realtime`` (same client). Once it
+has settled, the driver's watchdog is set to latch after one trip (``latch_trips`` 1, a
+live parameter) so the latch is seen within the test's time: set at start, a trip of
+the start itself on a loaded machine (CI's two cores) latched the driver at 0 V before
+the loop ever reached the setpoint. Each defect here was seen on the realtime graph before: a
 restarted plant let the controller wind up and drive 100 V into a 158 um excursion; the
 driver accepted ``v_min`` and ``safe_voltage_v`` of -200 V.
 """
@@ -23,16 +25,22 @@ SLACK_M = 2e-6              # the issue's bound on any excursion beyond that ran
 
 @pytest.fixture(scope='module')
 def graph(tmp_path_factory):
-    """Start the four node processes (driver latching after 1 trip); settle at 50 um."""
+    """Start the four node processes; settle at 50 um; then latch after one trip."""
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
     log_dir = tmp_path_factory.mktemp('recovery_logs')
-    with running_graph(log_dir, {'actuator_driver': ['-p', 'latch_trips:=1']}) as g:
+    with running_graph(log_dir) as g:
         cl = g[0]
         t0 = time.monotonic()
         for _ in range(10):
             cl.publish(TARGET_M)
             if cl.spin_for(1.0, lambda: cl.settled(t0)):
                 break
-        assert cl.settled(t0), cl.ys_since(t0)[-5:]
+        assert cl.settled(t0), (cl.ys_since(t0)[-5:], log_dir)
+        setp = cl.node.create_client(SetParameters, 'actuator_driver/set_parameters')
+        req = SetParameters.Request(parameters=[Parameter(name='latch_trips', value=(
+            ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=1)))])
+        assert cl.call(setp, req).results[0].successful
         yield g
 
 
