@@ -76,7 +76,7 @@ def _sample_messages():
 def test_the_packer_writes_the_bytes_rosbags_writes(index):
     """Each planned type: the packed CDR equals rosbags' serialisation byte for byte."""
     from fiber_align.graph.endpoints import type_name
-    from fiber_align.nodes.ros.cdr import packer
+    from fiber_align.analysis.bag.packer import packer
     msg = _sample_messages()[index]
     ts, msgtype = bagio.typestore(), type_name(type(msg))
     enc = encoder(ts, msgtype, type(msg))
@@ -101,5 +101,5 @@ def test_a_nan_in_the_first_message_keeps_the_fast_route():
 def test_types_it_cannot_plan_keep_the_rosbags_or_rclpy_route():
     """An octet field (a diagnostic level) is not planned: the existing routes serve."""
     from diagnostic_msgs.msg import DiagnosticStatus
-    from fiber_align.nodes.ros.cdr import packer
+    from fiber_align.analysis.bag.packer import packer
     assert packer(DiagnosticStatus) is None

@@ -15,7 +15,6 @@ Parameters ``config/records.yaml``; docs/records.md.
 """
 
 import sys
-import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
@@ -29,6 +28,7 @@ from fiber_align.nodes.ros.diagnostics import Health, OK, WARN
 from fiber_align.nodes.ros.params import declare, declare_graph_values, node_defaults
 from fiber_align.nodes.ros.qos import DIAG_QOS, STATE_QOS
 from fiber_align.nodes.ros.runtime import run_node
+from fiber_align.nodes.ros.teardown import spin_until_quiet
 from fiber_align.records.writer import CatalogWriter
 
 SPEC = NODES['run_catalog']
@@ -101,19 +101,11 @@ class RunCatalogNode(Node):
                 self.writer.spool)))
 
 
-def _drain(executor, node):
-    t0 = quiet = time.monotonic()
-    last = node.n_status
-    while time.monotonic() - t0 < DRAIN_S and time.monotonic() - quiet < QUIET_S:
-        executor.spin_once(timeout_sec=0.02)
-        if node.n_status != last:
-            last, quiet = node.n_status, time.monotonic()
-
-
 def main(args=None):
     """Run the node (bad parameters: one line, exit 2); the last statuses are taken."""
     return run_node(RunCatalogNode, SPEC.node, args, realtime=lambda node: False,
-                    then=_drain)
+                    then=lambda ex, node: spin_until_quiet(
+                        ex, lambda: node.n_status, QUIET_S, DRAIN_S))
 
 
 if __name__ == '__main__':

@@ -8,7 +8,11 @@ The graph's rosbag2 bags (mcap and sqlite3), read and written with rosbags, fast
 - :mod:`~fiber_align.analysis.bag.decode`: vectorised decoding (rosbags as fallback);
 - :mod:`~fiber_align.analysis.bag.reader`: :class:`BagReader`, :func:`read_streams`,
   :func:`read_hysteresis_experiment`;
-- :mod:`~fiber_align.analysis.bag.writer`: :func:`write_bag`.
+- :mod:`~fiber_align.analysis.bag.writer`: :func:`write_bag`;
+- :mod:`~fiber_align.analysis.bag.packer`: an rclpy message's CDR by a plan per type;
+- :mod:`~fiber_align.analysis.bag.sink`: a recorder's bag, counts and flight keepers;
+- :mod:`~fiber_align.analysis.bag.guard`: a bag that survives a full disk;
+- :mod:`~fiber_align.analysis.bag.flight`: the flight recorder's rings and snapshots.
 
 Times are int64 ns, values SI (m, m/s, V, W).
 """

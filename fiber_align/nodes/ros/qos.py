@@ -89,3 +89,20 @@ def sample_qos(lockstep):
         False in realtime (newest message only, see :data:`REALTIME_QOS`).
     """
     return LOCKSTEP_QOS if lockstep else REALTIME_QOS
+
+
+def reader_qos(publishers, depth):
+    """
+    Return a recorder's QoS that matches every publisher in ``publishers`` (their infos).
+
+    Reliable unless one publisher is best effort; transient local only when all are (a
+    latched state then arrives at once); KEEP_LAST ``depth``.
+    """
+    rel, dur = ReliabilityPolicy.RELIABLE, DurabilityPolicy.VOLATILE
+    if any(i.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for i in publishers):
+        rel = ReliabilityPolicy.BEST_EFFORT
+    if publishers and all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL
+                          for i in publishers):
+        dur = DurabilityPolicy.TRANSIENT_LOCAL
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=rel,
+                      durability=dur)

@@ -18,6 +18,7 @@ import time
 
 from rclpy.logging import LoggingSeverity
 
+from fiber_align.analysis.bag.packer import NUMBERS
 from fiber_align.nodes.ros.rcl_ctypes import c_text, Location, MessageType, Rcl
 
 
@@ -71,8 +72,7 @@ class QueuedLogger:
 
 
 #: rclpy field types read and rebuilt whole (:meth:`Sender.keep`)
-_PLAIN = frozenset(('double', 'float', 'boolean', 'int8', 'uint8', 'int16', 'uint16',
-                    'int32', 'uint32', 'int64', 'uint64', 'string'))
+_PLAIN = frozenset(NUMBERS).union(('string',))
 
 
 def _single_field(msg_type):

@@ -100,3 +100,24 @@ def drain(executor, timeout_s):
         exc = task.exception() if task.done() else None     # fetched: not printed at exit
         if exc is not None:
             say('stop: a callback failed: %s: %s' % (type(exc).__name__, exc), sys.stderr)
+
+
+def spin_until_quiet(executor, count, quiet_s, limit_s):
+    """
+    Run callbacks until ``count()`` has not changed for ``quiet_s`` s (a node's last input).
+
+    :param count: callable, the messages taken so far.
+    :param limit_s: the longest it runs (s), or a callable asked on every turn (a parent
+        that died wants the process gone sooner).
+    """
+    import rclpy
+    bound = limit_s if callable(limit_s) else (lambda: limit_s)
+    t0 = quiet_since = time.monotonic()
+    last = count()
+    while rclpy.ok() and time.monotonic() - t0 < bound():
+        executor.spin_once(timeout_sec=0.02)
+        now_count = count()
+        if now_count != last:
+            last, quiet_since = now_count, time.monotonic()
+        elif time.monotonic() - quiet_since >= quiet_s:
+            break
