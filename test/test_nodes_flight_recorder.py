@@ -20,6 +20,7 @@ import signal
 import sqlite3
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -119,9 +120,19 @@ def test_a_snapshot_written_at_the_stop_is_linked_in_the_catalogue(ctx, tmp_path
         client = node.create_client(Trigger, '/bag_recorder/snapshot')
         assert procs.spin_until(executor, client.service_is_ready, 20.0)
         procs.spin_until(executor, lambda: False, 3.0)
-        fut = client.call_async(Trigger.Request())
-        assert procs.spin_until(executor, fut.done, 10.0), 'no answer to ~/snapshot'
-        assert fut.result().success, fut.result().message
+        # another trigger may have come first (the plant's cycle WARN of a loaded start:
+        # a full suite, 2026-12-06): a call inside its window is absorbed, so it is asked
+        # again once that window is over (within snapshot_after_s, 2 s)
+        t_end = time.monotonic() + 3.0
+        while True:
+            fut = client.call_async(Trigger.Request())
+            assert procs.spin_until(executor, fut.done, 10.0), 'no answer to ~/snapshot'
+            res = fut.result()
+            if res.success or not res.message.startswith('inside the window of') \
+                    or time.monotonic() > t_end:
+                break
+            procs.spin_until(executor, lambda: False, 0.25)
+        assert res.success, res.message
         executor.remove_node(node)
         proc.wait(30.0)
     finally:

@@ -3,12 +3,10 @@
 ``bringup --hardware``: the sensorless bench graph on a real or emulated MDT693B + PM100.
 
 The graph is ``hardware:=true``'s (:mod:`fiber_align.graph.hardware`; with ``--rig`` or
-``--array`` :mod:`fiber_align.graph.hardware_rig`, whose machine row gives the emulator
-the simulated machine's truth of the run seed). ``--emulate`` first starts ``fiber-align
-emulate`` as a child and, after the hold, asks it for its state (``truth`` in the
-summary: :meth:`~fiber_align.hardware.emulators.physics.Bench.truth`).
-The steps (ready, ``align``, ``--cycles``, ``--hold``, stop, the JSON summary) and the
-exit codes: docs/hardware.md ("The hardware graph: launch and ``bringup --hardware``").
+``--array`` :mod:`fiber_align.graph.hardware_rig`). ``--emulate`` first starts
+``fiber-align emulate`` as a child and, after the hold, asks it for its ``truth``. The
+steps (ready, ``align``, ``--cycles``, ``--hold``, stop, the JSON summary) and the exit
+codes: docs/hardware.md ("The hardware graph: launch and ``bringup --hardware``").
 """
 
 import json

@@ -104,12 +104,7 @@ class Harness:
         self.rec_base, self._rec_topics = None, None
 
     def start(self, ready=None):
-        """
-        Observe, spawn every process, wait for the nodes, the active drivers, the topics.
-
-        Another graph of these names is refused before any mode starts, by ``bringup``'s
-        main (:func:`~fiber_align.nodes.ros.owners.refuse_taken`), not here.
-        """
+        """Observe, spawn every process, wait for the nodes, the active drivers, the topics."""
         t0 = time.monotonic()
         g = self.graph
         timeout = float(self.gp['startup_timeout_s'])
@@ -244,9 +239,8 @@ class Harness:
         # loop's input, which the driver's watchdog then reports as a trip
         latest = self.obs.watch.latest if self.obs is not None else {}
         s['realtime'] = sm.realtime_figures(latest)
-        floor = self.floor_figures()
-        if floor is not None:
-            s['floor'] = floor
+        if self.floor is not None:
+            s['floor'] = self.floor_figures()
         s['cycles'] = {n: dict(w) for n, w in self.obs.watch.worst.items()} if self.obs else {}
         host = self._recorder_host()
         # the recorder's process: its own (stopped after the others) or the composed one

@@ -84,8 +84,7 @@ def run_rig(a, g):
                        peak_samples=tracking['peak_samples'])
         cycles = [release_align() for _ in range(a.cycles or 0)]
         if cycles:
-            summary['cycles_tracking'] = len(cycles)
-            summary['cycle_time_to_peak_s'] = cycles
+            summary.update(cycles_tracking=len(cycles), cycle_time_to_peak_s=cycles)
         if a.duration:
             # held aligned: TRACKING, or PEAKING again when the power drifts down
             k_end = clock() + int(round(a.duration * rate))
@@ -100,8 +99,7 @@ def run_rig(a, g):
             # before the hold: a held plant stops the drivers' input (a watchdog trip)
             summary['axes'] = axis_figures(obs.watch.by_status, g.namespace, g.axes)
             floor = h.floor_figures()
-            if floor is not None:
-                summary['floor'] = floor
+            summary.update({'floor': floor} if floor is not None else {})
             summary['goals_missed'], summary['machine_limits'] = axis_goals(
                 summary['axes'], floor, h.cycle_goal)
         h.run(False)
@@ -119,10 +117,8 @@ def run_rig(a, g):
         s = h.stop(code == 130)
         summary['children'] = {n: c['exit_code'] for n, c in s.get('children', {}).items()}
         summary['processes'] = s.get('processes', {})
-        for k in ('recorded', 'recorder_short', 'recorder_catch_up_s',
-                  'recording_stopped_early'):
-            if k in s:
-                summary[k] = s[k]
+        summary.update({k: s[k] for k in ('recorded', 'recorder_short', 'recorder_catch_up_s',
+                                          'recording_stopped_early') if k in s})
         if a.trace and h.obs is not None:
             sm.write_trace(a.trace, h.obs.columns(streams), rate)   # full: every stream
         h.close()

@@ -2,12 +2,9 @@
 """
 ``bringup`` on the simulated 1-D graph: its scenario on a :class:`~.harness.Harness`.
 
-Sequence: refuse to start beside another graph in the same namespace; start the recorder
-and the description's processes; wait until every node is on the graph, the lifecycle
-nodes are active and every topic has its publishers and subscribers; start the plant
-(``simulated_actuator/run``); run the scenario; hold the plant; stop every node and the
-recorder last; print the summary (metrics, realtime figures, CPU and memory per process,
-sent and recorded counts). A lockstep start that stalls is retried.
+The harness starts, waits for and stops the graph; here: start the plant, run the
+scenario, print the summary (metrics, realtime figures, CPU and memory per process, sent
+and recorded counts). A lockstep start that stalls is retried.
 
 Scenarios: ``step``, ``sine``, ``triangle``, ``staircase`` and
 ``hysteresis-experiment`` run the ``scenario_runner`` node (one setpoint, or open-loop

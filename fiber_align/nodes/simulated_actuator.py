@@ -24,7 +24,7 @@ loop of docs/CONTRACTS.md. ``realtime`` runs a sample clock on the steady wall c
 ``rate_hz`` (:class:`fiber_align.plant.dac.DacClock`): at tick k it advances the plant
 with the drive latched at tick k-1, publishes y_k (stamp t_0 + k T) and latches the
 newest drive, one period more delay than lockstep. The sample clock:
-:class:`fiber_align.nodes._plant_clock.PlantClock` (composed); the realtime latency and
+:class:`fiber_align.nodes.ros.plant_clock.PlantClock` (composed); the realtime latency and
 missed cycles: its ``latency_stats()`` and ``cycle.*`` on ``/diagnostics``.
 """
 
@@ -41,7 +41,7 @@ from std_srvs.srv import SetBool
 from fiber_align.control.cycle import cycle_warning, CycleStats, RecentShare
 from fiber_align.graph.ranges import PLANT_RANGES
 from fiber_align.graph.registry import NODES
-from fiber_align.nodes._plant_clock import PlantClock
+from fiber_align.nodes.ros.plant_clock import PlantClock
 from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import Health
 from fiber_align.nodes.ros.params import check_parameters, declare, declare_graph_values
