@@ -1,12 +1,13 @@
 # SPDX-License-Identifier: Apache-2.0
 """
-Dark is not dead on the two-axis hardware rig (emulated MDT693B + PM100).
+Dark is not dead on the hardware bench and the two-axis rig (emulated MDT693B + PM100).
 
 The PM100 emulator clamps its readings at a floor (``--meter-floor``; the optics'
 ``floor_w``): in the dark it returns one value again and again, as meters that clamp below
 their noise floor do. The rig's graph aligns on it (``bringup --rig --hardware --emulate
---meter-floor``, as a user starts it); with in-process emulators the true loss is read
-against the best point, and a meter frozen mid-TRACKING is named within 1 s.
+--meter-floor``, as a user starts it); with in-process emulators the 1-D bench's graph
+and the rig's track within 0.1 dB of the best point, and a meter frozen mid-TRACKING is
+named within 1 s.
 """
 
 import json
@@ -35,17 +36,26 @@ def test_bringup_rig_hardware_emulate_with_a_constant_dark_floor(tmp_path):
     assert all(c == 0 for c in s['exit_codes'].values()), s['exit_codes']
 
 
-@pytest.mark.ros  # starts processes
-def test_rig_graph_on_a_floored_meter_tracks_within_0p1_db_and_names_a_frozen_meter():
-    from fiber_align.bringup.hardware import HardwareRun
+def _bench(machine):
+    """Return ``(emulated bench kwargs, graph builder)`` of the 1-D bench or the rig."""
+    from fiber_align.graph.hardware import build_hardware
     from fiber_align.graph.hardware_rig import build_hardware_rig
+    if machine == '1-D':                # the slot well inside the travel
+        return dict(seed=0, slot_position_m=30e-6), build_hardware
+    # well inside the reachable square
+    return dict(seed=2, rig=True, position_x_m=30e-6, position_y_m=25e-6), build_hardware_rig
+
+
+@pytest.mark.ros  # starts processes
+@pytest.mark.parametrize('machine', ['1-D', 'rig'])
+def test_graph_on_a_floored_meter_tracks_within_0p1_db_and_names_a_frozen_meter(machine):
+    from fiber_align.bringup.hardware import HardwareRun
     from fiber_align.hardware.bench import emulated
-    tx, ty = 30e-6, 25e-6               # well inside the reachable square
-    with emulated(seed=2, rig=True, position_x_m=tx, position_y_m=ty, floor_w=FLOOR_W) as (
-            bench, mdt, pm):
+    options, build = _bench(machine)
+    with emulated(floor_w=FLOOR_W, **options) as (bench, mdt, pm):
         dark = {pm.measure_w() for _ in range(10)}
         assert dark == {FLOOR_W}, dark              # the meter's dark reading: one value
-        hw = HardwareRun(build_hardware_rig(port=mdt.port, visa_resource=pm.resource))
+        hw = HardwareRun(build(port=mdt.port, visa_resource=pm.resource))
         try:
             hw.start()
             ok, wall = hw.align()
@@ -64,8 +74,8 @@ def test_rig_graph_on_a_floored_meter_tracks_within_0p1_db_and_names_a_frozen_me
                     'FAULT or HELD after the meter froze')
             dt = time.monotonic() - t0
             why = hw.status.get('fault_reason') or hw.status.get('hold_reason')
-            print('rig on a %g W floor: align %.2f s, loss %.4f dB; frozen meter named in '
-                  '%.2f s: %s' % (FLOOR_W, wall, sum(losses) / len(losses), dt, why))
+            print('%s on a %g W floor: align %.2f s, loss %.4f dB; frozen meter named in '
+                  '%.2f s: %s' % (machine, FLOOR_W, wall, sum(losses) / len(losses), dt, why))
             assert 'power meter frozen' in why, hw.status
             assert dt < 1.0, (dt, why)
         finally:
