@@ -107,6 +107,34 @@ def test_station_lockstep_equals_the_offline_run(tmp_path):
 
 
 @pytest.mark.ros  # starts the station's processes
+def test_station_on_a_meter_clamped_at_1_nw_aligns_as_on_a_clean_one(tmp_path):
+    """
+    Dark is not dead on the station's graph: a meter that reads a constant 1 nW in the dark.
+
+    ``optics.floor_w`` clamps every reading below it (a meter that clamps below its noise
+    floor): the first-light search walks the dark on one value again and again. The graph
+    ends TRACKING with the motion of the run on a clean meter, sample for sample (only the
+    dark readings differ, by at most the floor), so at that run's loss.
+    """
+    floor_w = 1e-9
+    summary = tmp_path / 'station.json'
+    code, out = run_bounded([sys.executable, '-m', 'fiber_align.bringup', '--station',
+                             '--sync', 'lockstep', '--seed', '2', '-p',
+                             '**:optics.floor_w:=%r' % floor_w, '--summary', str(summary),
+                             '--quiet'], 120)
+    assert code == 0, out
+    s = json.loads(summary.read_text(encoding='utf-8'))
+    off = s['offline']              # the shipped (clean) meter's run, aligned alike
+    assert s['state'] == 'TRACKING' and off['state'] == 'TRACKING', s
+    assert 'stuck' not in out and 'frozen' not in out
+    assert off['samples'] == off['offline_samples'], off
+    moves = {k: v for k, v in off.items() if k.startswith('max_abs_') and k != 'max_abs_p'}
+    assert moves and max(moves.values()) <= 1e-15, moves                    # m
+    assert 0.0 < off['max_abs_p'] <= floor_w, off['max_abs_p']              # W: the dark only
+    assert off['final_loss_db'] < 0.1, off['final_loss_db']
+
+
+@pytest.mark.ros  # starts the station's processes
 @pytest.mark.slow
 def test_a_driver_disabled_mid_align_holds_the_station_which_resumes_after_the_re_arm():
     """Realtime: ``out/x`` disabled while SEARCHING; HELD names it; enabled: TRACKING."""
