@@ -8,7 +8,8 @@ a second publisher of a command or drive topic, are named in one line each.
 
 from fiber_align.graph.arguments import describe
 from fiber_align.graph.endpoints import (drive_owners, extra_publishers, foreign_publishers,
-                                         graph_names, names_taken, surplus_publishers,
+                                         graph_names, names_taken, started_first,
+                                         starting_marker, surplus_publishers,
                                          suspect_topics, type_name, unconnected)
 
 
@@ -121,3 +122,17 @@ def test_a_topic_short_of_an_endpoint_is_unconnected_and_one_more_publisher_is_n
     assert unconnected(expected, counts) == ['displacement']
     assert surplus_publishers(expected, counts) == ['setpoint (2 publishers, expected 1)']
     assert unconnected(expected, dict(counts, displacement=(1, 2))) == []
+
+
+def test_two_starts_of_one_set_of_names_are_ordered_by_their_markers():
+    want = graph_names(describe({}))
+    a = starting_marker(want, 1_000_000_000_000, 4321)
+    b = starting_marker(want, 1_000_400_000_000, 1234)         # 0.4 s later
+    other = starting_marker(graph_names(describe({'namespace': 'left'})), 0, 1)
+    assert a.startswith('_fiber_align_starting_') and a != b
+    assert a[:34] == b[:34] and a[:34] != other[:34]            # the digest of the names
+    listing = [(a, '/'), (b, '/'), (other, '/'), ('talker', '/')]
+    line = started_first(b, listing, '7')
+    assert 'ROS_DOMAIN_ID=7' in line and '0.40 s before' in line and '4321' in line, line
+    assert started_first(a, listing, '7') is None               # the earlier one starts
+    assert started_first(b, [(b, '/'), (other, '/')], '7') is None

@@ -4,11 +4,12 @@ One graph per set of names (issue 39.1), with ``ros2 launch`` as a user starts i
 
 Two launches of one graph in one ``ROS_DOMAIN_ID`` (two rig PCs of one lab on domain 0):
 the second exits non-zero within 10 s with one line and starts no process, while the
-first holds its 60 um setpoint within 1 um. A foreign node publishing 100 V on a drive
-topic (``feedforward_voltage``) at 1 kHz for 5 s beside the 1-D graph, the rig and the
-station: the driver holds its output, an ERROR on ``/diagnostics`` names the node, the
-displacement never leaves the setpoint range, and after the node is gone an
-``~/enable true`` re-arms the driver. Every wait is bounded; every launch is stopped by
+first holds its 60 um setpoint within 1 um; two launched at the same moment, before
+either graph's nodes exist: the later is refused the same way. A foreign node publishing
+100 V on a drive topic (``feedforward_voltage``) at 1 kHz for 5 s beside the 1-D graph,
+the rig and the station: the driver holds its output, an ERROR on ``/diagnostics`` names
+the node, the displacement never leaves the setpoint range, and after the node is gone
+an ``~/enable true`` re-arms the driver. Every wait is bounded; every launch is stopped by
 its pid and group, also on failure.
 """
 
@@ -157,6 +158,38 @@ def test_a_second_launch_of_the_same_graph_is_refused_and_the_first_holds(
         client and client.close()
         second and stop_launch(second)
         stop_launch(first)
+
+
+def test_two_launches_of_one_graph_at_the_same_moment_one_is_refused(
+        ros2_env, tmp_path):  # noqa: F811
+    """
+    Neither graph's nodes exist when both probes look: the starts' markers order them.
+
+    The later start exits non-zero within 10 s with one line; the earlier one starts.
+    """
+    logs = [tmp_path / 'a.log', tmp_path / 'b.log']
+    launches = []
+    try:
+        t0 = time.monotonic()
+        launches = [spawn(ros2_env, LAUNCH, log) for log in logs]
+        end = t0 + 10.0
+        while time.monotonic() < end and all(p.poll() is None for p in launches):
+            time.sleep(0.05)
+        took = time.monotonic() - t0
+        codes = [p.poll() for p in launches]
+        texts = [log.read_text(errors='replace') for log in logs]
+        print('two launches at once: exit codes %s after %.2f s' % (codes, took))
+        refused = [i for i, c in enumerate(codes) if c is not None]
+        assert len(refused) == 1 and codes[refused[0]] != 0, (codes, texts)
+        lines = [ln for ln in texts[refused[0]].splitlines() if 'another graph of these '
+                 'names started' in ln]
+        print(lines)
+        assert len(lines) == 1 and 'process started' not in texts[refused[0]], texts
+        kept = launches[1 - refused[0]]
+        assert wait_log(logs[1 - refused[0]], 'startup done', 60.0, kept), texts
+    finally:
+        for p in launches:
+            stop_launch(p)
 
 
 @pytest.mark.parametrize('first, second', [

@@ -8,6 +8,8 @@ names them, so a node can put them on ``/diagnostics`` (a WARN) instead of waiti
 silence.
 """
 
+import hashlib
+
 from fiber_align.graph.params import DRIVER, GraphError
 from fiber_align.graph.registry import DRIVES
 
@@ -99,6 +101,49 @@ def names_taken(expected, listing, domain):
             'of this graph); nothing started: stop it, or start this one in another '
             'namespace or ROS_DOMAIN_ID' % (domain, ', '.join(taken), len(taken),
                                             len(set(expected))))
+
+
+#: The node name a starting graph's probe takes: ``<STARTING><digest>_<t_ms>_<pid>``
+#: (:func:`starting_marker`); hidden (``_``), so ``ros2 node list`` shows it only with ``-a``.
+STARTING = '_fiber_align_starting_'
+
+
+def starting_marker(expected, t_ns, pid):
+    """
+    Return the node name of a start of the names ``expected``, begun at ``t_ns`` by ``pid``.
+
+    The digest names the set of ``(name, namespace)`` pairs: two starts of one set of
+    names (two ``ros2 launch`` of one graph at the same moment, when neither graph's
+    nodes exist yet to be seen) carry the same digest, and the start time and pid order
+    them.
+    """
+    digest = hashlib.sha1(repr(sorted(set(expected))).encode()).hexdigest()[:12]
+    return '%s%s_%d_%d' % (STARTING, digest, int(t_ns) // 1_000_000, int(pid))
+
+
+def _start_key(name):
+    t_ms, pid = name.rsplit('_', 2)[-2:]
+    return int(t_ms), int(pid)
+
+
+def started_first(mine, listing, domain):
+    """
+    Return one line when a start of the same names began before ``mine``, else None.
+
+    :param mine: this start's :func:`starting_marker`.
+    :param listing: ``(name, namespace)`` pairs on the graph.
+    :param domain: the ``ROS_DOMAIN_ID`` looked in (for the line).
+    """
+    same = mine[:len(STARTING) + 12] + '_'
+    earlier = sorted((_start_key(n), n) for n, _ in listing
+                     if n.startswith(same) and n != mine and _start_key(n) < _start_key(mine))
+    if not earlier:
+        return None
+    (t_ms, pid), _ = earlier[0]
+    return ('another graph of these names started on ROS_DOMAIN_ID=%s %.2f s before this one '
+            '(process %d, its nodes not up yet); nothing started: stop it, or start this one '
+            'in another namespace or ROS_DOMAIN_ID'
+            % (domain, (_start_key(mine)[0] - t_ms) / 1000.0, pid))
 
 
 def extra_publishers(owners, publishers):

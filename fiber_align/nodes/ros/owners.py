@@ -8,6 +8,7 @@ command and drive topic (:data:`fiber_align.graph.registry.DRIVES`), counted by 
 (``rcl_count_publishers`` by ``ctypes``, the GIL released: never on the control thread).
 """
 
+import atexit
 import ctypes
 import os
 import threading
@@ -21,7 +22,8 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from fiber_align.graph.endpoints import (drive_owners, extra_publishers, graph_names,
-                                         names_taken, NamesTaken, node_fqn, UNKNOWN)
+                                         names_taken, NamesTaken, node_fqn, started_first,
+                                         starting_marker, UNKNOWN)
 from fiber_align.graph.params import effective, merge_params
 from fiber_align.nodes.ros.rcl_ctypes import Rcl
 
@@ -33,29 +35,41 @@ def refuse_taken(graph, wait_s=None):
     """
     Raise :class:`NamesTaken` (one line) when another graph owns ``graph``'s node names.
 
+    The probe's node is named after the start (:func:`~fiber_align.graph.endpoints.
+    starting_marker`) and stays on the graph while this process runs (the launch process,
+    ``bringup``): a graph of the same names started at the same moment, whose nodes are
+    not up yet, is seen by its marker, and the later start is refused.
+
     :param wait_s: how long discovery may take (s; ``None``: ``discovery_wait_s`` of the
         ``bringup`` section of the graph's files): the listing is looked at every 50 ms.
     """
     if wait_s is None:
         wait_s = effective(merge_params(graph.params_files), 'bringup')['discovery_wait_s']
     want, domain = graph_names(graph), os.environ.get('ROS_DOMAIN_ID') or '0'
+    mine = starting_marker(want, time.time_ns(), os.getpid())
     ctx = Context()
     rclpy.init(args=[], context=ctx, signal_handler_options=SignalHandlerOptions.NO)
     try:
-        node = Node('_fiber_align_probe_%d' % os.getpid(), context=ctx,
-                    enable_rosout=False, start_parameter_services=False)
+        node = Node(mine, context=ctx, enable_rosout=False, start_parameter_services=False)
         t_end, seen = time.monotonic() + float(wait_s), set()
         while time.monotonic() < t_end:
             time.sleep(0.05)
             seen.update(node.get_node_names_and_namespaces())
             if seen & want:             # found: 0.3 s more for the rest of its names
                 t_end = min(t_end, time.monotonic() + 0.3)
-        node.destroy_node()
-    finally:
+        why = names_taken(want, seen, domain) or started_first(mine, seen, domain)
+    except BaseException:
         ctx.try_shutdown()
-    why = names_taken(want, seen, domain)
+        raise
     if why:
+        ctx.try_shutdown()
         raise NamesTaken(why)
+    _MARKERS.append(ctx)                # the marker stays until this process ends
+    atexit.register(ctx.try_shutdown)
+
+
+#: the contexts of this process's start markers (:func:`refuse_taken`)
+_MARKERS = []
 
 
 def watch_drives(node, axes, on_change):
