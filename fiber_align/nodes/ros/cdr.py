@@ -143,9 +143,8 @@ class BusTopic:
         # written at once, a few microseconds; so is the chunk close when due: its cost
         # grows with the chunk, so it is kept small and regular (deferred to a later
         # slack it only grew)
-        if not self.write(time.time_ns(), self.encode(msg)):
-            return self.stop()
-        self.sink.flush_due()
+        if not self.write(time.time_ns(), self.encode(msg)) or not self.sink.flush_due():
+            self.stop()
 
     def destroy(self):
         """Leave the bus; no message is written after this."""

@@ -108,6 +108,11 @@ WARM_IMPORTS = ('numpy.ma', 'rosidl_runtime_py.utilities', 'rclpy.serialization'
                 'rosbags.serde.primitives')
 
 
+#: s: the longest a realtime process's other Python threads keep the control thread
+#: waiting for the GIL (``sys.setswitchinterval``; Python's default 5 ms)
+GIL_SWITCH_S = 0.0002
+
+
 def warm_imports(names=WARM_IMPORTS):
     """Import ``names`` now (those missing from this install are skipped)."""
     import importlib
@@ -140,6 +145,10 @@ def spin(nodes, realtime=False, priority=0, stop=None, threads=1, then=None):
     lock = any(n.has_parameter('lock_memory') and n.get_parameter('lock_memory').value
                for n in nodes)
     sched = set_realtime_priority(priority, lock)
+    if priority:
+        # a thread of Python work beside the control thread (a bag's close, a snapshot)
+        # holds the GIL until the interval ends: 5 ms by default, five periods
+        sys.setswitchinterval(GIL_SWITCH_S)
     awake = CpuLatencyRequest()
     if sched.startswith('SCHED_FIFO') and any(
             n.has_parameter('cpu_idle_poll') and n.get_parameter('cpu_idle_poll').value
