@@ -64,11 +64,12 @@ def refuse_taken(graph, wait_s=None):
     if why:
         ctx.try_shutdown()
         raise NamesTaken(why)
-    _MARKERS.append(ctx)                # the marker stays until this process ends
+    _MARKERS.append((ctx, node))        # the marker stays until this process ends
     atexit.register(ctx.try_shutdown)
 
 
-#: the contexts of this process's start markers (:func:`refuse_taken`)
+#: this process's start markers (:func:`refuse_taken`): ``(context, node)``, referenced so
+#: that neither is collected (a collected node leaves the graph)
 _MARKERS = []
 
 
