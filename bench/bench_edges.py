@@ -65,10 +65,15 @@ def _control_pid(graph_pid):
 
 
 def _stall(pid, stall_s, until):
-    """Stop ``pid`` for ``stall_s`` every :data:`STALL_EVERY_S` until ``until``; return n."""
-    n = 0
-    while time.monotonic() + STALL_EVERY_S < until:
-        time.sleep(STALL_EVERY_S)
+    """
+    Stop ``pid`` for ``stall_s`` every :data:`STALL_EVERY_S` until ``until``; return n.
+
+    The stalls keep a fixed schedule from the start (the k-th at k x the spacing), so a
+    busy machine that wakes this thread late still gives the flood all of them.
+    """
+    n, t0 = 0, time.monotonic()
+    while t0 + (n + 1) * STALL_EVERY_S + stall_s < until:
+        time.sleep(max(0.0, t0 + (n + 1) * STALL_EVERY_S - time.monotonic()))
         try:
             os.kill(pid, signal.SIGSTOP)
             time.sleep(stall_s)

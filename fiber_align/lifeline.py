@@ -21,6 +21,8 @@ Its stop's lines go through :func:`say` (a reader that is gone ends nothing) and
 last part, the middleware's teardown, is bounded (:func:`teardown_guard`).
 """
 
+import ctypes
+import ctypes.util
 import faulthandler
 import os
 import select
@@ -168,10 +170,11 @@ def teardown_guard(limit_s, stop=None):
     seen to wait for seconds; the process has nothing left to save then. A timer thread
     prints one line naming the stall and exits with the process's code (:meth:`StopFlag.exit_code`
     of ``stop``), without the interpreter's exit. A teardown that waits while it holds
-    the GIL (rclpy's ``destroy_node`` does) stops that thread too; for that case
-    ``faulthandler``'s watchdog, a C thread that needs no GIL, ends the process
-    :data:`BACKSTOP_S` later with every thread's stack and exit code 1. Cancel the guard
-    (:meth:`TeardownGuard.cancel`) when the teardown ended.
+    the GIL (rclpy's ``destroy_node`` does) stops that thread too; for that case threads
+    that need no GIL act :data:`BACKSTOP_S` later: a line, ``faulthandler``'s dump of
+    every thread's stack, then ``_exit`` with the same code
+    (:func:`exit_later`; where POSIX timers are missing, ``faulthandler``'s
+    exit 1). Cancel the guard (:meth:`TeardownGuard.cancel`) when the teardown ended.
     """
     return TeardownGuard(limit_s, stop)
 
@@ -181,7 +184,7 @@ BACKSTOP_S = 0.3
 
 
 class TeardownGuard:
-    """The two exits of :func:`teardown_guard`: its timer thread and the C backstop."""
+    """The exits of :func:`teardown_guard`: its timer thread and the GIL-free backstop."""
 
     def __init__(self, limit_s, stop=None):
         """Start both; ``limit_s`` in s."""
@@ -190,9 +193,22 @@ class TeardownGuard:
         self.timer = threading.Timer(self.limit_s, self._abandon)
         self.timer.daemon = True
         self.timer.start()
+        self.backstop = []
+        late = self.limit_s + BACKSTOP_S
+        code = self.stop.exit_code(0) if self.stop is not None else 0
         try:
-            faulthandler.dump_traceback_later(self.limit_s + BACKSTOP_S, exit=True)
-        except (OSError, ValueError, RuntimeError):     # no usable stderr
+            self.backstop = [
+                say_later(late - 0.02, 'teardown: the middleware did not end within %g s '
+                          'and holds the GIL; exiting %d without it, the stacks follow '
+                          '(the last C error' % (late, code)),
+                exit_later(late + 0.05, code)]
+            faulthandler.dump_traceback_later(late, exit=False)
+        except OSError:                 # no POSIX timers: faulthandler's exit 1 then
+            try:
+                faulthandler.dump_traceback_later(late, exit=True)
+            except (OSError, ValueError, RuntimeError):     # no usable stderr
+                pass
+        except (ValueError, RuntimeError):                  # no usable stderr
             pass
 
     def _abandon(self):
@@ -206,4 +222,100 @@ class TeardownGuard:
     def cancel(self):
         """Disarm both exits (the teardown ended)."""
         self.timer.cancel()
+        for timer in self.backstop:
+            timer.cancel()
         faulthandler.cancel_dump_traceback_later()
+
+
+# The GIL-free backstop: a POSIX timer (``timer_create`` with ``SIGEV_THREAD``, bound by
+# ``ctypes``) makes glibc call a libc function on a thread of its own when the delay
+# elapses; no Python runs on that path, so it acts while the main thread waits in C
+# holding the GIL. ``faulthandler``'s own watchdog also needs no GIL but always exits 1.
+
+#: ``<signal.h>``: the timer calls a function on a new thread
+SIGEV_THREAD = 2
+#: ``<time.h>``
+CLOCK_MONOTONIC = 1
+
+
+class _Sigevent(ctypes.Structure):
+    """glibc's ``struct sigevent`` (64 bytes), its ``_sigev_thread`` member in place."""
+
+    _fields_ = [('value', ctypes.c_void_p), ('signo', ctypes.c_int),
+                ('notify', ctypes.c_int), ('function', ctypes.c_void_p),
+                ('attribute', ctypes.c_void_p), ('pad', ctypes.c_byte * 32)]
+
+
+class _Timespec(ctypes.Structure):
+    _fields_ = [('sec', ctypes.c_long), ('nsec', ctypes.c_long)]
+
+
+class _Itimerspec(ctypes.Structure):
+    _fields_ = [('interval', _Timespec), ('value', _Timespec)]
+
+
+_LIBC = None
+
+
+def _libc():
+    global _LIBC
+    if _LIBC is None:
+        lib = ctypes.CDLL(ctypes.util.find_library('c') or 'libc.so.6', use_errno=True)
+        lib.timer_create.argtypes = [ctypes.c_int, ctypes.POINTER(_Sigevent),
+                                     ctypes.POINTER(ctypes.c_void_p)]
+        lib.timer_settime.argtypes = [ctypes.c_void_p, ctypes.c_int,
+                                      ctypes.POINTER(_Itimerspec), ctypes.c_void_p]
+        lib.timer_delete.argtypes = [ctypes.c_void_p]
+        _LIBC = lib
+    return _LIBC
+
+
+class CTimer:
+    """A libc function of one argument called on its own thread ``delay_s`` s from now."""
+
+    def __init__(self, delay_s, function, value):
+        """
+        Arm the timer.
+
+        :param delay_s: s from now.
+        :param function: the name of a libc function of one int or pointer argument.
+        :param value: its argument (an int, or a ctypes buffer kept referenced here).
+        :raises OSError: no POSIX timers here (the caller keeps another backstop).
+        """
+        lib = _libc()
+        self._value = value
+        arg = value if isinstance(value, int) else ctypes.addressof(value)
+        self._event = _Sigevent(value=arg, notify=SIGEV_THREAD,
+                                function=ctypes.cast(getattr(lib, function),
+                                                     ctypes.c_void_p).value)
+        self._timer = ctypes.c_void_p()
+        if lib.timer_create(CLOCK_MONOTONIC, ctypes.byref(self._event),
+                            ctypes.byref(self._timer)):
+            raise OSError(ctypes.get_errno(), 'timer_create failed')
+        sec = max(float(delay_s), 1e-3)
+        spec = _Itimerspec(value=_Timespec(int(sec), int((sec % 1.0) * 1e9)))
+        if lib.timer_settime(self._timer, 0, ctypes.byref(spec), None):
+            err = ctypes.get_errno()
+            lib.timer_delete(self._timer)
+            raise OSError(err, 'timer_settime failed')
+        self._armed = True
+
+    def cancel(self):
+        """Disarm (idempotent)."""
+        if self._armed:
+            self._armed = False
+            _libc().timer_delete(self._timer)
+
+
+def exit_later(delay_s, code):
+    """Return a :class:`CTimer` that calls ``_exit(code)`` (``code`` 0-255) in ``delay_s`` s."""
+    return CTimer(delay_s, '_exit', int(code) & 0xFF)
+
+
+def say_later(delay_s, line):
+    """
+    Return a :class:`CTimer` that writes ``line`` to stderr in ``delay_s`` s.
+
+    ``perror`` writes it unbuffered, followed by ``: `` and the thread's errno text.
+    """
+    return CTimer(delay_s, 'perror', ctypes.create_string_buffer(line.encode()))

@@ -67,14 +67,14 @@ HANGING = textwrap.dedent('''
             print('closed', flush=True)
 
         def destroy_node(self):
-            if sys.argv[1] == 'gil':        # waits in C holding the GIL, as rclpy's does
+            if sys.argv[1].startswith('gil'):   # waits in C holding the GIL, as rclpy's does
                 import ctypes
                 ctypes.PyDLL(None).sleep(20)
             threading.Event().wait()        # never returns
 
     stop = StopFlag()
     stop.note(signal.SIGINT)
-    if sys.argv[1] == 'twice':
+    if sys.argv[1].endswith('twice'):
         stop.note(signal.SIGINT)
     t0 = time.monotonic()
     try:
@@ -137,14 +137,16 @@ def test_a_stop_whose_output_has_no_reader_closes_the_nodes_and_exits_0(tmp_path
     assert closed.read_text() == 'closed'
 
 
-def test_a_teardown_that_hangs_holding_the_gil_still_ends_the_process():
-    """The timer thread cannot run then; the C backstop ends it, with every stack."""
+@pytest.mark.parametrize('how, code', [('gil', 0), ('gil-twice', 130)])
+def test_a_teardown_that_hangs_holding_the_gil_ends_the_process_with_its_code(how, code):
+    """The timer thread cannot run then; the GIL-free backstop ends it, with every stack."""
     t0 = time.monotonic()
-    out = subprocess.run([sys.executable, '-c', HANGING, 'gil'], capture_output=True,
+    out = subprocess.run([sys.executable, '-c', HANGING, how], capture_output=True,
                          text=True, timeout=10)
     took = time.monotonic() - t0
-    assert out.returncode == 1, (out.stdout, out.stderr)
+    assert out.returncode == code, (out.stdout, out.stderr)
     assert out.stdout.splitlines() == ['closed']
+    assert 'did not end within 0.8 s and holds the GIL; exiting %d' % code in out.stderr
     assert 'destroy_node' in out.stderr, out.stderr      # where it hung, for the log
     assert took < 5.0, took
 
