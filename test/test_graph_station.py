@@ -190,3 +190,54 @@ def test_a_driver_disabled_mid_align_holds_the_station_which_resumes_after_the_r
     finally:
         h.stop()
         h.close()
+
+
+@pytest.mark.ros  # starts the station's processes
+@pytest.mark.slow
+def test_a_meter_frozen_mid_tracking_is_named_within_1_s_on_the_realtime_station():
+    """
+    Issue 39.3 on the station's graph: its meter freezes while TRACKING.
+
+    The optics node's fault injection ``meter_frozen`` is set live, as ``ros2 param set``
+    does: the sequencer faults or holds, naming the frozen meter, within 1 s of the
+    parameter's answer.
+    """
+    import time
+
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+    from std_srvs.srv import Trigger
+
+    from fiber_align.bringup.harness import Harness
+    h = Harness(gs.build_station(seed=2, sync_mode='realtime'), dict(streams={}))
+
+    def state():
+        return h.obs.status.get('state')
+    try:
+        h.start()
+        h.obs.start()
+        h.run(True)
+        h.obs.wait(lambda: state() == 'IDLE', 20.0, h.alive, 'IDLE')
+        res = h.obs.call(h.obs.client(Trigger, 'align'), Trigger.Request(), 10.0, h.alive)
+        assert res.success, res.message
+        h.obs.wait(lambda: state() in ('TRACKING', 'FAULT'), 30.0, h.alive, 'TRACKING')
+        assert state() == 'TRACKING', h.obs.status
+        time.sleep(0.5)
+        assert state() == 'TRACKING', h.obs.status      # a live meter is never frozen
+        req = SetParameters.Request(parameters=[Parameter(
+            name='meter_frozen', value=ParameterValue(type=ParameterType.PARAMETER_BOOL,
+                                                      bool_value=True))])
+        res = h.obs.call(h.obs.client(SetParameters, '%s/set_parameters' % gs.OPTICS), req,
+                         10.0, h.alive)
+        t0 = time.monotonic()
+        assert res.results[0].successful, res.results[0].reason
+        h.obs.wait(lambda: state() in ('FAULT', 'HELD'), 3.0, h.alive, 'FAULT or HELD')
+        dt = time.monotonic() - t0
+        st = h.obs.status
+        why = st.get('fault_reason') or st.get('hold_reason')
+        print('station: frozen meter named %.3f s after the parameter: %s' % (dt, why))
+        assert 'power meter frozen' in why, st
+        assert dt < 1.0, (dt, why)
+    finally:
+        h.stop()
+        h.close()

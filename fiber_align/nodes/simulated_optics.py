@@ -24,6 +24,9 @@ Pairing: ``lockstep`` takes the i-th position of every axis and reads the detect
 ``t_i = i / rate_hz`` (the offline bench's ``k T``, bit for bit); ``realtime`` reads on
 every sample of the first axis with the latest position of the others, at its stamp.
 
+Fault injection (live): ``meter_frozen`` true repeats the last reading on every sample,
+as a meter whose readout froze (a WARN on ``/diagnostics`` names it while it lasts).
+
 Parameters (read-only): ``link``; ``seed`` (detector noise seed); ``optics.*`` (the
 source and detector constants of ``config/optics.yaml``, shared with the 1-D plant); the
 rig's ``target.*`` (``config/optics2d.yaml``) or the station's chip, facet and cure keys
@@ -35,6 +38,7 @@ import math
 import sys
 
 import numpy as np
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
@@ -99,6 +103,10 @@ class SimulatedOpticsNode(Node):
                          lambda msg, i=i: self._on_position(i, msg), qos, bus)
         self.health = Health(self, g['diagnostics_period_s'], slack=slack_of(bus),
                              sender=sender_of(bus))
+        self.frozen = declare(self, d, 'meter_frozen', 'fault injection: every reading '
+                              'repeats the last one, a frozen meter (bool, live)')
+        self._last = None                       # the last readings (W), one per topic
+        self.add_on_set_parameters_callback(self._on_set)
         self.n = 0
         # one message per topic: the DDS copy is written off this thread, after the loop
         self._msgs = [Float64() for _ in self.pubs]
@@ -158,11 +166,25 @@ class SimulatedOpticsNode(Node):
             values = [math.nan] * len(self.pubs)
         else:
             values = list(np.atleast_1d(self.measure(t_s, pos)))
+            if self.frozen and self._last is not None:
+                values = self._last     # the detector runs on: its noise stream holds
+            self._last = values
         for pub, msg, v in zip(self.pubs, self._msgs, values):
             msg.data = float(v)
             pub.publish(msg)
         self.n += 1
         self.health.set_values(samples=self.n, optical_power_w=float(values[0]))
+
+    def _on_set(self, params):
+        """Take ``meter_frozen`` live: a standing WARN on ``/diagnostics`` while it holds."""
+        for p in params:
+            if p.name == 'meter_frozen' and bool(p.value) != self.frozen:
+                self.frozen = bool(p.value)
+                why = 'meter_frozen: every reading repeats the last one (fault injection)'
+                (self.get_logger().warning if self.frozen else self.get_logger().info)(
+                    why if self.frozen else 'meter_frozen false: live readings again')
+                self.health.condition('meter_frozen', why if self.frozen else None)
+        return SetParametersResult(successful=True)
 
     def sent_counts(self):
         """Return published message counts per topic."""
