@@ -38,6 +38,9 @@ class LocalBus:
         self.sender = None
         #: period (s) -> the :class:`SampleTimer` the sample clocks of that period share
         self.timers = {}
+        #: fully qualified topic -> the message class its :class:`Pub` publishes (a
+        #: recorder built later prepares its encoders before the spin)
+        self.types = {}
 
     def flush(self):
         """Hand the DDS publishes deferred by nested deliveries to DDS, in order."""
@@ -120,6 +123,8 @@ class Pub:
         self.topic = self.topic_name    # the bus's key: the fully qualified name
         self._bus = bus if bus is not None and bus.local(node, topic) else None
         self._local = self._bus.callbacks(self.topic) if self._bus is not None else ()
+        if self._bus is not None:
+            self._bus.types[self.topic] = msg_type
         self._latched = latched
         self._slack = slack
 

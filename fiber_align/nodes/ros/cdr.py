@@ -51,6 +51,26 @@ class Encoder:
         #: ``''`` while the rosbags route serves, else why the rclpy route took over
         self.fallback = ''
 
+    def warm(self):
+        """
+        Do every route's first-use work now, on a default message (not the check).
+
+        rosbags generates a type's serialiser on its first message, rclpy loads its
+        deserialiser: 7-23 ms for a type here (2026-12-06), a tick of several missed
+        periods when the first messages of the recorded topics arrive together. The
+        first real message is still the one checked.
+        """
+        msg = self.cls()
+        try:
+            data = self.typestore.serialize_cdr(
+                self._adapt(msg) if self._adapt is not None else msg, self.msgtype)
+            if self._pack is not None:
+                self._packed(msg)
+            from rclpy.serialization import deserialize_message
+            deserialize_message(bytes(data), self.cls)
+        except Exception:  # noqa: BLE001 - warming only: the first message decides
+            pass
+
     def __call__(self, msg):
         """Return the CDR bytes of ``msg`` (encapsulation header included)."""
         if self.fallback:
@@ -125,19 +145,29 @@ class BusTopic:
     """
 
     def __init__(self, bus, topic, sink, stop, log):
-        """Subscribe on ``bus``; the type is the first message's."""
+        """
+        Subscribe on ``bus``; the type is the first message's.
+
+        A type the bus already knows (its :class:`~fiber_align.nodes.ros.bus.Pub` was
+        built first) gets its encoder now, warmed (:meth:`Encoder.warm`), off the loop.
+        """
         self.topic, self.sink, self.stop, self.log = topic, sink, stop, log
         self.encode = None
         self.write = None
         self.done = False
+        cls = getattr(bus, 'types', {}).get(topic)
+        if cls is not None:
+            self.encode = encoder(sink.typestore, type_name(cls), cls)
+            self.encode.warm()
         self.sub = LocalSub(bus, topic, self._on_message)
 
     def _on_message(self, msg):
         if self.done:
             return
-        if self.encode is None:
+        if self.write is None:
             msgtype = type_name(type(msg))
-            self.encode = encoder(self.sink.typestore, msgtype, type(msg))
+            if self.encode is None or self.encode.cls is not type(msg):
+                self.encode = encoder(self.sink.typestore, msgtype, type(msg))
             self.write = self.sink.put(self.topic, msgtype)
             self.log.info('recording %s (%s) in-process' % (self.topic, msgtype))
         # written at once, a few microseconds; so is the chunk close when due: its cost
