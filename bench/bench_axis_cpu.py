@@ -6,7 +6,11 @@ Each run is one ``bringup --sync realtime`` (the graph users start with ``ros2 l
 the 1-D graph on a sine (``--scenario sine``, one axis), with or without a recorder, and
 the two-axis rig aligning, through ``--rig-cycles`` release / align cycles, then held
 aligned for ``--seconds`` (``--rig --cycles N --duration S``, two axes), and the same
-for the coupled station with its recorder (``--station ... --record``, four axes). The
+for the coupled station with its recorder (``--station ... --record``, four axes); and
+``one-launch`` / ``one-launch-recorded``: the 1-D graph started as ``ros2 launch`` starts
+it, with nothing watching (:mod:`bench.graph_cpu`; CPU only: bringup's observer of the
+1-D run is the one DDS reader of two 1 kHz topics, a load the launched graph does not
+carry). The
 trees alternate run by run (A, B, A, B, ...) so both see the same machine; every
 process of the graph is counted (CPU seconds per second of run, from bringup's
 summary), divided by the axes.
@@ -15,7 +19,8 @@ kept (the worst axis), watchdog trips and failed runs, and the ratio of the medi
 tree over the baseline).
 
 Usage: ``python -m bench.bench_axis_cpu --baseline DIR [--repeats 3] [--seconds 20]
-[--rig-cycles 20] [--cases one,one-recorded,rig,station] [--json FILE]``; ``DIR`` is a checkout of
+[--rig-cycles 20] [--cases one,one-recorded,one-launch,one-launch-recorded,rig,station]
+[--json FILE]``; ``DIR`` is a checkout of
 the baseline (e.g. ``git worktree add --detach /tmp/base <commit>``). ``--baseline-args``
 gives the baseline's runs more ``bringup`` options: with ``--baseline .`` one tree against
 itself with one setting changed, e.g. ``--baseline-args="-p **:cpu_idle_poll:=false"``
@@ -40,12 +45,18 @@ CASES = {
     'rig': (['--rig', '--cycles', '{cycles}', '--duration', '{seconds}'], 2, False),
     # the coupled station with its recorder (a tree without --station: failed runs)
     'station': (['--station', '--cycles', '{cycles}', '--duration', '{seconds}'], 4, True),
+    # the 1-D graph as `ros2 launch` starts it, nothing watching (bench/graph_cpu.py):
+    # bringup's observer of the 1-D run takes two 1 kHz topics over DDS from the graph
+    'one-launch': (None, 1, False),
+    'one-launch-recorded': (None, 1, True),
 }
 
 
 def run_once(tree, case, seconds, tmp, cycles=20, extra=()):
     """Run one case on ``tree`` (``extra``: more bringup options); return its figures."""
     args, axes, recorded = CASES[case]
+    if args is None:
+        return run_launched(tree, seconds, axes, recorded)
     summary = os.path.join(tmp, 'summary-%s-%s.json' % (case, os.getpid()))
     if os.path.exists(summary):
         os.remove(summary)
@@ -76,6 +87,23 @@ def run_once(tree, case, seconds, tmp, cycles=20, extra=()):
             'floor_lost_share': (s.get('floor') or {}).get('lost_share'),
             'state': s.get('state'), 'error': s.get('error') or None,
             'exit_code': proc.returncode}
+
+
+def run_launched(tree, seconds, axes, recorded):
+    """Run ``bench/graph_cpu.py`` on ``tree``; return its CPU figures (no cycles)."""
+    cmd = [sys.executable, os.path.join(ROOT, 'bench', 'graph_cpu.py'),
+           '--seconds', str(seconds)] + (['--record'] if recorded else [])
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=tree,
+                          env=dict(os.environ, PYTHONPATH=tree), timeout=120 + 2 * seconds)
+    try:
+        out = json.loads(proc.stdout.strip().splitlines()[-1])
+    except (ValueError, IndexError):
+        return {'error': (proc.stdout + proc.stderr)[-400:]}
+    cpu = sum(out['processes'].values())
+    ran = not recorded or min(out['recorded'].get('/displacement', 0), 1) > 0
+    return {'cpu_per_axis': cpu / axes, 'cpu_total': cpu, 'cycles_kept': None,
+            'processes': out['processes'], 'trips': 0, 'floor_lost_share': None,
+            'error': None if ran else 'nothing recorded', 'exit_code': proc.returncode}
 
 
 def _axes(s):
