@@ -106,6 +106,8 @@ def names_taken(expected, listing, domain):
 #: The node name a starting graph's probe takes: ``<STARTING><digest>_<t_ms>_<pid>``
 #: (:func:`starting_marker`); hidden (``_``), so ``ros2 node list`` shows it only with ``-a``.
 STARTING = '_fiber_align_starting_'
+#: hex digits of the names' digest in a start marker
+DIGEST_LEN = 12
 
 
 def starting_marker(expected, t_ns, pid):
@@ -117,7 +119,7 @@ def starting_marker(expected, t_ns, pid):
     nodes exist yet to be seen) carry the same digest, and the start time and pid order
     them.
     """
-    digest = hashlib.sha1(repr(sorted(set(expected))).encode()).hexdigest()[:12]
+    digest = hashlib.sha1(repr(sorted(set(expected))).encode()).hexdigest()[:DIGEST_LEN]
     return '%s%s_%d_%d' % (STARTING, digest, int(t_ns) // 1_000_000, int(pid))
 
 
@@ -134,7 +136,7 @@ def started_first(mine, listing, domain):
     :param listing: ``(name, namespace)`` pairs on the graph.
     :param domain: the ``ROS_DOMAIN_ID`` looked in (for the line).
     """
-    same = mine[:len(STARTING) + 12] + '_'
+    same = mine[:len(STARTING) + DIGEST_LEN] + '_'
     earlier = sorted((_start_key(n), n) for n, _ in listing
                      if n.startswith(same) and n != mine and _start_key(n) < _start_key(mine))
     if not earlier:

@@ -24,10 +24,8 @@ Pairing: ``lockstep`` takes the i-th position of every axis and reads the detect
 ``t_i = i / rate_hz`` (the offline bench's ``k T``, bit for bit); ``realtime`` reads on
 every sample of the first axis with the latest position of the others, at its stamp.
 
-Fault injection (live): ``meter_frozen`` true repeats the last reading on every sample,
-as a meter whose readout froze (a WARN on ``/diagnostics`` names it while it lasts).
-
-Parameters (read-only): ``link``; ``seed`` (detector noise seed); ``optics.*`` (the
+Parameters (read-only but ``meter_frozen``, fault injection: the last reading repeated,
+a frozen meter): ``link``; ``seed`` (detector noise seed); ``optics.*`` (the
 source and detector constants of ``config/optics.yaml``, shared with the 1-D plant); the
 rig's ``target.*`` (``config/optics2d.yaml``) or the station's chip, facet and cure keys
 (``config/station.yaml``); the graph-wide ``sync_mode``, ``diagnostics_period_s``,

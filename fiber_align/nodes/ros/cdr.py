@@ -52,14 +52,7 @@ class Encoder:
         self.fallback = ''
 
     def warm(self):
-        """
-        Do every route's first-use work now, on a default message (not the check).
-
-        rosbags generates a type's serialiser on its first message, rclpy loads its
-        deserialiser: 7-23 ms for a type here (2026-12-06), a tick of several missed
-        periods when the first messages of the recorded topics arrive together. The
-        first real message is still the one checked.
-        """
+        """Do the routes' first use on a default message (7-23 ms a type), not the check."""
         msg = self.cls()
         try:
             data = self.typestore.serialize_cdr(
@@ -145,12 +138,7 @@ class BusTopic:
     """
 
     def __init__(self, bus, topic, sink, stop, log):
-        """
-        Subscribe on ``bus``; the type is the first message's.
-
-        A type the bus already knows (its :class:`~fiber_align.nodes.ros.bus.Pub` was
-        built first) gets its encoder now, warmed (:meth:`Encoder.warm`), off the loop.
-        """
+        """Subscribe on ``bus``; a type the bus knows gets its encoder now, warmed."""
         self.topic, self.sink, self.stop, self.log = topic, sink, stop, log
         self.encode = None
         self.write = None
