@@ -107,11 +107,18 @@ def test_two_graphs_in_two_namespaces_write_at_once(tmp_path, pg_url):
 
 
 def _missed(summary):
-    """Return the worst axis's missed share of a realtime run's summary."""
+    """
+    Return the worst axis's missed share of a realtime run beyond the machine's floor.
+
+    The floor is what the bare loop beside the run lost (bringup's own goal rule): the
+    test's server restarts on this machine (its crash recovery takes the cores a
+    server elsewhere would not), and that is the machine's load, not the catalogue's.
+    """
     shares = [a.get('realtime', a).get('missed_share')
               for a in (summary.get('axes') or {}).values() if isinstance(a, dict)]
     shares = [x for x in shares if x is not None]
-    return max(shares) if shares else None
+    floor = (summary.get('floor') or {}).get('lost_share') or 0.0
+    return max(shares) - floor if shares else None
 
 
 def test_a_server_stopped_for_10_s_in_a_realtime_run(tmp_path, pg_server):
@@ -160,8 +167,10 @@ def test_a_server_stopped_for_10_s_in_a_realtime_run(tmp_path, pg_server):
     assert all(a['final_state'] == 'TRACKING' for a in rows)
     runs = _query(url, 'SELECT run_id, ended_at, end_reason FROM runs')
     assert len(runs) == 1 and runs[0]['ended_at'], runs
-    # no period missed because of the catalogue: as many kept as without it (a loaded
-    # machine's run-to-run spread: 0.1 % of the periods)
+    # no period missed because of the catalogue: as many kept beyond the machine's floor
+    # as without it (a loaded machine's run-to-run spread: 0.1 % of the periods)
     missed = {k: _missed(v) for k, v in figures.items()}
+    print('missed beyond the floor: %s; floors %s' % (missed, {
+        k: (v.get('floor') or {}).get('lost_share') for k, v in figures.items()}))
     assert None not in missed.values(), figures
     assert missed['outage'] <= missed['none'] + 1e-3, missed
