@@ -22,7 +22,6 @@ last part, the middleware's teardown, is bounded (:func:`teardown_guard`).
 """
 
 import ctypes
-import ctypes.util
 import faulthandler
 import os
 import select
@@ -260,7 +259,9 @@ _LIBC = None
 def _libc():
     global _LIBC
     if _LIBC is None:
-        lib = ctypes.CDLL(ctypes.util.find_library('c') or 'libc.so.6', use_errno=True)
+        # the process's own symbols, libc's among them, as nodes/ros/scheduling.py loads
+        # them (find_library would run ldconfig in a subprocess at every node's stop)
+        lib = ctypes.CDLL(None, use_errno=True)
         lib.timer_create.argtypes = [ctypes.c_int, ctypes.POINTER(_Sigevent),
                                      ctypes.POINTER(ctypes.c_void_p)]
         lib.timer_settime.argtypes = [ctypes.c_void_p, ctypes.c_int,

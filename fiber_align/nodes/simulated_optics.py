@@ -179,8 +179,10 @@ class SimulatedOpticsNode(Node):
             if p.name == 'meter_frozen' and bool(p.value) != self.frozen:
                 self.frozen = bool(p.value)
                 why = 'meter_frozen: every reading repeats the last one (fault injection)'
-                (self.get_logger().warning if self.frozen else self.get_logger().info)(
-                    why if self.frozen else 'meter_frozen false: live readings again')
+                if self.frozen:
+                    self.get_logger().warning(why)
+                else:
+                    self.get_logger().info('meter_frozen false: live readings again')
                 self.health.condition('meter_frozen', why if self.frozen else None)
         return SetParametersResult(successful=True)
 
