@@ -7,7 +7,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from fiber_align.analysis.run_record import DiagnosticsRecord, RunRecord
+from fiber_align.analysis.bag.writer import write_bag
+from fiber_align.analysis.run_record import DiagnosticsRecord, record_from_bag, RunRecord
+from fiber_align.simulation.setpoints import Source
 
 
 def record(lockstep=False, done_ago=None, own_done=False, **kw):
@@ -113,3 +115,35 @@ def test_a_command_caused_the_next_state_and_lockstep_align_counts_as_the_sequen
     free = RunRecord({'y': None}, clock='y')
     free.add_state(json.dumps({'state': 'SEARCHING', 'align_sample': 17}))
     assert free.caused(0, 'align') == 0                         # realtime: as it arrived
+
+
+# A recorded realtime run's record is read from its bag, as the observer would record it.
+def test_a_record_from_a_bag_keeps_the_samples_below_the_duration_and_the_drive_from_them(
+        tmp_path):
+    rate, n = 1000.0, 300
+    t0 = 5_000_000_000
+    stamps = t0 + np.arange(n, dtype=np.int64) * 1_000_000     # 1 kHz sample stamps, ns
+    pos = 1e-6 * np.sin(np.arange(n) / 30.0)
+    # the drive: two messages before the first sample (the driver's start), then one each
+    v_t = np.concatenate([[t0 - 2_000_000, t0 - 1_000_000], stamps + 200_000])
+    v = np.concatenate([[9.0, 9.0], 10.0 + np.arange(n)])
+    bag = write_bag(tmp_path / 'bag', {
+        'displacement': {'t_ns': stamps + 100_000, 'stamp_ns': stamps, 'position': pos},
+        'drive_voltage': {'t_ns': v_t, 'data': v}})
+    source = Source('sine')
+    rec, error = record_from_bag(bag, source, rate, 0.2)
+    t, r, y = rec.trace()
+    assert error == ''
+    # 0.2 s at 1 kHz: samples 0..199 (t < duration - half a period), timed by their stamps
+    assert t.size == 200 and np.allclose(t, np.arange(200) / rate)
+    assert np.array_equal(y, pos[:200])
+    assert np.allclose(r, [source.value(x) for x in t])
+    # the drive from the first sample on: the two before it are not the run's
+    assert np.array_equal(rec.series('v'), 10.0 + np.arange(200))
+
+
+def test_an_unreadable_bag_is_an_empty_record_and_its_reason(tmp_path):
+    (tmp_path / 'bag').mkdir()
+    (tmp_path / 'bag' / 'metadata.yaml').write_text('not: a bag', encoding='utf-8')
+    rec, error = record_from_bag(tmp_path / 'bag', None, 1000.0, 1.0)
+    assert rec.samples == 0 and error, error

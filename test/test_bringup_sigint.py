@@ -118,3 +118,7 @@ def test_sigint_mid_scenario_stops_cleanly_and_finalises_the_bag(tmp_path):
     assert set(sent) <= set(counts), (sent, counts)
     assert {k: counts[k] for k in sent} == sent
     assert sent['/displacement'] >= s['samples']
+    # a recorded realtime run's figures are its bag's: every sample of it, none read
+    # over DDS beside the loop
+    assert s['figures_from'] == 'bag' and s['samples'] == counts['/displacement'], \
+        (s['samples'], counts)

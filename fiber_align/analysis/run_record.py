@@ -19,6 +19,8 @@ import time
 
 import numpy as np
 
+from fiber_align.analysis.bag.common import BagError
+from fiber_align.analysis.bag.reader import BagReader
 from fiber_align.analysis.recording import diag_entry
 from fiber_align.analysis.run_summary import worst_cycles
 
@@ -176,6 +178,31 @@ class RunRecord:
     def columns(self, keys):
         """Return ``{key: series}`` of every stream in ``keys`` (:meth:`series`, SI)."""
         return {k: self.series(k) for k in keys}
+
+
+def record_from_bag(path, source, rate_hz, duration_s):
+    """
+    Return ``(record, error)`` of a recorded 1-D run, read from its bag after the stop.
+
+    The :class:`RunRecord` as the observer would have recorded it: ``y``, the
+    ``displacement`` samples (their stamps time them) below ``duration_s`` (s); ``v``, the
+    ``drive_voltage`` (V) from the first sample on. ``error``: why an unreadable bag gave
+    an empty record (``''``: none).
+    """
+    rec = RunRecord(('y', 'v'), 'y', source, False, rate_hz, duration_s)
+    rec.active = True
+    try:
+        with BagReader(path) as bag:
+            y, v = bag.read('displacement'), bag.read('drive_voltage')
+    except BagError as exc:
+        return rec, str(exc)
+    for ns, pos in zip(y.fields['stamp_ns'].tolist() if y else (),
+                       y.fields['position'].tolist() if y else ()):
+        rec.add('y', pos, ns)
+    if y and v is not None:
+        for val in v.fields['data'][v.t_ns >= y.t_ns[0]].tolist():
+            rec.add('v', val)
+    return rec, ''
 
 
 class DiagnosticsRecord:

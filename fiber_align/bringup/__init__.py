@@ -2,28 +2,17 @@
 """
 ``bringup``: start the fiber_align graph, run a scenario, record, stop, summarise.
 
-The pip-only way to start the graph that ``ros2 launch fiber_align
-fiber_align.launch.py`` starts, for machines without the ROS 2 command line: the options
-are its launch arguments (:func:`fiber_align.graph.arguments.describe` of
-:func:`~fiber_align.bringup.cli.arguments`), ``--params-file`` and ``-p
-NODE:NAME:=VALUE`` its user params, checked against the shipped files. Every graph runs
-on the one :class:`~fiber_align.bringup.harness.Harness`; what is run on it:
+The pip-only way to start the graph of ``ros2 launch fiber_align fiber_align.launch.py``
+(its launch arguments, ``--params-file``, ``-p NODE:NAME:=VALUE``) on the one
+:class:`~fiber_align.bringup.harness.Harness`: the 1-D graph (:mod:`.run`), ``--rig``,
+``--station``, ``--array`` (:mod:`.rig`), ``--hardware`` (:mod:`.hardware`).
 
-- the 1-D graph (default): its scenario, or ``align`` (:mod:`~fiber_align.bringup.run`);
-- ``--rig``, ``--station``: ``align2d``, the station; in lockstep compared with the
-  offline run (:mod:`~fiber_align.bringup.rig`);
-- ``--hardware [--rig] [--emulate]``: the sensorless bench, on an MDT693B + PM100 or
-  their emulators (:mod:`~fiber_align.bringup.hardware`).
-
-Signals: SIGINT and SIGTERM stop the run cleanly however ``bringup`` was started (its
-handlers are installed explicitly, also over an inherited SIG_IGN); a second signal
-during the stop is noted and the stop goes on (bounded by ``stop_timeout_s``), so the bag
-is still finalised. The node processes end with ``bringup`` even when it is killed,
-and ``bringup`` stops as on SIGTERM when the process that started it is gone
+SIGINT and SIGTERM stop it cleanly however it was started (explicit handlers, also over
+an inherited SIG_IGN); a second signal during the bounded stop is only noted, so the bag
+is still finalised; the nodes end with it, also when it is killed or its parent goes
 (:func:`fiber_align.lifeline.watch_parent`). Exit codes: 0 a clean run, 1 a failure (a
-node died, a timeout, a stall, another graph on the domain, an alignment FAULT,
-``--strict`` goals missed), 2 bad input (options, params files, parameter values), 130
-interrupted.
+node died, a timeout, a stall, another graph on the domain, a FAULT, ``--strict`` goals
+missed), 2 bad input, 130 interrupted (docs/ros_interface.md).
 """
 
 import os

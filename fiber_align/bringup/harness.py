@@ -263,10 +263,8 @@ class Harness:
             if self.quiet:              # else the recorder's own line was relayed
                 print('bringup: %s' % stopped, flush=True)
         if rec and rec[0].alive() and self.obs is not None and self.graph.record:
-            # the graph is held: the recorder works through its backlog before the
-            # publishers go (a writer that exits takes its undelivered samples with it);
-            # a snapshots-only recorder keeps no bag to complete (waiting on its counts
-            # took the 30 s bound once: a flight-recorder test, 2026-12-06)
+            # held: the recorder drains before the publishers go (an exiting writer takes
+            # its undelivered samples along); a snapshots-only recorder has no bag to wait on
             limit = (deadline - 2.5 - time.monotonic()) if interrupted else 30.0
             waited, short = self._wait_recorder(latest, rec[0], max(0.5, limit))
             s['recorder_catch_up_s'] = waited

@@ -2,14 +2,11 @@
 """
 ``bringup``'s one observer of a running graph (the 1-D graph, the rig, the bench).
 
-It publishes nothing on the control topics and changes no node's state: the setpoint
-source is the graph's own node (``scenario_runner`` or a sequencer) and
-``lifecycle_manager`` activates the drivers; the observer watches. Per sample it records
-the streams it is given (reliable, deep, transient local: every sample) and the
-``alignment_state`` changes into its :class:`~fiber_align.analysis.run_record.RunRecord`
-(the counting rules), and, through its own thread, ``/diagnostics``. Service clients
-live on a second node that only the calling thread spins, so a call never waits on the
-executor thread. Its rclpy context is its own.
+It publishes nothing on the control topics and changes no node's state; it records the
+streams it is given (every sample) and the ``alignment_state`` changes into its
+:class:`~fiber_align.analysis.run_record.RunRecord`, and ``/diagnostics`` on a thread of
+its own. Its service clients live on a second node only the calling thread spins. Its
+rclpy context is its own.
 """
 
 import math
@@ -56,12 +53,7 @@ def spin_thread(executor):
 
 
 class DiagnosticsWatch(DiagnosticsRecord):
-    """
-    The ``/diagnostics`` record of a run, fed on a node and thread of its own.
-
-    The observer's executor may be seconds behind with samples (Python executor) when the
-    stop needs fresh reports, hence a thread of its own.
-    """
+    """The ``/diagnostics`` of a run, on a node and thread of its own (fresh at the stop)."""
 
     def __init__(self, namespace, context):
         """Subscribe and start spinning (``namespace``: the graph's, or ``''``)."""

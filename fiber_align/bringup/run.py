@@ -4,7 +4,8 @@
 
 The harness starts, waits for and stops the graph; here: start the plant, run the
 scenario, print the summary (metrics, realtime figures, CPU and memory per process, sent
-and recorded counts). A lockstep start that stalls is retried.
+and recorded counts). A lockstep start that stalls is retried. A recorded realtime
+scenario's figures are read from its bag after the stop, no 1 kHz stream over DDS.
 
 Scenarios: ``step``, ``sine``, ``triangle``, ``staircase`` and
 ``hysteresis-experiment`` run the ``scenario_runner`` node (one setpoint, or open-loop
@@ -19,6 +20,7 @@ import time
 import numpy as np
 
 from fiber_align.analysis import run_summary as sm
+from fiber_align.analysis.run_record import record_from_bag
 from fiber_align.bringup.harness import EXIT_INTERRUPTED, EXIT_OK, Harness, session, settings
 from fiber_align.bringup.observer import BringupError, StartStall
 from fiber_align.graph.params import PLANT, SCENARIO_RUNNER
@@ -38,16 +40,20 @@ class Bringup:
         self.cycles = args.cycles if args.cycles is not None else int(
             settings(graph)['switch_cycles'])
         self.summary, self.h = {}, None
+        #: a recorded realtime scenario: the figures from the bag, the progress from the
+        #: plant's /diagnostics ``sample``, the end from ``scenario_state``
+        self.from_bag = bool(graph.record) and self.sync == 'realtime' and source is not None
+        self._plant_sample = None
 
     def _harness(self):
-        streams = {'y': 'displacement', 'v': 'drive_voltage'}
+        streams = {} if self.from_bag else {'y': 'displacement', 'v': 'drive_voltage'}
         if self.source is None:
             streams.update(r_ref='reference', p='optical_power')
         want = expected_endpoints(self.graph, tuple(streams.values()) + (
             ('alignment_state',) if self.source is None else ()))
-        return Harness(self.graph, dict(streams=streams, clock='y', source=self.source,
-                                        lockstep=self.sync == 'lockstep', rate_hz=self.rate,
-                                        duration_s=self.duration),
+        return Harness(self.graph, dict(streams=streams, clock='y' if streams else None,
+                                        source=self.source, lockstep=self.sync == 'lockstep',
+                                        rate_hz=self.rate, duration_s=self.duration),
                        self.args.quiet, want)
 
     def run(self):
@@ -100,6 +106,8 @@ class Bringup:
             drain_s = float(h.gp['observer_drain_s'])
             while not r.done.wait(0.02):
                 h.alive()
+                if self.from_bag and self._bag_run_over(r):
+                    break
                 r.check_stall()
                 if r.behind(drain_s):
                     # the graph's run is over; this observer's record ends short of it
@@ -114,6 +122,15 @@ class Bringup:
         finally:
             self.summary['run_wall_s'] = time.monotonic() - t0
             r.watch.run_to = time.monotonic()
+
+    def _bag_run_over(self, r):
+        """Return True once the runner said ``done``; else note the plant's progress."""
+        if r.runner_done_at is not None:
+            return True
+        k = r.watch.latest.get(PLANT, {}).get('sample')
+        if k is not None and k != self._plant_sample:
+            self._plant_sample, r.progress = k, time.monotonic()
+        return False
 
     def _align(self):
         """
@@ -167,6 +184,10 @@ class Bringup:
                   'model_file': os.path.abspath(a.model) if a.model else None})
         r = self.h.obs
         if r is not None:
+            if self.from_bag:
+                r, error = record_from_bag(g.record, self.source, self.rate, self.duration)
+                s.update({'error': error} if error else {})
+            s['figures_from'] = 'bag' if self.from_bag else 'observer'
             t, ref, y = r.trace()
             if self.source is None:
                 ref = r.series('r_ref')
