@@ -189,15 +189,17 @@ class Client:
 
     def rearm_and_settle(self):
         """
-        ``actuator_driver/enable`` true, then wait until settled at the target.
+        ``actuator_driver/enable`` true, the target setpoint, then wait until settled.
 
         The enable clears the trip history, so the earlier tests' trips do not latch
-        the next one (3 within 10 s).
+        the next one (3 within 10 s); the setpoint makes a test run alone (``-k``) start
+        where it would after the others.
         """
         from std_srvs.srv import SetBool
         res = self.call(self.node.create_client(SetBool, 'actuator_driver/enable'),
                         SetBool.Request(data=True))
         assert res.success, res.message
+        self.publish(TARGET_M)
         assert self.spin_for(5.0, lambda: self.settled(time.monotonic() - 0.3)), \
             self.ys_since(0.0)[-5:]
 
