@@ -5,7 +5,7 @@ The run catalogue on PostgreSQL, written by running graphs (docs/records.md).
 The server is the tests' own (``test/pg_cluster.py``: ``initdb`` and ``pg_ctl`` in a
 temporary folder, a loopback port), each test a new database on it. ``bringup`` runs the
 graphs with ``--catalog postgresql://...``, as a line of stations would: the rows equal
-the run's summary, as on SQLite; two graphs in two namespaces write at once, none lost
+the run's summary, as on SQLite; two rigs in two namespaces write at once, none lost
 or doubled; the server stopped for 10 s in a realtime run: the rows of that time arrive
 after its restart, and the loop keeps its periods as a run without the catalogue does.
 """
@@ -71,7 +71,13 @@ def test_a_rig_run_writes_the_rows_its_summary_reports(tmp_path, pg_url):
 
 
 def test_two_graphs_in_two_namespaces_write_at_once(tmp_path, pg_url):
-    """Two rigs (``/line1``, ``/line2``) align 20 times each, at once: 40 rows, once each."""
+    """
+    Two rigs (``/line1``, ``/line2``) align 20 times each, at once: 40 rows, once each.
+
+    Rigs, not stations: two realtime stations overload this machine's two cores (0.55 %
+    of the periods missed each, one alignment in three pairs ended in FAULT) and a
+    lockstep station's 20 alignments take 93 s of a core.
+    """
     procs, logs = [], []
     try:
         for k in (1, 2):
@@ -90,8 +96,9 @@ def test_two_graphs_in_two_namespaces_write_at_once(tmp_path, pg_url):
             log.close()
     outs = [(tmp_path / ('line%d.log' % k)).read_text() for k in (1, 2)]
     assert codes == [0, 0], outs
-    runs = _query(pg_url, 'SELECT run_id, parameters FROM runs')
+    runs = _query(pg_url, 'SELECT run_id, parameters, machine, sync_mode FROM runs')
     assert len(runs) == 2, runs
+    assert {(r['machine'], r['sync_mode']) for r in runs} == {('rig', 'lockstep')}, runs
     spaces = sorted({k.split('/')[1] for r in runs for k in json.loads(r['parameters'])
                      if k.startswith('/line')})
     assert spaces == ['line1', 'line2'], spaces
@@ -103,7 +110,9 @@ def test_two_graphs_in_two_namespaces_write_at_once(tmp_path, pg_url):
         assert [a['seq'] for a in mine] == list(range(1, 21))
         # a record never mixes two graphs' parts
         assert len({a['part_id'].split('-')[0] for a in mine}) == 1, mine
-        assert all(a['final_state'] == 'TRACKING' for a in mine), mine
+        assert all(a['final_state'] == 'TRACKING' for a in mine), [
+            (a['seq'], a['final_state'], a.get('fault_reason')) for a in mine
+            if a['final_state'] != 'TRACKING']
 
 
 def _missed(summary):

@@ -53,8 +53,10 @@ def print_report(summary):
 
     def worst(prefix):
         return max(v for k, v in off.items() if k.startswith(prefix))
-    print('rig %s (%s, seed %d): %s, align at sample %s, time to peak %s ms, peak '
-          'samples %s%s' % (summary['scenario'], summary['sync_mode'], summary['seed'],
+    # the machine's name leads each line (the scenario names it: align2d the rig)
+    name = {'align2d': 'rig'}.get(summary['scenario'], summary['scenario'])
+    print('%s %s (%s, seed %d): %s, align at sample %s, time to peak %s ms, peak '
+          'samples %s%s' % (name, summary['scenario'], summary['sync_mode'], summary['seed'],
                             summary.get('state') or summary['error'],
                             summary.get('align_sample'),
                             '%.1f' % (summary['time_to_peak_s'] * 1e3)
@@ -68,22 +70,22 @@ def print_report(summary):
     procs = {n: p.get('cpu_per_s') for n, p in summary.get('processes', {}).items()
              if p.get('cpu_per_s') is not None}
     if summary.get('cycles_tracking') is not None:
-        print('rig: %d release / align cycles, each to TRACKING; time to peak %.1f-%.1f ms'
-              % (summary['cycles_tracking'], 1e3 * min(summary['cycle_time_to_peak_s']),
+        print('%s: %d release / align cycles, each to TRACKING; time to peak %.1f-%.1f ms'
+              % (name, summary['cycles_tracking'], 1e3 * min(summary['cycle_time_to_peak_s']),
                  1e3 * max(summary['cycle_time_to_peak_s'])), flush=True)
     if summary.get('axes'):
-        print('rig realtime: %s' % '; '.join(
+        print('%s realtime: %s' % (name, '; '.join(
             '%s missed %s %% of the cycles, %s watchdog trips' % (
                 axis, '-' if rt.get('missed_share') is None else '%.3f' % (
                     100 * rt['missed_share']), rt.get('watchdog_count', '-'))
-            for axis, rt in summary['axes'].items()), flush=True)
+            for axis, rt in summary['axes'].items())), flush=True)
     if procs:
-        print('rig CPU: %.2f core in all (%s)' % (sum(procs.values()), ', '.join(
+        print('%s CPU: %.2f core in all (%s)' % (name, sum(procs.values()), ', '.join(
             '%s %.2f' % kv for kv in sorted(procs.items()))), flush=True)
     if summary.get('floor'):
-        print('rig: machine floor (bare loop beside the graph): %s'
-              % sm.floor_text(summary['floor']), flush=True)
+        print('%s: machine floor (bare loop beside the graph): %s'
+              % (name, sm.floor_text(summary['floor'])), flush=True)
     for m in summary.get('goals_missed') or ():
-        print('rig: GOAL MISSED: %s' % m, flush=True)
+        print('%s: GOAL MISSED: %s' % (name, m), flush=True)
     for m in summary.get('machine_limits') or ():
-        print('rig: MACHINE: %s' % m, flush=True)
+        print('%s: MACHINE: %s' % (name, m), flush=True)

@@ -160,9 +160,10 @@ class Harness:
                 self.rec_base = self._recorder_base()
             else:
                 self._recorder_matched()
-        for p in self.plants:
-            self.obs.call(self.obs.client(SetBool, p + '/run'), SetBool.Request(data=on),
-                          5.0 if on else 0.5, self.alive)
+        # all at once: a driver whose plant is held while the others run trips its
+        # watchdog (one service round trip apart, a station's last alignment ended HELD)
+        self.obs.call_all([(self.obs.client(SetBool, p + '/run'), SetBool.Request(data=on))
+                           for p in self.plants], 5.0 if on else 0.5, self.alive)
         if on and self.floor is None and self.plants and self.graph.sync_mode == 'realtime' \
                 and self.gp['machine_floor']:
             plant = self.graph.node_params(self.plants[0])
@@ -235,8 +236,7 @@ class Harness:
         s = self.summary
         if self.children:
             s['processes'] = {ch.name: ch.usage() for ch in self.children}
-        # the realtime figures of the run itself: holding the plant below stops the
-        # loop's input, which the driver's watchdog then reports as a trip
+        # the run's own realtime figures: the plants held below may trip the watchdogs
         latest = self.obs.watch.latest if self.obs is not None else {}
         s['realtime'] = sm.realtime_figures(latest)
         if self.floor is not None:

@@ -135,28 +135,33 @@ class Observer(RunRecord):
 
     def call(self, client, request, timeout, alive=lambda: None):
         """Call a service with a bounded wait (s); ``alive()`` may raise meanwhile."""
+        return self.call_all([(client, request)], timeout, alive)[0]
+
+    def call_all(self, calls, timeout, alive=lambda: None):
+        """Send every ``(client, request)`` at once (plants held together); the answers."""
         end = time.monotonic() + timeout
-        while not client.wait_for_service(timeout_sec=0.1):
-            alive()
-            if time.monotonic() > end:
-                raise BringupError('service %s not available within %g s'
+        for client, _ in calls:
+            while not client.wait_for_service(timeout_sec=0.1):
+                alive()
+                if time.monotonic() > end:
+                    raise BringupError('service %s not available within %g s'
+                                       % (client.srv_name, timeout))
+        futs = [client.call_async(request) for client, request in calls]
+        for (client, _), fut in zip(calls, futs):
+            while not fut.done() and time.monotonic() < end:
+                self.cexec.spin_until_future_complete(fut, timeout_sec=0.1)
+                alive()             # a server process that died answers nothing
+            if not fut.done():
+                client.remove_pending_request(fut)
+                raise BringupError('service %s did not answer within %g s'
                                    % (client.srv_name, timeout))
-        fut = client.call_async(request)
-        while not fut.done() and time.monotonic() < end:
-            self.cexec.spin_until_future_complete(fut, timeout_sec=0.1)
-            alive()             # a server process that died answers nothing
-        if not fut.done():
-            client.remove_pending_request(fut)
-            raise BringupError('service %s did not answer within %g s'
-                               % (client.srv_name, timeout))
-        return fut.result()
+        return [f.result() for f in futs]
 
     def command(self, name, data=None, alive=lambda: None, timeout=10.0):
         """
-        Call the sequencer's ``name``; return the sample index of the state it caused.
+        Call the sequencer's ``name`` (``data``: a SetBool, ``switch``; else a Trigger).
 
-        ``align``, ``release`` (std_srvs/Trigger) or, with ``data``, ``switch``
-        (std_srvs/SetBool). :raises Refused: its answer's ``success`` false.
+        Return the sample index of the state it caused. :raises Refused: not ``success``.
         """
         from std_srvs.srv import SetBool, Trigger
         srv, req = (Trigger, Trigger.Request()) if data is None else (
@@ -176,14 +181,10 @@ class Observer(RunRecord):
 
     def align(self, alive, clock, max_samples, wall_s=120.0):
         """
-        Call ``align`` and wait for TRACKING; return ``(align sample, its sample, status)``.
+        Call ``align``, wait for TRACKING; return ``(align sample, its sample, status)``.
 
-        ``(align sample, None, None)`` when the alignment ended otherwise (:meth:`ended`
-        says how).
-
-        :param clock: returns the samples so far: the bound ``max_samples`` is in sample
-            time (``wall_s``, s, in wall time).
-        :raises BringupError: a refused call, no state within ``wall_s``.
+        ``(align sample, None, None)``: it ended otherwise (:meth:`ended`). ``clock()``:
+        the samples so far (``max_samples`` bounds them; ``wall_s``, s, the wall time).
         """
         k_align = self.command('align', alive=alive)
         k_max, over = clock() + max_samples, []
