@@ -78,3 +78,48 @@ def test_every_alignment_state_change_reaches_bringup_in_a_burst():
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)
         obs.destroy()
+
+
+@pytest.mark.ros  # starts rclpy
+def test_the_plants_are_started_and_held_with_every_request_sent_before_any_answer():
+    # one SetBool round trip per plant held a station's first plant while its others ran,
+    # and that axis' driver tripped its watchdog: bringup sends every ~/run at once.
+    # Four servers answer only once all four requests are in (a barrier): calls made one
+    # after the other would each wait for an answer that never comes.
+    import threading
+
+    import rclpy
+    from rclpy.callback_groups import ReentrantCallbackGroup
+    from rclpy.executors import MultiThreadedExecutor
+    from std_srvs.srv import SetBool
+    barrier = threading.Barrier(4, timeout=3.0)
+
+    def answer(req, res):
+        try:
+            barrier.wait()
+            res.success = True
+        except threading.BrokenBarrierError:
+            res.success = False
+        return res
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, args=[])
+    server = rclpy.create_node('plants', namespace='obsrun', context=ctx)
+    group = ReentrantCallbackGroup()
+    for k in range(4):
+        server.create_service(SetBool, 'p%d/run' % k, answer, callback_group=group)
+    ex = MultiThreadedExecutor(num_threads=5, context=ctx)
+    ex.add_node(server)
+    spin = threading.Thread(target=ex.spin, daemon=True)
+    spin.start()
+    obs = Observer('obsrun', {})
+    try:
+        calls = [(obs.client(SetBool, 'p%d/run' % k), SetBool.Request(data=False))
+                 for k in range(4)]
+        answers = obs.call_all(calls, 10.0)
+        assert [a.success for a in answers] == [True] * 4
+    finally:
+        obs.destroy()
+        ex.shutdown(timeout_sec=1.0)
+        spin.join(timeout=2.0)
+        server.destroy_node()
+        rclpy.try_shutdown(context=ctx)
