@@ -30,7 +30,7 @@ os.environ['ROS_HOME'] = tempfile.mkdtemp(prefix='fiber_align_test_ros_home_')
 ROOT = Path(__file__).resolve().parents[1]
 #: What a colcon source copy of the package leaves out (build products, venvs, runs).
 COPY_IGNORE = shutil.ignore_patterns('.venv', '.git', 'build', 'install', 'log', '__pycache__',
-                                     '*.egg-info', 'runs', 'out', '.pytest_cache')
+                                     '.pycache', '*.egg-info', 'runs', 'out', '.pytest_cache')
 
 
 @pytest.fixture(scope='session')
