@@ -33,9 +33,8 @@ class HardwareRun(Harness):
     """
     A hardware graph on the :class:`~fiber_align.bringup.harness.Harness`, and its steps.
 
-    :param graph: a graph of ``hardware:=true`` (``build_hardware``, or
-        ``build_hardware_rig``); :attr:`driver`, the lifecycle node that owns the
-        amplifier, is the one it manages (``actuator_driver``, ``mdt693b_driver``).
+    :param graph: a graph of ``hardware:=true`` (``build_hardware``, ``build_hardware_rig``);
+        :attr:`driver`: the lifecycle node that owns the amplifier.
     :param quiet: do not relay the children's output.
     """
 
@@ -70,6 +69,8 @@ class HardwareRun(Harness):
         finally:
             self._starting = False
         time.sleep(FLOOR_WAIT_S)          # the sequencer's floor readings (IDLE)
+        # again: a driver tripped by a late first input refuses align until it cleared
+        self.wait(self._ready, float(self.gp['startup_timeout_s']), 'the graph ready')
 
     def alive(self):
         """Raise when a process exited, or (starting) when the driver's start-up failed."""

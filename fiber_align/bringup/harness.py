@@ -160,8 +160,7 @@ class Harness:
                 self.rec_base = self._recorder_base()
             else:
                 self._recorder_matched()
-        # all at once: a driver whose plant is held while the others run trips its
-        # watchdog (one service round trip apart, a station's last alignment ended HELD)
+        # all at once: a driver whose plant is held while the others run trips its watchdog
         self.obs.call_all([(self.obs.client(SetBool, p + '/run'), SetBool.Request(data=on))
                            for p in self.plants], 5.0 if on else 0.5, self.alive)
         if on and self.floor is None and self.plants and self.graph.sync_mode == 'realtime' \
