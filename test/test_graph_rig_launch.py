@@ -43,6 +43,8 @@ def launch_align_stop(env, log, args, ns, tracking_s=20.0, stop_s=10.0):
         assert proc.wait(timeout=stop_s) == 0
         text = log.read_text(errors='replace')
         assert 'FATAL' not in text and 'Traceback' not in text, text[-4000:]
+        # the sequencer logs its core's findings (a FAULT's log then says how it came)
+        assert 'first light' in text, text[-4000:]
     finally:
         stop_launch(proc)
 

@@ -108,8 +108,8 @@ class MultiAxis:
             # lit region): a far better start for the fit than the threshold's edge
             self._crest += 1
             if pw is None or pw < self._best[0] or self._crest >= int(p['crest_max_samples']):
-                self._log('first light %.1f dBm at %s' % (dbm(self._best[0]),
-                                                          um(self._best[1])))
+                self._log('first light %.1f dBm at %s (threshold %.1f dBm)' % (
+                    dbm(self._best[0]), um(self._best[1]), dbm(self.threshold_w)))
                 self._start_peaking(self._best[1])
                 return
         elif pw is not None and pw > self.threshold_w:

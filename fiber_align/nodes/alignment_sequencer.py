@@ -2,21 +2,19 @@
 """
 ``alignment_sequencer``: the setpoint source that finds, peaks, tracks and switches light.
 
-One executable for every machine, chosen by its read-only parameter ``machine`` (set
-per node in the params files; the differences are data: :mod:`fiber_align.graph.machines`).
-Relative names, SI units, ``<a>/`` an axis's namespace (none in 1-D):
+One executable for every machine, chosen by its read-only parameter ``machine`` (the
+differences are data: :mod:`fiber_align.graph.machines`). SI units; ``<a>/`` an axis:
 
-- sub ``<a>/displacement`` (sensor_msgs/JointState, m, stamp t_k), ``optical_power``
-  (std_msgs/Float64, W; the array's also ``optical_power_n``); pub ``<a>/setpoint``
-  (std_msgs/Float64, m), one each per update;
-- pub ``alignment_state`` (std_msgs/String, JSON status), latched, on every change of
-  state or fault; ``/diagnostics``: OK, WARN in HELD, ERROR in FAULT;
+- sub ``<a>/displacement`` (sensor_msgs/JointState, m), ``optical_power`` (Float64, W;
+  the array's also ``optical_power_n``); pub ``<a>/setpoint`` (Float64, m) per update;
+- pub ``alignment_state`` (std_msgs/String, JSON), latched, on every change of state or
+  fault; the core's events logged; ``/diagnostics``: OK, WARN in HELD, ERROR in FAULT;
 - srv ``align``, ``release`` (std_srvs/Trigger), ``switch`` (std_srvs/SetBool);
 - the drivers' ``<a>/drive_held``, ``<a>/actuator_driver/transition_event`` and
   ``/diagnostics`` go to the core (:mod:`fiber_align.alignment.driver_state`).
 
-Pairing (``lockstep``: by index; ``realtime``: the latest; ``sensorless``: one step per set
-of the meters' readings, ``ReadingSets``) and the rest: docs/ros_interface.md, docs/array.md.
+Pairing (lockstep: by index; realtime: the latest; sensorless: one step per set of the
+meters' readings) and the rest: docs/ros_interface.md, docs/array.md.
 """
 
 import json
@@ -203,6 +201,10 @@ class AlignmentSequencerNode(Node):
 
     def _publish_state(self):
         """Publish the status when its state or fault changed; health and log too."""
+        for _, state, text in self.seq.events:  # the core's findings: patterns, first light
+            if text and state != FAULT:
+                self.get_logger().info(text)
+        self.seq.events.clear()                 # (a week of alignments: not kept)
         s = self.part(self.seq.status(), self.p_last, self.p_peak)    # the catalogue's
         # the time (s) of the last update: a lagging observer indexes the state by it
         s['sample_time_s'] = self.t_last
