@@ -11,6 +11,7 @@ bounded; the launch is stopped by its pid and group.
 """
 
 import json
+import re
 import signal
 
 import pytest
@@ -43,8 +44,9 @@ def launch_align_stop(env, log, args, ns, tracking_s=20.0, stop_s=10.0):
         assert proc.wait(timeout=stop_s) == 0
         text = log.read_text(errors='replace')
         assert 'FATAL' not in text and 'Traceback' not in text, text[-4000:]
-        # the sequencer logs its core's findings (a FAULT's log then says how it came)
-        assert 'first light' in text, text[-4000:]
+        # the sequencer logs its core's findings, each peak pattern (a FAULT's log then
+        # says how it came): the rig's crosses, the station's joint patterns
+        assert re.search(r'(cross|pattern) 1 at \(', text), text[-4000:]
     finally:
         stop_launch(proc)
 
