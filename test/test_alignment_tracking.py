@@ -111,3 +111,29 @@ def test_lost_power_holds_the_estimate_keeps_the_dither_then_faults():
     watch = LossWatch(1e-3, 10.0, 0.02)
     assert watch.lost(0.0, 0.5e-4) and not watch.lost(0.001, None) and watch.since == 0.0
     assert not watch.lost(0.002, 0.5e-3) and watch.since is None   # a good reading resets
+
+
+@pytest.mark.parametrize('n', [1, 2, 3, 4, 6])
+def test_the_demodulator_is_the_numpy_regression_it_replaced(n):
+    """Plain floats, the same figures as the numpy formulas (running means, cov, solve)."""
+    rng = np.random.default_rng(n)
+    dem = JointDemodulator(n, 0.05, lag_s=0.16e-3)
+    m, cov, cross, prev = None, np.zeros((n, n)), np.zeros(n), None
+    for k in range(300):
+        dt = 1e-3 * (1.0 + 0.5 * rng.random())
+        pos = 1e-7 * rng.standard_normal(n)
+        lnp = -2.0 + float(rng.standard_normal())
+        dem.update(dt, pos if n > 1 else float(pos[0]), lnp)
+        lagged = pos if prev is None else pos - min(1.0, 0.16e-3 / dt) * (pos - prev)
+        prev, v = pos, np.append(lagged, lnp)
+        if m is None:
+            m = v
+            continue
+        a = min(1.0, dt / 0.05)
+        d = v - m
+        m = m + a * d
+        cov = (1.0 - a) * (cov + a * np.outer(d[:-1], d[:-1]))
+        cross = (1.0 - a) * (cross + a * d[:-1] * d[-1])
+    assert np.allclose(dem.cov, cov, rtol=1e-12, atol=0)
+    assert np.allclose(dem.gradient(1e-20), np.linalg.solve(cov, cross), rtol=1e-9)
+    assert dem.gradient(1.0) is None                    # a variance below the bound

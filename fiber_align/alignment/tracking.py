@@ -30,7 +30,10 @@ class JointDemodulator:
 
     ``ln P`` regressed on the measured displacements about their running means (window
     ``time_s``), all ``n`` at once; each reading paired with the positions ``lag_s`` (s)
-    earlier (the detector's averaging delay; 0: the same period's).
+    earlier (the detector's averaging delay; 0: the same period's). It runs on every
+    control period of TRACKING, on a handful of axes: plain floats and lists, not numpy
+    (whose per-call cost on arrays of three was most of an update: 82 us, now
+    ``bench/bench_tracking.py``).
     """
 
     def __init__(self, n, time_s, lag_s=0.0):
@@ -42,42 +45,87 @@ class JointDemodulator:
 
     def reset(self):
         """Forget the statistics."""
+        n = self.n
         self.count = 0
-        self.m = np.zeros(self.n + 1)
-        self.cov = np.zeros((self.n, self.n))
-        self.cross = np.zeros(self.n)
+        self.m = [0.0] * (n + 1)
+        self.cov = [[0.0] * n for _ in range(n)]
+        self.cross = [0.0] * n
         self.prev = None
 
     def update(self, dt_s, pos_m, ln_p):
         """Add one reading: positions (m) and ``ln P`` (power in W)."""
-        pos = np.asarray(pos_m, dtype=float).reshape(-1)
-        if self.prev is not None and dt_s > 0 and self.lag_s > 0:
-            lagged = pos - min(1.0, self.lag_s / dt_s) * (pos - self.prev)
+        try:
+            pos = [float(x) for x in pos_m]
+        except TypeError:               # one axis given as a number
+            pos = [float(pos_m)]
+        prev = self.prev
+        if prev is not None and dt_s > 0 and self.lag_s > 0:
+            f = min(1.0, self.lag_s / dt_s)
+            lagged = [x - f * (x - x0) for x, x0 in zip(pos, prev)]
         else:
             lagged = pos
         self.prev = pos
-        v = np.append(lagged, ln_p)
+        ln_p = float(ln_p)
         if self.count == 0:
-            self.m = v
+            self.m = lagged + [ln_p]
             self.count = 1
             return
         a = min(1.0, dt_s / self.time_s) if dt_s > 0 else 1.0
-        d = v - self.m
-        self.m = self.m + a * d
-        self.cov = (1.0 - a) * (self.cov + a * np.outer(d[:-1], d[:-1]))
-        self.cross = (1.0 - a) * (self.cross + a * d[:-1] * d[-1])
+        b = 1.0 - a
+        m = self.m
+        d = [x - mx for x, mx in zip(lagged, m)]
+        dp = ln_p - m[-1]
+        self.m = [mx + a * dx for mx, dx in zip(m, d)] + [m[-1] + a * dp]
+        for row, di in zip(self.cov, d):
+            adi = a * di
+            for j, dj in enumerate(d):
+                row[j] = b * (row[j] + adi * dj)
+        self.cross = [b * (c + a * di * dp) for c, di in zip(self.cross, d)]
         self.count += 1
 
     def gradient(self, min_var_m2):
         """Return ``d ln P / d pos`` (1/m); None while a variance < ``min_var_m2`` (m^2)."""
-        var = np.diag(self.cov)
-        if np.any(var < min_var_m2):
+        n, cov = self.n, self.cov
+        var = [cov[i][i] for i in range(n)]
+        if any(v < min_var_m2 for v in var):
             return None
-        # the correlation matrix's determinant: 1 for separable dithers, 0 for dependent
-        s = np.sqrt(var)
-        if not np.linalg.det(self.cov / np.outer(s, s)) > 0.25:
+        det, x = _solve(cov, self.cross)
+        # the correlation matrix's determinant, det(cov) / prod(var): 1 for separable
+        # dithers, 0 for dependent ones
+        if not det / math.prod(var) > 0.25:
             return None
-        return np.linalg.solve(self.cov, self.cross)
+        return np.array(x)
+
+
+def _solve(a, b):
+    """
+    Solve ``a x = b`` (lists of floats; Gaussian elimination, partial pivoting).
+
+    Return ``(det(a), x)``; ``(0.0, None)`` for a singular ``a``. ``a`` is not changed.
+    """
+    n = len(b)
+    rows = [list(r) + [v] for r, v in zip(a, b)]
+    det = 1.0
+    for k in range(n):
+        p = max(range(k, n), key=lambda i: abs(rows[i][k]))
+        if not rows[p][k]:
+            return 0.0, None
+        if p != k:
+            rows[k], rows[p] = rows[p], rows[k]
+            det = -det
+        rk = rows[k]
+        piv = rk[k]
+        det *= piv
+        for i in range(k + 1, n):
+            ri = rows[i]
+            f = ri[k] / piv
+            for j in range(k, n + 1):
+                ri[j] -= f * rk[j]
+    x = [0.0] * n
+    for i in range(n - 1, -1, -1):
+        ri = rows[i]
+        x[i] = (ri[n] - sum(ri[j] * x[j] for j in range(i + 1, n))) / ri[i]
+    return det, x
 
 
 class LossWatch:
