@@ -19,7 +19,7 @@ kept (the worst axis), watchdog trips and failed runs, and the ratio of the medi
 tree over the baseline).
 
 Usage: ``python -m bench.bench_axis_cpu --baseline DIR [--repeats 3] [--seconds 20]
-[--rig-cycles 20] [--cases one,one-recorded,one-launch,one-launch-recorded,rig,station]
+[--rig-cycles 20] [--cases one,one-recorded,one-launch,one-launch-recorded,rig,station,array]
 [--json FILE]``; ``DIR`` is a checkout of
 the baseline (e.g. ``git worktree add --detach /tmp/base <commit>``). ``--baseline-args``
 gives the baseline's runs more ``bringup`` options: with ``--baseline .`` one tree against
@@ -45,6 +45,9 @@ CASES = {
     'rig': (['--rig', '--cycles', '{cycles}', '--duration', '{seconds}'], 2, False),
     # the coupled station with its recorder (a tree without --station: failed runs)
     'station': (['--station', '--cycles', '{cycles}', '--duration', '{seconds}'], 4, True),
+    # the fiber array (x, y_left, y_right) with its recorder, seed 2 as docs/array.md
+    'array': (['--array', '--seed', '2', '--cycles', '{cycles}', '--duration', '{seconds}'],
+              3, True),
     # the 1-D graph as `ros2 launch` starts it, nothing watching (bench/graph_cpu.py):
     # bringup's observer of the 1-D run takes two 1 kHz topics over DDS from the graph
     'one-launch': (None, 1, False),

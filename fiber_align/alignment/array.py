@@ -228,8 +228,14 @@ class ArrayMachine(MultiAxis, Machine, PointPeaking):
             vertex[0] = v[j][0]
         self._fit = fits
         act = self.to_actuators(vertex)
-        tol = p['range_tolerance_m']
-        if np.any(act < self.lo - tol) or np.any(act > self.hi + tol):
+        tol, edge = p['range_tolerance_m'], p['settle_tolerance_m']
+        # out of reach only where the pattern already stands at the range's edge (as the
+        # rig's and the station's fits, visit.py) and both channels are fitted: a fit of a
+        # far tail's readings (or one channel's, the other dark) can put its vertex
+        # anywhere, and the step towards it is bounded and clipped to the range
+        at = self.to_actuators(c)
+        at_edge = (np.abs(at - self.lo) < edge) | (np.abs(at - self.hi) < edge)
+        if both and np.any(((act < self.lo - tol) | (act > self.hi + tol)) & at_edge):
             return self._fault('target out of reach: peak estimated at %s (x, y_left, '
                                'y_right), reachable %.1f..%.1f um'
                                % (um(act), self.lo[0] * 1e6, self.hi[0] * 1e6))
