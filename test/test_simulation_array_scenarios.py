@@ -92,7 +92,9 @@ def test_cli_refuses_the_catalogue_it_does_not_fill(capsys, tmp_path):
 @pytest.mark.parametrize('seed', [110, 134])
 def test_a_far_tail_fit_out_of_range_walks_on_instead_of_faulting(seed):
     """
-    Seeds whose first pattern, at first light far down the tail, fitted a vertex out of
+    A far tail's fit out of the range is walked towards, not judged out of reach.
+
+    These seeds' first pattern, at first light far down the tail, fitted a vertex out of
     the range (220 um, then -25 um for y_right): FAULT 'target out of reach' before,
     although the chip is in reach (the serial baseline aligns it). Now the fault needs
     the pattern at the range's edge and both channels fitted, as the rig's and the
