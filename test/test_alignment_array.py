@@ -198,3 +198,29 @@ def test_what_the_drivers_publish_holds_the_array_and_refuses_align(rig):
     assert b.seq.align()[0]
     b.run_until(b.t + 1.5, lambda x: x.seq.state in (TRACKING, FAULT))
     assert b.seq.state == TRACKING, b.seq.fault_reason
+
+
+def test_a_pattern_gone_dark_after_a_step_goes_back_to_the_brightest_reading():
+    """
+    A dark pattern after lit ones: back to this peak's brightest reading, not FAULT.
+
+    A fit far down the tail, one channel dark, can send the next pattern the wrong way
+    (realtime seed 0 ended 'light lost while peaking' in 2 of 4 runs so). Once back at the
+    brightest reading and dark there too, the light is lost: FAULT.
+    """
+    seq = ar.ArrayMachine(period_s=graph_period_s())
+    seq.floor, seq.state, seq.iterations = (0.0, 1e-9), PEAKING, 2
+    bright = np.array([25e-6, 27e-6, 27e-6])
+    seq._bright = (1e-6, bright.copy())
+    seq._history = []
+
+    def dark_pattern_at(center):
+        seq._center = seq.to_channels(center)
+        pts = [center + d for d in (np.zeros(3), *(1e-6 * np.eye(3)))]
+        seq._fit_joint(np.array([list(q) + [1e-12, 1e-12] for q in pts]))
+    dark_pattern_at(np.array([35e-6, 45e-6, 45e-6]))
+    assert seq.state == PEAKING, seq.fault_reason
+    assert 'dark: back to the brightest reading' in seq.events[-1][2]
+    assert np.allclose(seq.to_actuators(seq._center), bright, atol=1e-9)
+    dark_pattern_at(bright)                 # dark at the brightest reading too
+    assert seq.state == FAULT and 'light lost while peaking' in seq.fault_reason

@@ -98,6 +98,7 @@ class ArrayMachine(MultiAxis, Machine, PointPeaking):
         self.outer_names, self._silent = ('1', 'N (%d)' % len(u)), []
         self.curvature_prior = 1.0 / p['coupling_radius_m'] ** 2
         self._history, self._pw2, self._center, self._path = [], None, None, None
+        self._bright = (0.0, None)     # this peak's brightest reading: (W, actuators m)
         park = ao.actuators(p['nominal_x_m'], p['nominal_y_m'], 0.0, self.roll_arm_m)
         self._init_axes(p, park, np.full(3, float(p['range_min_m'])),
                         np.full(3, float(p['range_max_m'])), period_s, path_rate_m_per_s)
@@ -208,10 +209,23 @@ class ArrayMachine(MultiAxis, Machine, PointPeaking):
         self._history = (self._history + [(self._center, rows)])[-2:]
         fits = self._channel_fits(np.vstack(near + [rows]))
         c = self._center
+        top = rows[:, 3:5].max(axis=1)
+        i = int(np.argmax(top))
+        if self.iterations == 1 or top[i] > self._bright[0]:
+            lit_i = self._weights(top[i:i + 1])[0][0]
+            self._bright = (top[i] if lit_i else 0.0, rows[i, :3].copy())
         if fits[0] is None and fits[1] is None:
             lit = self._weights(rows[:, 3:5].max(axis=1))[0]
             if not lit.any() and self.iterations == 1:
                 return self._false_light()
+            back = self._bright[0] > 0 and np.linalg.norm(
+                self.to_actuators(c) - self._bright[1]) > p['pattern_radius_min_m']
+            if not lit.any() and back:
+                # a step from lit patterns went dark (a fit far down the tail, one channel
+                # dark, can point the wrong way): back to this peak's brightest reading
+                self._log('pattern %d dark: back to the brightest reading, at %s'
+                          % (self.iterations, um(self._bright[1])))
+                return self._iterate(self._bright[1], p['pattern_radius_min_m'])
             if not lit.any():
                 return self._fault('light lost while peaking: no reading above %.1f dBm '
                                    'around %s' % (dbm(p['fit_min_snr'] * self.floor[1]),
