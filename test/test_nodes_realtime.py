@@ -74,6 +74,7 @@ class Client:
         self.Float64 = Float64
         self.node = rclpy.create_node('outside_client')
         self.ys = []            # (receive time s, position m)
+        self.stamped = []       # (the plant's sample stamp s, system clock; position m)
         self.drives = []        # (receive time s, V)
         self.diags = []         # (receive time s, node name, level byte, message)
         self.values = {}        # node name -> latest diagnostics key/values
@@ -103,6 +104,8 @@ class Client:
 
     def _on_y(self, msg):
         self.ys.append((time.monotonic(), msg.position[0]))
+        self.stamped.append((msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec,
+                             msg.position[0]))
 
     def _on_v(self, msg):
         self.drives.append((time.monotonic(), msg.data))
@@ -299,16 +302,26 @@ def running_graph(log_dir, ros_args=None):
 
 
 def test_outside_client_setpoint_settles(graph):
-    """One 50 um setpoint: the actuator settles within 0.5 um, well within 2 s."""
+    """
+    One 50 um setpoint: the actuator settles within 0.5 um, well within 2 s.
+
+    The settling time is the loop's, from the plant's sample stamps (system clock, as the
+    publish time): the last sample outside the band, after the setpoint. This client's
+    receive times are not: it reads four streams beside four SCHED_FIFO processes, and a
+    clean clone's suite saw them lag (2.77 s by them, no trip, no status).
+    """
     cl, _, log_dir = graph
-    t0 = time.monotonic()
+    t0, t_pub = time.monotonic(), time.time()
     cl.publish(TARGET_M)
     assert cl.spin_for(5.0, lambda: cl.settled(t0)), (
         'not settled: last samples %s (logs %s)' % (cl.ys_since(t0)[-5:], log_dir))
-    t_settled = time.monotonic() - t0     # includes 100 samples (0.1 s) inside the band
-    print('settled within 0.5 um, 100 samples in the band, %.3f s after the setpoint; '
-          'peak %.2f um' % (t_settled, 1e6 * max(cl.ys_since(t0))))
-    assert t_settled < 2.0, cl.explain(t0, log_dir)
+    t_seen = time.monotonic() - t0     # includes 100 samples (0.1 s) inside the band
+    after = [(t, y) for t, y in cl.stamped if t > t_pub]
+    t_settled = max([t for t, y in after if abs(y - TARGET_M) >= TOL_M], default=t_pub) - t_pub
+    print('settled within 0.5 um %.3f s after the setpoint (its stamps; seen by this '
+          'client %.3f s after it, 100 samples in the band); peak %.2f um'
+          % (t_settled, t_seen, 1e6 * max(y for _, y in after)))
+    assert len(after) >= 20 and t_settled < 2.0, cl.explain(t0, log_dir)
     # and it stays (no limit cycle): over 0.5 s most samples in the band (100 % when the
     # machine is quiet; a stalled node on this loaded machine disturbs some)
     t1 = time.monotonic()
