@@ -100,7 +100,7 @@ class ActuatorDriverNode(LifecycleNode):
         self.msgs = {a: Float64() for a in self.axes}
         self.watch = watch_drives(self, self.axes, self._on_foreign)    # off this thread
         self.subs = [b.subscription(self, Float64, topic(a, n), lambda m, a=a, ff=ff:
-                                    self._on_input(a, ff, m.data), sq, self.bus, self.watch.events)
+                                    self._on_input(a, ff, m.data), sq, self.bus, self.watch)
                      for a in self.axes for n, ff in INPUTS if ff or not self.sensorless]
         self._srv = self.create_service(SetBool, '~/enable', self._on_enable)
         if not self.lockstep:

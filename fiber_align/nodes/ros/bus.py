@@ -306,20 +306,21 @@ def slack_of(bus):
     return bus.slack if bus is not None else Slack()
 
 
-def subscription(node, msg_type, topic, callback, qos, bus=None, events=None):
+def subscription(node, msg_type, topic, callback, qos, bus=None, watch=None):
     """
     Subscribe ``callback`` to ``topic`` (relative name) locally or through DDS.
 
-    :param events: ``events(topic)``: the DDS subscription's ``event_callbacks`` (none
-        in-process).
+    :param watch: a :class:`~fiber_align.nodes.ros.owners.PublisherWatch` of the topic's
+        publishers (a DDS subscription only: nothing else reaches one in-process).
 
     :returns: a :class:`LocalSub` when a node of this process publishes ``topic`` on
         ``bus``, else the rclpy Subscription.
     """
     if bus is not None and bus.local(node, topic):
         return LocalSub(bus, bus.key(node, topic), callback)
-    return node.create_subscription(msg_type, topic, callback, qos,
-                                    event_callbacks=events and events(topic))
+    sub = node.create_subscription(msg_type, topic, callback, qos,
+                                   event_callbacks=watch and watch.events(topic))
+    return watch.guard(sub) if watch is not None else sub
 
 
 def unsubscribe(node, sub):

@@ -1,0 +1,66 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The driver's watch of its inputs' publishers holds before a foreign message is served.
+
+The matched event of a second publisher is served by the executor when it comes round to
+it; on a loaded machine (a clean clone's suite) the foreign messages came first and the
+driver applied 100 V for 0.3 s. Each message now reads the match count first (issue 39.1).
+"""
+
+import time
+
+import pytest
+
+pytestmark = pytest.mark.ros
+
+
+def _setup(ctx, publishers):
+    import rclpy
+    from std_msgs.msg import Float64
+
+    from fiber_align.nodes.ros import bus as b
+    from fiber_align.nodes.ros.owners import PublisherWatch
+    from fiber_align.nodes.ros.qos import LIVE_QOS
+    context, nodes = ctx
+    node = rclpy.create_node('watched_driver', context=context)
+    nodes.append(node)
+    found, served = [], []
+    # a long period: the thread's count does not run before the message is served
+    watch = PublisherWatch(node, {'cmd': '/compensator'}, found.append, period_s=30.0)
+    sub = b.subscription(node, Float64, 'cmd', lambda m: served.append((len(found), m.data)),
+                         LIVE_QOS, None, watch)
+    pubs = []
+    for name in publishers:
+        pub_node = rclpy.create_node(name, context=context)
+        nodes.append(pub_node)
+        pubs.append(pub_node.create_publisher(Float64, 'cmd', LIVE_QOS))
+    t_end = time.monotonic() + 10.0
+    while sub.get_publisher_count() < len(publishers) and time.monotonic() < t_end:
+        time.sleep(0.01)            # matched by DDS; the node is never spun: no event served
+    assert sub.get_publisher_count() == len(publishers)
+    return watch, sub, found, served, Float64
+
+
+def test_a_second_publisher_holds_before_its_first_message_is_served(ctx):
+    watch, sub, found, served, Float64 = _setup(ctx, ['compensator', 'intruder'])
+    try:
+        sub.callback(Float64(data=100.0))
+        # the finding reached the driver before the message did
+        assert served == [(1, 100.0)]
+        assert watch.pending
+        assert found[0] == ['/cmd: 2 publishers matched, 1 expected']
+        sub.callback(Float64(data=100.0))
+        assert len(found) == 1      # told once
+    finally:
+        watch.close()
+
+
+def test_one_publisher_is_no_finding(ctx):
+    watch, sub, found, served, Float64 = _setup(ctx, ['compensator'])
+    try:
+        for v in (1.0, 2.0, 3.0):
+            sub.callback(Float64(data=v))
+        assert served == [(0, 1.0), (0, 2.0), (0, 3.0)]
+        assert found == [] and not watch.pending
+    finally:
+        watch.close()
