@@ -5,7 +5,7 @@ The run catalogue on PostgreSQL, written by running graphs (docs/records.md).
 The server is the tests' own (``test/pg_cluster.py``: ``initdb`` and ``pg_ctl`` in a
 temporary folder, a loopback port), each test a new database on it. ``bringup`` runs the
 graphs with ``--catalog postgresql://...``, as a line of stations would: the rows equal
-the run's summary, as on SQLite; two rigs in two namespaces write at once, none lost
+the run's summary, as on SQLite; two stations in two namespaces write at once, none lost
 or doubled; the server stopped for 10 s in a realtime run: the rows of that time arrive
 after its restart, and the loop keeps its periods as a run without the catalogue does.
 """
@@ -72,11 +72,11 @@ def test_a_rig_run_writes_the_rows_its_summary_reports(tmp_path, pg_url):
 
 def test_two_graphs_in_two_namespaces_write_at_once(tmp_path, pg_url):
     """
-    Two rigs (``/line1``, ``/line2``) align 20 times each, at once: 40 rows, once each.
+    Two stations (``/line1``, ``/line2``) align 20 times each, at once: 40 rows, once each.
 
-    Rigs, not stations: two realtime stations overload this machine's two cores (0.55 %
-    of the periods missed each, one alignment in three pairs ended in FAULT) and a
-    lockstep station's 20 alignments take 93 s of a core.
+    In lockstep: two realtime stations overload this machine's two cores (0.55 % of the
+    periods missed each, one alignment in three pairs ended in FAULT); a lockstep
+    station's 20 alignments take about a minute of a core (59 s alone here).
     """
     procs, logs = [], []
     try:
@@ -84,11 +84,11 @@ def test_two_graphs_in_two_namespaces_write_at_once(tmp_path, pg_url):
             log = open(tmp_path / ('line%d.log' % k), 'w')
             logs.append(log)
             procs.append(subprocess.Popen(
-                _bringup_cmd(tmp_path / ('line%d.json' % k), '--rig', '--namespace',
+                _bringup_cmd(tmp_path / ('line%d.json' % k), '--station', '--namespace',
                              'line%d' % k, '--sync', 'lockstep', '--seed', str(k),
                              '--cycles', '19', '--part', 'L%d' % k, '--catalog', pg_url),
                 env=dict(os.environ), stdout=log, stderr=subprocess.STDOUT))
-        codes = [p.wait(timeout=400) for p in procs]
+        codes = [p.wait(timeout=500) for p in procs]
     finally:
         for p in procs:
             stop(p, 10.0)
@@ -98,7 +98,7 @@ def test_two_graphs_in_two_namespaces_write_at_once(tmp_path, pg_url):
     assert codes == [0, 0], outs
     runs = _query(pg_url, 'SELECT run_id, parameters, machine, sync_mode FROM runs')
     assert len(runs) == 2, runs
-    assert {(r['machine'], r['sync_mode']) for r in runs} == {('rig', 'lockstep')}, runs
+    assert {(r['machine'], r['sync_mode']) for r in runs} == {('station', 'lockstep')}, runs
     spaces = sorted({k.split('/')[1] for r in runs for k in json.loads(r['parameters'])
                      if k.startswith('/line')})
     assert spaces == ['line1', 'line2'], spaces
