@@ -140,7 +140,12 @@ def test_a_snapshot_written_at_the_stop_is_linked_in_the_catalogue(ctx, tmp_path
                     or time.monotonic() > t_end:
                 break
             procs.spin_until(executor, lambda: False, 0.25)
-        assert res.success, res.message
+        # refused to the end: another trigger's window covers the stop (a loaded start's
+        # cycle WARN 2 s before the end: a full suite, 2026-12-07); that snapshot is then
+        # the one written at the stop
+        covering = None if res.success else res.message[len('inside the window of '):
+                                                        ].rsplit(':', 1)[0]
+        assert res.success or res.message.startswith('inside the window of'), res.message
         executor.remove_node(node)
         proc.wait(30.0)
     finally:
@@ -148,7 +153,8 @@ def test_a_snapshot_written_at_the_stop_is_linked_in_the_catalogue(ctx, tmp_path
             proc.send_signal(signal.SIGINT)
         procs.stop(proc, 20.0)
     folders = sorted(str(p) for p in snaps.iterdir() if p.is_dir())
-    assert any(f.endswith('_service') for f in folders), folders
+    assert any(f.endswith('_service') for f in folders) or covering in folders, (
+        folders, covering)
     con = sqlite3.connect(str(db))
     paths = [json.loads(r[0] or '[]') for r in con.execute('SELECT snapshot_paths FROM runs')]
     con.close()
