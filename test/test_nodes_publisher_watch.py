@@ -64,3 +64,20 @@ def test_one_publisher_is_no_finding(ctx):
         assert found == [] and not watch.pending
     finally:
         watch.close()
+
+
+def test_a_message_taken_before_its_subscription_was_destroyed_is_served(ctx):
+    """
+    Serve a message whose subscription was destroyed after the take, as before.
+
+    A lifecycle cleanup (the amplifier unplugged) can destroy it between the take and
+    the call: the count is not read (the hardware rig's control process died of
+    InvalidHandle in a clean clone's suite).
+    """
+    watch, sub, found, served, Float64 = _setup(ctx, ['compensator'])
+    try:
+        ctx[1][0].destroy_subscription(sub)
+        sub.callback(Float64(data=5.0))
+        assert served == [(0, 5.0)] and found == []
+    finally:
+        watch.close()

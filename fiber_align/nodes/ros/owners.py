@@ -120,7 +120,10 @@ class PublisherWatch:
         name, take = sub.topic_name, sub.callback
 
         def guarded(msg):
-            n = sub.get_publisher_count()
+            try:
+                n = sub.get_publisher_count()
+            except Exception:  # noqa: BLE001 - destroyed (a cleanup) after the take
+                n = 0
             if n > self._matched.get(name, 1):
                 self._on_matched(name, n)
             take(msg)
