@@ -89,9 +89,7 @@ def local_too(pub, bus, node, topic):
     """
     Return ``msg -> None``: ``pub.publish(msg)``, then the in-process readers of ``topic``.
 
-    For a low-rate topic kept on its own rclpy publisher (its QoS history as it is, not
-    the per-sample path of :class:`Pub`) that a node of the process also reads from the
-    bus (the composed recorder: ``alignment_state`` went unrecorded without it).
+    For a low-rate topic on its own rclpy publisher that the composed recorder reads.
     """
     if bus is None:
         return pub.publish
@@ -132,13 +130,9 @@ class Pub:
         """
         Deliver ``msg`` to every in-process subscriber, then publish it to DDS.
 
-        In-process first, DDS after the outermost delivery: the loop's chain (sample,
-        feedforward, feedback, drive) runs inside the plant's publish, so the drive
-        reaches the plant before any of the chain's DDS publishes (10-20 us each with the
-        recorder matched) is paid; outside subscribers still receive every message, in
-        the order published, a few tens of microseconds later. A node publishes each
-        topic once per sample, so the message objects it reuses are not changed before
-        the deferred publish.
+        DDS after the outermost delivery: the loop's chain (sample, feedforward, feedback,
+        drive) runs inside the plant's publish, so the drive reaches the plant before any
+        DDS publish is paid; outside readers get every message, in order, just later.
         """
         bus = self._bus
         if bus is None:
@@ -201,15 +195,11 @@ class SampleTimer:
     """
     One wall-clock timer that ticks every realtime sample clock of a process in turn.
 
-    The plants of one process (the rig's two axes) tick from one timer callback, in the
-    order they were built: each tick's scheduled time is the timer's, so a second plant
-    is not counted late for the time the first one's loop took, and the executor wakes
-    once a period instead of once per plant. The drivers' watchdogs of the process tick
-    from it too, after the plants (each executor wake-up and callback costs tens of
-    microseconds, and four watchdog timers of their own woke the thread four more times
-    a period, between the plants' ticks). A watchdog pauses while every plant of the
-    process is held (``~/run`` false: the simulated world stopped, so no input is late);
-    a plant's callback returns True while its clock runs.
+    The plants of one process tick from one callback in the order built, each at the
+    timer's scheduled time (a second plant is not late for the first one's loop), then the
+    drivers' watchdogs: one executor wake a period, not one per clock. A watchdog pauses
+    while every plant is held (``~/run`` false); a plant's callback returns True while
+    its clock runs.
     """
 
     def __init__(self, node, period_s, clock, slack=None):
@@ -285,19 +275,13 @@ def release_timer(node, timer, callback):
 
 
 def writer_of(pub, volatile, bus=None):
-    """
-    Return the :class:`~fiber_align.nodes.ros.sender.Writer` of rclpy publisher ``pub``.
-
-    On the sender of ``bus`` when the process has one (its publishes leave the control
-    thread once the sender runs), else one that publishes at once. A volatile writer with
-    no matched reader delivers to nobody, now or later: its publish is skipped.
-    """
+    """Return the ``sender.Writer`` of rclpy publisher ``pub`` (on ``bus``'s sender if any)."""
     sender = sender_of(bus)
     return sender.writer(pub, volatile) if sender is not None else Writer(pub, volatile)
 
 
 def sender_of(bus):
-    """Return the :class:`~fiber_align.nodes.ros.sender.Sender` of a node's process, or None."""
+    """Return the ``sender.Sender`` of a node's process, or None."""
     return bus.sender if bus is not None else None
 
 

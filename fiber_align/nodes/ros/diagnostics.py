@@ -28,12 +28,9 @@ def report_refusals(node, health):
     """
     Log every parameter change ``node`` refuses and report it on ``health`` (a WARN).
 
-    Every path of a change ends in ``Node.set_parameters_atomically`` (the
-    SetParameters and SetParametersAtomically services: ``ros2 param set``, a client) or
-    ``Node.set_parameters`` (in-process): a descriptor's range, a read-only name, an
-    undeclared one and the node's own check alike. The refusal goes to the caller with
-    its reason and, here, to the node's log and ``/diagnostics``. Once per node (a node
-    with several healths reports on its first).
+    Every change (``ros2 param set``, a client, in-process) ends in
+    ``Node.set_parameters_atomically`` or ``Node.set_parameters``: a range, a read-only or
+    undeclared name and the node's own check alike. Once per node (its first health).
     """
     if getattr(node, '_fiber_align_refusals', None) is not None:
         return

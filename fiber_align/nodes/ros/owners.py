@@ -112,10 +112,9 @@ class PublisherWatch:
         """
         Return ``sub`` (an rclpy Subscription) with its callback behind the match count.
 
-        Each message first reads how many publishers the subscription has matched (the
-        middleware's count, 0.65 us): a second one holds at once, before this message is
-        served. The matched event alone can come after the first foreign messages on a
-        loaded machine (a clean clone's suite once took 100 V from one for 0.3 s).
+        Each message first reads the subscription's matched publishers: a second one
+        holds before this message is served (the matched event alone can come after the
+        first foreign messages on a loaded machine; docs/ros_interface.md).
         """
         name, take = sub.topic_name, sub.callback
 

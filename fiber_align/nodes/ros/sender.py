@@ -99,18 +99,11 @@ class Writer:
     One rclpy publisher as the control thread sees it: :meth:`publish` never waits on DDS.
 
     While its :class:`Sender` runs, a message is converted here and published by the
-    sender's thread; otherwise (lockstep, a process without a sender) it is published at
-    once by rclpy. A volatile writer with no matched reader delivers to nobody, now or
-    later, so its message is not converted at all (the count is the sender thread's,
-    refreshed every :attr:`Sender.refresh_s`). A durable (transient local) writer with no
-    matched reader keeps its newest message, and the sender publishes that once per
-    refresh: a reader that joins gets the present (at most one refresh old, then the
-    newest; until the next refresh sees it, the messages in between are folded into the
-    newest), and a latched topic set every period costs one DDS publish per refresh. A
-    message of one number, bool or string (a latched ``reference``, Float64) is kept as
-    that value, and converted only when the refresh sends it: a conversion every period
-    took 2 % of a 1-D control process (py-spy) for a message sent once a refresh
-    (:attr:`Sender.refresh_s`, 0.01 s).
+    sender's thread; otherwise (lockstep, no sender) rclpy publishes it at once. A
+    volatile writer with no matched reader skips the message (the count is refreshed every
+    :attr:`Sender.refresh_s`); a durable one keeps its newest (a one-value message as the
+    value) and the sender publishes it once a refresh, so a late reader gets the present.
+    Why and what it saved: docs/realtime.md ("The fix: the control thread does not call DDS").
     """
 
     __slots__ = ('pub', 'volatile', 'readers', 'sender', 'ptr', 'ctype', 'pending', 'field')

@@ -72,10 +72,8 @@ def finish(nodes, stop=None, limit_s=None):
 #: s: the longest a process waits for its readers' acknowledgements (:func:`settle`): a
 #: reliable writer destroyed first takes its unacknowledged samples with it
 ACK_S = 0.5
-#: s: the same once the launcher is gone (SIGKILL): its graph is going down with it, and the
-#: readers an acknowledgement would come from are stopping too (measured: a node process
-#: waited the whole 0.5 s there, and the graph's last process outlived the launcher by
-#: 1.1 s instead of 0.6 s; the goal is 2 s)
+#: s: the same once the launcher is gone (SIGKILL): the readers an acknowledgement would
+#: come from are stopping too (docs/ros_interface.md, "A bag is readable after any stop")
 ACK_GONE_S = 0.1
 
 
