@@ -11,8 +11,9 @@ are taken off the counts, a reserve kept free beside the bag since its start
 one line (:attr:`GuardedBag.stopped`) saying what failed and where, and records no more;
 the graph it records runs on.
 
-The mcap file is written through :class:`ExactFile` (unbuffered, every byte accounted
-for): a buffered file would keep the failed chunk's bytes and write them on its close.
+The mcap file is written through :class:`ExactFile` (one ``write(2)`` per chunk close,
+every byte accounted for): a buffered file would keep the failed chunk's bytes and write
+them on its close.
 Other storages (sqlite3) are closed with the reserve released, without the cut.
 
 A message goes into the mcap writer's pending chunk by :meth:`GuardedBag.write` itself,
@@ -58,7 +59,12 @@ def mount_point(path):
 
 class ExactFile:
     """
-    An unbuffered binary file for the mcap writer: a write is all written or raises.
+    The mcap writer's file: writes gathered in memory, then one ``write(2)`` per flush.
+
+    rosbags writes each record in three pieces (opcode, length, body), so a chunk close
+    of twenty topics made some sixty system calls on the control thread, each releasing
+    the GIL to whichever thread wanted it; gathered, a close is one call. A flush writes
+    every byte or raises :class:`OSError` (nothing is kept for a later close to write).
 
     :param path: the file (it exists); writing continues at ``pos`` (bytes).
     """
@@ -68,35 +74,47 @@ class ExactFile:
         self.f = open(path, 'r+b', buffering=0)
         self.f.seek(pos)
         self.pos = pos
+        self.buf = bytearray()
 
     def write(self, data):
-        """Write every byte of ``data`` or raise :class:`OSError`; return the count."""
-        view = memoryview(data).cast('B')
+        """Take ``data`` for the next :meth:`flush`; return its length (bytes)."""
+        self.buf += data
+        n = len(data) if isinstance(data, (bytes, bytearray)) else memoryview(data).nbytes
+        self.pos += n
+        return n
+
+    def flush(self):
+        """Write every gathered byte to the file or raise :class:`OSError`."""
+        view = memoryview(self.buf)
         done = 0
-        while done < len(view):
-            n = self.f.write(view[done:])
-            if not n:
-                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-            done += n
-            self.pos += n
-        return done
+        try:
+            while done < len(view):
+                n = self.f.write(view[done:])
+                if not n:
+                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                done += n
+        finally:
+            view.release()
+            del self.buf[:done]
 
     def tell(self):
-        """Return the position (bytes)."""
+        """Return the position (bytes), the gathered bytes included."""
         return self.pos
 
     def truncate(self, pos):
-        """Cut the file at ``pos`` (bytes) and write on from there."""
+        """Cut the file at ``pos`` (bytes), drop what is gathered, write on from there."""
+        self.buf.clear()
         self.f.truncate(pos)
         self.f.seek(pos)
         self.pos = pos
 
-    def flush(self):
-        """Nothing is buffered."""
-
     def close(self):
-        """Close the file."""
-        self.f.close()
+        """Write what is gathered, then close the file (closed even when the write fails)."""
+        try:
+            self.flush()
+        finally:
+            self.buf.clear()
+            self.f.close()
 
 
 def write_json(directory, files):
@@ -212,18 +230,18 @@ class GuardedBag:
     def _guarded_close_chunk(self):
         """Run the writer's ``close_chunk``; a failure cuts the chunk off again (and raises)."""
         storage = self.writer.storage
-        start, n = storage.bio.tell(), len(storage.chunks)
+        start, n, lost = storage.bio.tell(), len(storage.chunks), storage.chunk
         try:
             self._close_chunk()
+            storage.bio.flush()
         except OSError:
             storage.bio.truncate(start)
             del storage.chunks[n:]
-            self._forget(storage)
+            self._forget(storage, lost)
             raise
 
-    def _forget(self, storage):
-        """Take the lost chunk's messages off the counts and the times; start a new one."""
-        lost = storage.chunk
+    def _forget(self, storage, lost):
+        """Take the ``lost`` chunk's messages off the counts and the times; start a new one."""
         for cid, msgs in lost.msgs.items():
             storage.channel_stats[cid] -= len(msgs)
         # the storage counted the message whose write failed, the writer not yet
