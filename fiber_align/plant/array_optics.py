@@ -138,6 +138,7 @@ class ArrayCoupling:
         self.pitch_m = float(geometry['pitch_m'])
         self.roll_arm_m = float(geometry['roll_arm_m'])
         self.u_m = positions_along(self.n, self.pitch_m)
+        self._u = [float(u) for u in self.u_m]
         self.mode_radius_m = float(mode_radius_m)
         self.chip = tuple(float(v) for v in chip)
         self.offsets_m = np.asarray(offsets_m, dtype=float).reshape(self.n, 2)
@@ -161,6 +162,21 @@ class ArrayCoupling:
         """Return every channel's power (W) with the actuators at ``positions_m`` (m)."""
         return np.array([lk.power_at(t_s, tuple(c))
                          for lk, c in zip(self.links, self.coordinates(positions_m))])
+
+    def powers_of(self, t_s, positions_m, channels):
+        """
+        Return the power (W) of each channel in ``channels`` (indices), scalar math.
+
+        The per-period call: a channel's coordinates are ``(x + u_i (cos r - 1), y + u_i
+        sin r)`` (the chip and waveguide terms of :meth:`coordinates` cancel), and the
+        unmeasured channels are not computed (all eight took 84 us a sample).
+        """
+        x, y, roll = pose(positions_m, self.roll_arm_m)
+        d = roll - self.chip[2]
+        c, s = math.cos(d) - 1.0, math.sin(d)
+        t = float(t_s)
+        return tuple(self.links[i].power_at(t, (x + self._u[i] * c, y + self._u[i] * s))
+                     for i in channels)
 
     def best(self):
         """Return the best joint pose ``(x, y, roll)`` (cached: the chip does not move)."""
@@ -192,9 +208,8 @@ class ArrayLink:
 
     def measure(self, t_s, positions_m, dt_s=None):
         """Return the readings (W) of the measured channels, actuators at ``positions_m``."""
-        p = self.coupling.powers_w(t_s, positions_m)
-        return tuple(d.measure(float(p[i]), dt_s)
-                     for d, i in zip(self.detectors, self.measured))
+        p = self.coupling.powers_of(t_s, positions_m, self.measured)
+        return tuple(d.measure(v, dt_s) for d, v in zip(self.detectors, p))
 
     @classmethod
     def from_params(cls, optics_params=None, array_params=None, seed=0, **overrides):

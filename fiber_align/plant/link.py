@@ -105,6 +105,15 @@ class Target:
 
     def position(self, t_s):
         """Return the best point (m) at ``t_s`` (s): a tuple of floats, or of arrays."""
+        if isinstance(t_s, (float, int)):   # the per-period call: scalar math
+            t = float(t_s)
+            out = [p + v * t for p, v in zip(self.p0, self.v)]
+            if self.amp:
+                s = self.amp * math.sin(2.0 * math.pi * self.freq * t)
+                out = [x + s * u for x, u in zip(out, self.u)]
+            if self.pull is not None:
+                out = [x - d for x, d in zip(out, self.pull.offset(t))]
+            return tuple(out)
         t = np.asarray(t_s, dtype=float)
         out = [p + v * t for p, v in zip(self.p0, self.v)]
         if self.amp:
@@ -162,6 +171,9 @@ class Coupling:
 
     def power_at(self, t_s, positions):
         """Return the true power (W) with the axes at ``positions`` (m; scalars or arrays)."""
+        if isinstance(t_s, (float, int)) and all(isinstance(p, (float, int))
+                                                 for p in positions):
+            return self._power_scalar(t_s, positions)
         scalar = np.ndim(t_s) == 0 and all(np.ndim(p) == 0 for p in positions)
         if not scalar:
             positions = [np.asarray(p, dtype=float) for p in positions]
@@ -173,6 +185,17 @@ class Coupling:
         if scalar:                       # the per-period call: scalar math
             return self.max_power_w() * math.exp(-e)
         return self.max_power_w() * np.exp(-np.asarray(e, dtype=float))
+
+    def _power_scalar(self, t_s, positions):
+        """:meth:`power_at` of floats: the per-period call (5.7 to about 2 us a link)."""
+        pk = self.peak(t_s)
+        e = 0.0
+        for f in self.facets:
+            d2 = 0.0
+            for a in f.axes:
+                d2 += (positions[a] - pk[a]) ** 2
+            e += f.curvature_per_m2 * d2
+        return self.max_power_w() * math.exp(-e)
 
     def loss_at(self, t_s, positions):
         """Return the true loss (dB) against the joint peak at ``t_s``."""

@@ -131,6 +131,8 @@ class FiberCoupling:
 
     def power_w(self, t_s, x_m):
         """Return the true coupled power (W) with the input core at ``x_m`` (m) at ``t_s``."""
+        if isinstance(x_m, (float, int)) and isinstance(t_s, (float, int)):
+            return self._power_scalar(float(t_s), float(x_m))
         x = np.asarray(x_m, dtype=float)
         if self.fiber_broken:
             out = np.zeros_like(x)
@@ -143,6 +145,17 @@ class FiberCoupling:
     def loss_db(self, t_s, x_m):
         """Return the loss (dB) against the true maximum with the core at ``x_m`` (m)."""
         return loss_db(self.power_w(t_s, x_m), self.max_power_w())
+
+    def _power_scalar(self, t, x):
+        """:meth:`power_w` of floats (s, m), the per-period call, in scalar math."""
+        if self.fiber_broken:
+            return 0.0
+        s = self.slot_position_m + self.slot_drift_m_per_s * t
+        if self.slot_vibration_amplitude_m:
+            s += self.slot_vibration_amplitude_m * math.sin(
+                2.0 * math.pi * self.slot_vibration_frequency_hz * t)
+        q = rayleigh_factor(self.gap_m, self.mode_radius_m, self.wavelength_m, self.index)
+        return self.source_power_w * (math.exp(-((x - s) / self.mode_radius_m) ** 2 / q) / q)
 
 
 class Detector:
@@ -252,7 +265,7 @@ class OpticalLink:
 
     def measure(self, t_s, x_m, dt_s=None):
         """Return the detector reading (W) at time ``t_s`` (s) with the core at ``x_m`` (m)."""
-        return self.detector.measure(float(self.coupling.power_w(t_s, x_m)), dt_s)
+        return self.detector.measure(self.coupling.power_w(t_s, x_m), dt_s)
 
     def loss_db(self, t_s, x_m):
         """Return the true loss (dB) against the (moving) maximum at ``t_s``, ``x_m``."""
