@@ -61,3 +61,23 @@ def test_a_reactivated_driver_does_not_trip_on_its_inactive_time(ctx):
     drv._on_input('', True, 11.0)
     drv._on_input('', False, 0.5)
     assert core.v == 11.5                   # driven at once, no recovery hold
+
+
+def test_a_driver_destroyed_while_configured_stops_its_publisher_watch(ctx):
+    """
+    The watch's thread counts publishers through the rcl node's raw pointer (ctypes).
+
+    A driver destroyed without a cleanup transition (a process's exit, a test's) left it
+    running on a freed node: a full suite's pytest process died of a segmentation fault
+    some modules later (clean clone I, 2026-12-07, exit 139 without a traceback).
+    """
+    import threading
+    drv = make(ctx, ActuatorDriverNode)
+    drv.trigger_configure()
+    drv.trigger_activate()
+    thread = drv.watch._thread
+    assert thread.is_alive()
+    ctx[1].remove(drv)                      # destroyed here, not by the fixture
+    drv.destroy_node()
+    assert not thread.is_alive() and drv.watch is None
+    assert thread not in threading.enumerate()

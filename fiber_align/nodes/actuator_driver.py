@@ -48,8 +48,8 @@ class ActuatorDriverNode(LifecycleNode):
         d = dict(node_defaults(SPEC.node, SPEC.configs))
         g = declare_graph_values(self, d, 'rate_hz', 'sync_mode', 'sensorless',
                                  'diagnostics_period_s', *PRIORITY)
-        self.period_s = 1.0 / float(g['rate_hz'])
-        self.lockstep, self.sensorless = g['sync_mode'] == 'lockstep', bool(g['sensorless'])
+        self.period_s, self.lockstep = 1.0 / float(g['rate_hz']), g['sync_mode'] == 'lockstep'
+        self.sensorless, self.enabled = bool(g['sensorless']), True
         for k, (text, lo, hi, choices) in SETTINGS.items():
             setattr(self, k, declare(self, d, k, text, lo, hi, True, choices=choices))
             d.update(backend_defaults(self.backend, load_params('hardware.yaml', SPEC.node),
@@ -65,7 +65,6 @@ class ActuatorDriverNode(LifecycleNode):
         self.add_on_set_parameters_callback(self._on_set)
         self.s = self._timer = self._srv = self.held = self.watch = None
         self.pubs, self.subs, self.sent, self._ticks, self._off = {}, [], {}, 0, set()
-        self.enabled, self.refused_transitions = True, 0
         self.pub_held = [b.Pub(self, Bool, topic(a, 'drive_held'), LATCHED_QOS, bus,
                                latched=True) for a in self.axes]
         diag_s, fqn = g['diagnostics_period_s'], self.get_fully_qualified_name()
@@ -150,7 +149,8 @@ class ActuatorDriverNode(LifecycleNode):
         return Ret.SUCCESS
 
     def close(self):
-        """Process exit: ramp the device to the safe voltages, close it; publish no more."""
+        """Process exit: stop the watch (its thread holds the rcl node), ramp, close."""
+        self.watch = getattr(self, 'watch', None) and self.watch.close()
         if getattr(self, 's', None) is not None:
             self.s.ramp()
             self.s.close()

@@ -24,6 +24,7 @@ def guard_change_state(node):
     count in ``node.refused_transitions``; an available one goes to rclpy unchanged.
     """
     srv = getattr(node, '_service_change_state', None)
+    node.refused_transitions = 0
     if srv is None:
         return
     inner = srv.callback
