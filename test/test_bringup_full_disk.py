@@ -11,11 +11,12 @@ traceback, no FATAL; ``fiber-align analyze`` reads the bag as it is. Before, the
 died with FATAL and two tracebacks, ``bringup`` ended the run after 6 s and the bag had
 no metadata until ``fiber-align bag-repair``.
 
-The periods: the issue asks for the cycles kept as without recording. Measured on the
-2-core machine (docs/records.md), recording costs periods itself, full disk or not: 30 s
-sine runs missed 0.05-0.18 % unrecorded, 0.23-0.34 % recorded into a 500 MB tmpfs and
-0.19-0.60 % into this 5 MB one. That item is not met; the bound here (under 1 %, 300
-periods) holds the full disk to costing no more than recording does, not to the goal.
+The periods: every one run as without recording. The same 30 s run unrecorded comes
+first, in the same test; the recorded run may miss at most ``MISSED_TOL`` more of its
+periods beyond the machine's floor (the floor probe's own losses). Measured 2026-12-07 on
+the 2-core machine, three pairs per tree: unrecorded 0.05-0.12 % beyond the floor, into
+this 5 MB tmpfs 0.03-0.11 % (the tree before the gathered chunk writes alike). Earlier
+measurements that day gave 0.19-0.60 % into the tmpfs (docs/realtime.md).
 """
 
 import json
@@ -31,33 +32,43 @@ BRINGUP = [sys.executable, '-m', 'fiber_align.bringup']
 ANALYZE = [sys.executable, '-m', 'fiber_align.cli', 'analyze']
 FS_BYTES = 5 * 1024 * 1024
 DURATION_S = 30.0
-#: share of the periods missed beyond the machine's floor (module docstring)
-MISSED_MAX = 0.01
+#: more of the periods the recorded run may miss beyond the floor than the unrecorded one:
+#: the unrecorded runs' own spread (0.05-0.12 %, module docstring)
+MISSED_TOL = 0.001
+
+
+def _beyond_floor(s):
+    """Return the share of the periods a run's summary says it missed beyond the floor."""
+    return s['realtime']['missed_share'] - s['floor']['lost_share']
+
+
+def _run(tmp_path, name, more):
+    summary = tmp_path / ('%s.json' % name)
+    code, out = procs.run_bounded(BRINGUP + [
+        '--scenario', 'sine', '--sync', 'realtime', '--duration', str(DURATION_S),
+        '--summary', str(summary)] + more, 240)
+    return code, out, json.loads(summary.read_text(encoding='utf-8'))
 
 
 def test_a_full_disk_stops_the_recording_and_the_run_goes_on(tmp_path):
-    summary = tmp_path / 'summary.json'
+    code, out, plain = _run(tmp_path, 'unrecorded', [])
+    assert code == 0, out[-4000:]
     with procs.tmpfs(tmp_path / 'fs', FS_BYTES) as fs:
         bag = fs / 'bag'
-        code, out = procs.run_bounded(BRINGUP + [
-            '--scenario', 'sine', '--sync', 'realtime', '--duration', str(DURATION_S),
-            '--record', str(bag), '--summary', str(summary)], 240)
-        s = json.loads(summary.read_text(encoding='utf-8'))
+        code, out, s = _run(tmp_path, 'recorded', ['--record', str(bag)])
         print(out[-3000:])
         assert code == 0, out[-4000:]
         full = [ln for ln in out.splitlines() if 'the disk is full' in ln]
         assert len(full) == 1 and str(bag) in full[0], out[-4000:]
         assert 'Traceback' not in out and 'FATAL' not in out, out[-4000:]
         assert 'the disk is full' in s['recording_stopped_early'], s
-        # the run went its 30 s to the end (the recorder no longer ends it); its periods
-        # missed no more than a recorded run's (the module docstring's figures)
+        # the run went its 30 s to the end (the recorder no longer ends it), its periods
+        # kept as the unrecorded run's
         rate = float(s['rate_hz'])
         assert s['sent']['simulated_actuator']['displacement'] >= 0.99 * DURATION_S * rate, s
-        rt = s['realtime']
-        assert rt['missed_share'] - s['floor']['lost_share'] < MISSED_MAX, s
-        print('periods %d, missed %d (%.4f %%); floor lost %.4f %%; %s' % (
-            rt['periods'], rt.get('missed_cycles', -1), 100 * rt['missed_share'],
-            100 * s['floor']['lost_share'], s['recording_stopped_early']))
+        print('beyond the floor: recorded %.4f %%, unrecorded %.4f %%; %s' % (
+            100 * _beyond_floor(s), 100 * _beyond_floor(plain), s['recording_stopped_early']))
+        assert _beyond_floor(s) <= _beyond_floor(plain) + MISSED_TOL, (s, plain)
         assert (bag / 'metadata.yaml').is_file() and not (bag / '.reserve').exists()
         code, text = procs.run_bounded(ANALYZE + [str(bag)], 120)
         assert code == 0 and 'Traceback' not in text, text[-3000:]
