@@ -2,30 +2,13 @@
 """
 An alignment's record from what the sequencer publishes: the graph side's pure core.
 
-:class:`AlignmentLog` reads the sequencer's statuses (the JSON of ``alignment_state``:
-``state``, ``fault_reason``, ``sample_time_s`` s, and ``sample``/``align_sample`` where
-the machine counts them) and the optical power (W), and returns the catalogue's rows
-(:func:`fiber_align.records.rows.alignment_row`) as alignments end. An alignment starts
-when the sequencer enters SEARCHING, reaches first light when it enters PEAKING and its
-peak when it enters TRACKING (times from the start, s, on the sequencer's clock), and
-ends at RELEASING, IDLE or FAULT; its final state is the one it was in
-(TRACKING, HELD, FAULT, ...); a SEARCHING again within it (false light, a re-search) does
-not end it. A ``switch`` on (PEAKING with no alignment open) starts one too, its first
-light at once: the offline catalogue's switch cycles are rows as well. Where the machine
-counts its updates (``sample``) and a period is given, the times are counted in periods
-as ``bringup`` counts them (the command acts before update ``sample``; a state is entered
-at update ``sample - 1``), else they are the statuses' ``sample_time_s``. The part is the
-status's ``part_id`` (the sequencer's parameter) or the one :meth:`AlignmentLog.set_part`
-set, taken when the alignment started: a part set during an alignment applies to the
-next one, so a row never mixes two parts.
-The peak power is the highest reading taken (:meth:`AlignmentLog.on_power`) or, on the
-graph, the highest of the statuses' ``peak_power_w`` (the highest power the sequencer
-stepped on since its previous status) after the one that opened the alignment.
-The final loss is ``-10 log10(P / reference_power_w)`` (dB) of the last power before the
-end, when a reference power is given: the ending status's ``power_w`` (the last power the
-sequencer stepped on before it ended: readings that overtake the status on the way, the
-fiber already parking, do not count) or else the last reading taken. Used by the
-catalogue's node (docs/records.md).
+:class:`AlignmentLog` reads the sequencer's statuses (the JSON of ``alignment_state``) and
+the optical power (W) and returns the catalogue's rows
+(:func:`fiber_align.records.rows.alignment_row`) as alignments end: SEARCHING starts one,
+PEAKING is its first light, TRACKING its peak (s from the start, on the sequencer's
+clock or in periods where the machine counts them), RELEASING, IDLE or FAULT end it; its
+part is the one set when it started. :class:`RunTally`: a run's end figures from
+``/diagnostics``. The rules in full: docs/records.md ("The graph's side").
 """
 
 import json

@@ -28,21 +28,11 @@ PEAKING
     docs/alignment.md for the sample counts of the alternatives). It moves to the vertex,
     waits for the loop to settle, and checks the power against the fitted peak; a miss
     triggers a short local re-sweep. ``switch(True)`` uses the same local re-sweep.
-HELD
-    The driver holds its output (``driver_active`` false: a trip, disabled, inactive):
-    the last setpoint is held and the sequencer waits; once the driver drives again and
-    the actuator is back at the held setpoint it re-peaks from there (a local sweep; the
-    search again when there was no light); FAULT after ``driver_down_timeout_s``
-    (:mod:`fiber_align.alignment.hold`). A trip in the first sweep through the peak goes
-    on with that sweep (the readings before the trip stay valid); any other a local
-    re-peak around the last estimate.
-TRACKING
-    Dither extremum seeking (:mod:`fiber_align.alignment.tracking`): the setpoint is
-    ``x_hat + a sin(2 pi f t)``; the gradient of ``ln P`` is the exponentially weighted
-    regression of ``ln P`` on the measured displacement (each reading paired with the
-    same period's displacement); ``x_hat`` moves at ``bandwidth * g / (2 c)`` where ``c``
-    is the fitted curvature, so the tracking loop has the configured bandwidth (rad/s)
-    whatever the fiber.
+HELD, TRACKING
+    Every machine's: :mod:`fiber_align.alignment.hold` (back at the held setpoint, a local
+    re-peak, or the search again without light) and :mod:`fiber_align.alignment.tracking`
+    (dither extremum seeking). A trip in the first sweep through the peak goes on with
+    that sweep (the readings before the trip stay valid).
 
 All quantities are SI (s, m, W); dB only for ratios. Defaults: ``config/sequencer.yaml``.
 """

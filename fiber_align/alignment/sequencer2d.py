@@ -24,17 +24,10 @@ PEAKING
     circular paraboloid (the Gaussian overlap makes it exact), moves the cross to the vertex
     and repeats until the vertex lies within ``converge_tolerance_m`` of the cross centre;
     then moves to the vertex and checks the reading against the fit.
-HELD
-    A driver holds its output (a watchdog trip, ``~/enable`` false, inactive): the
-    setpoints are held (:mod:`~fiber_align.alignment.hold`, the rule of every sequencer);
-    once every driver drives again and both axes are back at them, a search starts again
-    (held while SEARCHING or before any aligned point, or no light at the held point) or a
-    re-peak around the last aligned point (PEAKING, TRACKING).
-TRACKING
-    Circular dither of radius ``dither_radius_m`` at ``dither_frequency_hz``; the demodulated
-    gradient of ``ln P`` moves the estimate at ``bandwidth * g / (2 k)`` (``k`` the fitted
-    curvature), an integral action whose loop bandwidth is ``tracking_bandwidth_rad_s``
-    (:mod:`~fiber_align.alignment.tracking`).
+HELD, TRACKING
+    Every machine's (:mod:`~fiber_align.alignment.hold`,
+    :mod:`~fiber_align.alignment.tracking`); the dither a circle of ``dither_radius_m``
+    at ``dither_frequency_hz``.
 
 All quantities are SI (s, m, W); dB only for ratios. Defaults: ``config/sequencer2d.yaml``.
 """
