@@ -105,23 +105,15 @@ class Target:
 
     def position(self, t_s):
         """Return the best point (m) at ``t_s`` (s): a tuple of floats, or of arrays."""
-        if isinstance(t_s, (float, int)):   # the per-period call: scalar math
-            t = float(t_s)
-            out = [p + v * t for p, v in zip(self.p0, self.v)]
-            if self.amp:
-                s = self.amp * math.sin(2.0 * math.pi * self.freq * t)
-                out = [x + s * u for x, u in zip(out, self.u)]
-            if self.pull is not None:
-                out = [x - d for x, d in zip(out, self.pull.offset(t))]
-            return tuple(out)
-        t = np.asarray(t_s, dtype=float)
+        scalar = isinstance(t_s, (float, int))      # the per-period call: scalar math
+        t = float(t_s) if scalar else np.asarray(t_s, dtype=float)
         out = [p + v * t for p, v in zip(self.p0, self.v)]
         if self.amp:
-            s = self.amp * np.sin(2.0 * math.pi * self.freq * t)
+            s = self.amp * (math.sin if scalar else np.sin)(2.0 * math.pi * self.freq * t)
             out = [x + s * u for x, u in zip(out, self.u)]
         if self.pull is not None:
             out = [x - d for x, d in zip(out, self.pull.offset(t_s))]
-        if t.ndim == 0:
+        if scalar or t.ndim == 0:
             return tuple(float(x) for x in out)
         return tuple(out)
 
