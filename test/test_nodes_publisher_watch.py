@@ -81,3 +81,38 @@ def test_a_message_taken_before_its_subscription_was_destroyed_is_served(ctx):
         assert served == [(0, 5.0)] and found == []
     finally:
         watch.close()
+
+
+#: a node destroyed under its running watch, many times over, in a process of its own
+_DESTROYED_UNDER_THE_WATCH = r'''
+import threading, time
+import rclpy
+from fiber_align.nodes.ros.owners import PublisherWatch
+rclpy.init()
+threads = []
+for i in range(40):
+    node = rclpy.create_node('watched_%d' % i)
+    w = PublisherWatch(node, {'cmd': '/compensator'}, lambda lines: None, period_s=0.001)
+    time.sleep(0.005)
+    node.destroy_node()             # without w.close(): the thread meets a destroyed node
+    threads.append(w._thread)
+    for _ in range(50):             # each allocation may reuse the freed node's memory
+        rclpy.create_node('filler_%d_%d' % (i, _)).destroy_node()
+time.sleep(0.1)
+print('alive', sum(t.is_alive() for t in threads), flush=True)
+'''
+
+
+def test_a_node_destroyed_under_a_running_watch_ends_its_thread_not_the_process():
+    """
+    The watch's thread holds the node in use over each count (rcl by ctypes).
+
+    It read the node's raw pointer after the node was freed: a clean clone's full suite
+    died of SIGSEGV in ``rcl_count_publishers`` from that thread (core dump, 2026-12-07).
+    """
+    import subprocess
+    import sys
+    p = subprocess.run([sys.executable, '-c', _DESTROYED_UNDER_THE_WATCH],
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, (p.returncode, p.stderr[-2000:])
+    assert 'alive 0' in p.stdout, p.stdout

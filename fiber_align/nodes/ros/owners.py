@@ -92,8 +92,7 @@ class PublisherWatch:
     def __init__(self, node, owners, on_change, period_s=PERIOD_S):
         """Start the thread and the delivery timer."""
         self._node, self._on_change, self.period_s = node, on_change, float(period_s)
-        self.owners = {node.resolve_topic_name(t): o for t, o in owners.items()}
-        self._rcl, self._ptr = Rcl(), node.handle.pointer
+        self.owners, self._rcl = {node.resolve_topic_name(t): o for t, o in owners.items()}, Rcl()
         self._state, self._told, self._matched, self.pending = ((), False), (), {}, False
         self._stop, self._wake = threading.Event(), threading.Event()
         self._thread = threading.Thread(target=self._run, name='fiber_align.owners',
@@ -142,8 +141,9 @@ class PublisherWatch:
                      if n > 1 and (counts is None or counts.get(t, 0) < n))
 
     def _count(self, topic):
-        n = ctypes.c_size_t()
-        failed = self._rcl.count_publishers(self._ptr, topic.encode(), ctypes.byref(n))
+        n, h = ctypes.c_size_t(), self._node.handle
+        with h:     # in use: a destroy waits; after one, InvalidHandle ends the thread
+            failed = self._rcl.count_publishers(h.pointer, topic.encode(), ctypes.byref(n))
         return 0 if failed and self._rcl.reset_error() is None else n.value
 
     def _run(self):
