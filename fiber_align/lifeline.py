@@ -34,8 +34,16 @@ import time
 PARENT_PID = os.getppid()
 #: s: the period of the ``getppid`` poll where a pidfd cannot be had.
 POLL_S = 0.1
+#: s: a process still running this long after its parent ended is stuck in its stop (a
+#: callback or a middleware call that does not return, so the stop flag is never read):
+#: its threads' stacks go to stderr and it exits 1 (:func:`exit_later`, with or without
+#: the GIL). Longer than any stop of the package's own (a node's is bounded to a few s,
+#: ``bringup``'s by its children's 5 s stop timeouts and the bag's close).
+STOP_BOUND_S = 30.0
 #: ``(parent pid, signal)`` -> the watcher thread: one per process and parent.
 _WATCHERS = {}
+#: the armed backstops of a process whose parent ended (kept referenced until the exit)
+_BACKSTOPS = []
 
 
 def parent_gone(parent_pid=PARENT_PID):
@@ -43,12 +51,14 @@ def parent_gone(parent_pid=PARENT_PID):
     return os.getppid() != parent_pid
 
 
-def watch_parent(parent_pid=PARENT_PID, signum=signal.SIGTERM):
+def watch_parent(parent_pid=PARENT_PID, signum=signal.SIGTERM, bound_s=STOP_BOUND_S):
     """
     Send ``signum`` to this process once ``parent_pid`` has exited; return the watcher.
 
     Idempotent per parent and signal. A parent already gone gets the signal sent at once
     (the handler the caller installed before runs; then no thread: returns ``None``).
+    Either way the process ends ``bound_s`` s after the signal if its stop has not
+    (:func:`end_later`).
     """
     key = (int(parent_pid), int(signum))
     if key in _WATCHERS:
@@ -61,15 +71,16 @@ def watch_parent(parent_pid=PARENT_PID, signum=signal.SIGTERM):
         if fd is not None:
             os.close(fd)
         os.kill(os.getpid(), key[1])
+        end_later(bound_s)
         return None
-    th = threading.Thread(target=_watch, args=(key[0], fd, key[1]),
+    th = threading.Thread(target=_watch, args=(key[0], fd, key[1], bound_s),
                           name='lifeline', daemon=True)
     _WATCHERS[key] = th
     th.start()
     return th
 
 
-def _watch(parent_pid, fd, signum):
+def _watch(parent_pid, fd, signum, bound_s):
     """Block until the parent exits, then signal this process (the watcher thread)."""
     if fd is not None:
         try:
@@ -80,6 +91,32 @@ def _watch(parent_pid, fd, signum):
     while not parent_gone(parent_pid):  # also the pidfd's last look: the reparent is done
         time.sleep(POLL_S)
     os.kill(os.getpid(), signum)
+    end_later(bound_s)
+
+
+def end_later(bound_s):
+    """
+    End this process ``bound_s`` s from now unless it ended itself: a line, stacks, exit 1.
+
+    The parent is gone and the stop was asked for; a process still here then waits in a
+    call that does not return (node processes whose pytest died of SIGSEGV were found
+    still running hours later). The exit needs no GIL (:func:`exit_later`).
+    """
+    late = float(bound_s)
+    try:
+        _BACKSTOPS.extend([
+            say_later(late, 'lifeline: the parent process ended %g s ago and this process '
+                      'has not stopped; exiting 1, the stacks follow (the last C error'
+                      % late),
+            exit_later(late + BACKSTOP_S, 1)])
+        faulthandler.dump_traceback_later(late, exit=False)
+    except OSError:                     # no POSIX timers: faulthandler's exit 1
+        try:
+            faulthandler.dump_traceback_later(late, exit=True)
+        except (OSError, ValueError, RuntimeError):
+            pass
+    except (ValueError, RuntimeError):  # no usable stderr: the exit is armed all the same
+        pass
 
 
 class StopFlag:
