@@ -123,3 +123,67 @@ def test_the_plants_are_started_and_held_with_every_request_sent_before_any_answ
         spin.join(timeout=2.0)
         server.destroy_node()
         rclpy.try_shutdown(context=ctx)
+
+
+class _Future:
+    def __init__(self, answer=None):
+        self.answer = answer
+
+    def done(self):
+        return self.answer is not None
+
+    def result(self):
+        return self.answer
+
+
+class _LosingClient:
+    """A service whose first ``lost`` answers never come (a loaded machine's lost reply)."""
+
+    srv_name = 'svc'
+
+    def __init__(self, lost):
+        self.lost, self.sent, self.dropped = lost, 0, 0
+
+    def wait_for_service(self, timeout_sec=None):
+        return True
+
+    def call_async(self, request):
+        self.sent += 1
+        return _Future(None if self.sent <= self.lost else ('answer', self.sent))
+
+    def remove_pending_request(self, fut):
+        self.dropped += 1
+
+
+class _Exec:
+    def spin_until_future_complete(self, fut, timeout_sec=None):
+        time.sleep(0.01)
+
+
+@pytest.mark.ros  # imports rclpy
+@pytest.mark.parametrize('lost', [1, 2])
+def test_a_lost_answer_is_asked_again_after_the_resend_time(monkeypatch, lost):
+    # a plant's run, a parameter: the same request again does the same
+    from fiber_align.bringup import observer
+    monkeypatch.setattr(observer, 'RESEND_S', 0.05)
+    obs, cli = type('O', (), {'cexec': _Exec()})(), _LosingClient(lost)
+    assert observer.Observer.call_all(obs, [(cli, 'req')], 5.0) == [('answer', lost + 1)]
+    assert cli.dropped == lost
+
+
+@pytest.mark.ros  # imports rclpy
+def test_a_command_whose_answer_is_lost_is_done_once_its_effect_is_seen(monkeypatch):
+    # align ran (its state came) and its answer never did: never sent twice
+    from fiber_align.bringup import observer
+    monkeypatch.setattr(observer, 'RESEND_S', 0.05)
+    obs, cli = type('O', (), {'cexec': _Exec()})(), _LosingClient(10)
+    seen = []
+    t0 = time.monotonic()
+    assert observer.Observer.call_all(obs, [(cli, 'req')], 5.0,
+                                      effect=lambda: bool(seen) or seen.append(1)) == [None]
+    assert cli.sent == 1 and time.monotonic() - t0 < 1.0
+    # nothing seen: the bounded wait ends in the error, still one request
+    cli = _LosingClient(10)
+    with pytest.raises(observer.BringupError, match='did not answer within 0.3 s'):
+        observer.Observer.call_all(obs, [(cli, 'req')], 0.3, effect=lambda: False)
+    assert cli.sent == 1

@@ -94,8 +94,12 @@ def test_two_graphs_in_two_namespaces_write_at_once(tmp_path, pg_url):
             stop(p, 10.0)
         for log in logs:
             log.close()
-    outs = [(tmp_path / ('line%d.log' % k)).read_text() for k in (1, 2)]
-    assert codes == [0, 0], outs
+    # a failure names each run's error and its log's last lines (pytest cuts a long repr)
+    outs = ['line%d: exit %s, error %r\n%s' % (
+        k, code, _summary(tmp_path / ('line%d.json' % k)).get('error'),
+        '\n'.join((tmp_path / ('line%d.log' % k)).read_text().splitlines()[-25:]))
+        for k, code in zip((1, 2), codes)]
+    assert codes == [0, 0], '\n'.join(outs)
     runs = _query(pg_url, 'SELECT run_id, parameters, machine, sync_mode FROM runs')
     assert len(runs) == 2, runs
     assert {(r['machine'], r['sync_mode']) for r in runs} == {('station', 'lockstep')}, runs

@@ -152,8 +152,13 @@ class Harness:
                     'another graph shares ROS_DOMAIN_ID=%s: %s; run on a domain of its own'
                     % (os.environ.get('ROS_DOMAIN_ID', '0'), ', '.join(extra)))
 
-    def run(self, on=True):
-        """Start (or hold) every plant's sample clock (``<plant>/run``)."""
+    def run(self, on=True, timeout_s=10.0):
+        """
+        Start (or hold) every plant's sample clock (``<plant>/run``); bounded, s.
+
+        A hold is an answer within the bound like a start (two lockstep stations and a
+        PostgreSQL server on two cores: a plant answered its hold after more than 0.5 s).
+        """
         from std_srvs.srv import SetBool
         if on and self.graph.record:
             if getattr(self.graph, 'axes', None):
@@ -162,7 +167,7 @@ class Harness:
                 self._recorder_matched()
         # all at once: a driver whose plant is held while the others run trips its watchdog
         self.obs.call_all([(self.obs.client(SetBool, p + '/run'), SetBool.Request(data=on))
-                           for p in self.plants], 5.0 if on else 0.5, self.alive)
+                           for p in self.plants], timeout_s, self.alive)
         if on and self.floor is None and self.plants and self.graph.sync_mode == 'realtime' \
                 and self.gp['machine_floor']:
             plant = self.graph.node_params(self.plants[0])
@@ -252,7 +257,7 @@ class Harness:
             self.obs.active = False
             if self.plants and all(ch.alive() for ch in nodes):
                 try:
-                    self.run(False)
+                    self.run(False, 0.5)    # best effort: the stop goes on regardless
                 except BringupError:
                     pass
             time.sleep(0.1)   # in-flight messages reach their subscribers

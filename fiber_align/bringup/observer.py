@@ -22,6 +22,11 @@ from fiber_align.nodes.ros.qos import DIAG_QOS, LATCHED_QOS, sample_pub_qos, STA
 
 #: s (wall) an alignment's end state may arrive after its bound in samples has passed
 STATE_GRACE_S = 2.0
+#: s (wall): a service request unanswered this long is sent again, or for a command
+#: (``align``, ``release``) taken as done once its state change is seen. Two lockstep
+#: stations, a PostgreSQL server and two busy loops on two cores: ``align`` ran (its
+#: SEARCHING logged) and its answer had not come 10 s later; a parameter set likewise.
+RESEND_S = 2.0
 
 
 class BringupError(RuntimeError):
@@ -133,12 +138,18 @@ class Observer(RunRecord):
                      stamp_ns(msg.header.stamp) if key == self.clock else None)
         return add
 
-    def call(self, client, request, timeout, alive=lambda: None):
+    def call(self, client, request, timeout, alive=lambda: None, effect=None):
         """Call a service with a bounded wait (s); ``alive()`` may raise meanwhile."""
-        return self.call_all([(client, request)], timeout, alive)[0]
+        return self.call_all([(client, request)], timeout, alive, effect)[0]
 
-    def call_all(self, calls, timeout, alive=lambda: None):
-        """Send every ``(client, request)`` at once (plants held together); the answers."""
+    def call_all(self, calls, timeout, alive=lambda: None, effect=None):
+        """
+        Send every ``(client, request)`` at once (plants held together); the answers.
+
+        One unanswered for :data:`RESEND_S` is sent again (a plant's ``run``, a parameter:
+        the same request twice does the same), or, with ``effect``, a command, taken as
+        done (answer ``None``) once ``effect()`` is true, never sent twice.
+        """
         end = time.monotonic() + timeout
         for client, _ in calls:
             while not client.wait_for_service(timeout_sec=0.1):
@@ -147,15 +158,30 @@ class Observer(RunRecord):
                     raise BringupError('service %s not available within %g s'
                                        % (client.srv_name, timeout))
         futs = [client.call_async(request) for client, request in calls]
-        for (client, _), fut in zip(calls, futs):
+        out = []
+        for (client, request), fut in zip(calls, futs):
+            sent = time.monotonic()
             while not fut.done() and time.monotonic() < end:
                 self.cexec.spin_until_future_complete(fut, timeout_sec=0.1)
                 alive()             # a server process that died answers nothing
-            if not fut.done():
+                if fut.done() or time.monotonic() - sent < RESEND_S:
+                    continue
+                if effect is not None:
+                    if effect():
+                        break
+                    continue
                 client.remove_pending_request(fut)
-                raise BringupError('service %s did not answer within %g s'
-                                   % (client.srv_name, timeout))
-        return [f.result() for f in futs]
+                fut, sent = client.call_async(request), time.monotonic()
+            if fut.done():
+                out.append(fut.result())
+                continue
+            client.remove_pending_request(fut)
+            if effect is not None and effect():
+                out.append(None)
+                continue
+            raise BringupError('service %s did not answer within %g s'
+                               % (client.srv_name, timeout))
+        return out
 
     def command(self, name, data=None, alive=lambda: None, timeout=10.0):
         """
@@ -167,8 +193,9 @@ class Observer(RunRecord):
         srv, req = (Trigger, Trigger.Request()) if data is None else (
             SetBool, SetBool.Request(data=bool(data)))
         n = len(self.states)
-        res = self.call(self.client(srv, name), req, timeout, alive)
-        if not res.success:
+        res = self.call(self.client(srv, name), req, timeout, alive,
+                        effect=lambda: len(self.states) > n)
+        if res is not None and not res.success:     # None: its answer lost, its state seen
             what = name if data is None else '%s %s' % (name, 'on' if data else 'off')
             raise Refused('%s refused: %s' % (what, res.message))
         return self.caused(n, name)

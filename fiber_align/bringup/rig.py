@@ -23,6 +23,7 @@ OWN_TIMEOUT = ('station', 'array')
 
 def run_rig(a, g):
     """Run ``bringup --rig``, ``--station``, ``--array`` (options ``a``, graph ``g``): the code."""
+    from rcl_interfaces.srv import SetParameters
     from std_srvs.srv import Trigger
     seq = g.node_params(g.own_nodes[-1])
     rate = float(seq['rate_hz'])
@@ -38,11 +39,17 @@ def run_rig(a, g):
     full = g.sync_mode == 'lockstep' or bool(a.trace)
     h = Harness(g, dict(streams=streams if full else {}), a.quiet)
 
+    def ready():
+        # every client of the run made and its server discovered before the clock starts:
+        # a late discovery lets a lockstep graph idle on for seconds before the command,
+        # and a client made at its first call can lose that call's answer on a loaded
+        # machine (the server's reply writer not yet matched to it)
+        names = [(Trigger, 'align'), (Trigger, 'release')] + (
+            [(SetParameters, g.own_nodes[-1] + '/set_parameters')] if a.part else [])
+        return all([h.obs.client(*n).wait_for_service(timeout_sec=0.05) for n in names])
+
     def steps():
-        # the align server discovered before the clock starts: a late discovery would
-        # otherwise let the lockstep graph idle on for seconds before the command
-        h.start(ready=lambda: h.obs.client(Trigger, 'align')
-                .wait_for_service(timeout_sec=0.1))
+        h.start(ready=ready)
         obs, alive = h.obs, h.alive
         h.run(True)
         summary['startup_s'] = h.summary['startup_s']
