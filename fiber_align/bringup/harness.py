@@ -110,6 +110,7 @@ class Harness:
         timeout = float(self.gp['startup_timeout_s'])
         self.obs = Observer(g.namespace, **self.observe)
         self.obs.stall_s = float(self.gp['stall_timeout_s'])
+        self.obs.call_s = float(self.gp['service_timeout_s'])
         self.obs.start_stall_s = float(self.gp['start_stall_timeout_s'])
         want = graph_names(g)
         env = dds_environment()
@@ -152,12 +153,12 @@ class Harness:
                     'another graph shares ROS_DOMAIN_ID=%s: %s; run on a domain of its own'
                     % (os.environ.get('ROS_DOMAIN_ID', '0'), ', '.join(extra)))
 
-    def run(self, on=True, timeout_s=10.0):
+    def run(self, on=True, timeout_s=None):
         """
         Start (or hold) every plant's sample clock (``<plant>/run``); bounded, s.
 
-        A hold is an answer within the bound like a start (two lockstep stations and a
-        PostgreSQL server on two cores: a plant answered its hold after more than 0.5 s).
+        A hold is bounded like a start, by ``service_timeout_s`` (two lockstep stations and
+        a PostgreSQL server on two cores: a plant answered its hold after more than 0.5 s).
         """
         from std_srvs.srv import SetBool
         if on and self.graph.record:
@@ -167,7 +168,7 @@ class Harness:
                 self._recorder_matched()
         # all at once: a driver whose plant is held while the others run trips its watchdog
         self.obs.call_all([(self.obs.client(SetBool, p + '/run'), SetBool.Request(data=on))
-                           for p in self.plants], timeout_s, self.alive)
+                           for p in self.plants], timeout_s or self.obs.call_s, self.alive)
         if on and self.floor is None and self.plants and self.graph.sync_mode == 'realtime' \
                 and self.gp['machine_floor']:
             plant = self.graph.node_params(self.plants[0])

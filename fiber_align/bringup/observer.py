@@ -22,6 +22,8 @@ from fiber_align.nodes.ros.qos import DIAG_QOS, LATCHED_QOS, sample_pub_qos, STA
 
 #: s (wall) an alignment's end state may arrive after its bound in samples has passed
 STATE_GRACE_S = 2.0
+#: s (wall): the bound of a service call unless bringup's ``service_timeout_s`` says
+CALL_S = 30.0
 #: s (wall): a service request unanswered this long is sent again, or for a command
 #: (``align``, ``release``) taken as done once its state change is seen. Two lockstep
 #: stations, a PostgreSQL server and two busy loops on two cores: ``align`` ran (its
@@ -119,6 +121,8 @@ class Observer(RunRecord):
         self.node.create_subscription(String, 'scenario_state',
                                       lambda m: self.runner_state(m.data), LATCHED_QOS)
         self.clients = {}
+        #: s (wall): the bound of each service call (bringup's ``service_timeout_s``)
+        self.call_s = CALL_S
         self.executor = SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(self.node)
         self.spin = spin_thread(self.executor)
@@ -183,7 +187,7 @@ class Observer(RunRecord):
                                % (client.srv_name, timeout))
         return out
 
-    def command(self, name, data=None, alive=lambda: None, timeout=10.0):
+    def command(self, name, data=None, alive=lambda: None, timeout=None):
         """
         Call the sequencer's ``name`` (``data``: a SetBool, ``switch``; else a Trigger).
 
@@ -193,7 +197,7 @@ class Observer(RunRecord):
         srv, req = (Trigger, Trigger.Request()) if data is None else (
             SetBool, SetBool.Request(data=bool(data)))
         n = len(self.states)
-        res = self.call(self.client(srv, name), req, timeout, alive,
+        res = self.call(self.client(srv, name), req, timeout or self.call_s, alive,
                         effect=lambda: len(self.states) > n)
         if res is not None and not res.success:     # None: its answer lost, its state seen
             what = name if data is None else '%s %s' % (name, 'on' if data else 'off')
@@ -227,14 +231,14 @@ class Observer(RunRecord):
         self.wait(ended, wall_s, alive, 'TRACKING')
         return (k_align,) + self.first('TRACKING', k_align)
 
-    def set_text(self, node, name, value, alive=lambda: None, timeout=10.0):
+    def set_text(self, node, name, value, alive=lambda: None, timeout=None):
         """Set the text parameter ``name`` of ``node`` (relative), as ``ros2 param set``."""
         from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
         from rcl_interfaces.srv import SetParameters
         req = SetParameters.Request(parameters=[Parameter(name=name, value=ParameterValue(
             type=ParameterType.PARAMETER_STRING, string_value=str(value)))])
-        res = self.call(self.client(SetParameters, node + '/set_parameters'), req, timeout,
-                        alive)
+        res = self.call(self.client(SetParameters, node + '/set_parameters'), req,
+                        timeout or self.call_s, alive)
         if not res.results or not res.results[0].successful:
             raise Refused('%s %s=%r refused: %s' % (node, name, value, res.results[0].reason
                                                     if res.results else 'no answer'))

@@ -179,7 +179,7 @@ class Coupling:
         return self.max_power_w() * np.exp(-np.asarray(e, dtype=float))
 
     def _power_scalar(self, t_s, positions):
-        """:meth:`power_at` of floats: the per-period call (5.7 to about 2 us a link)."""
+        """:meth:`power_at` of floats: the per-period call, in scalar math (docs/benchmarks.md)."""
         pk = self.peak(t_s)
         e = 0.0
         for f in self.facets:
