@@ -7,12 +7,9 @@ The pip-only way to start the graph of ``ros2 launch fiber_align fiber_align.lau
 :class:`~fiber_align.bringup.harness.Harness`: the 1-D graph (:mod:`.run`), ``--rig``,
 ``--station``, ``--array`` (:mod:`.rig`), ``--hardware`` (:mod:`.hardware`).
 
-SIGINT and SIGTERM stop it cleanly however it was started (explicit handlers, also over
-an inherited SIG_IGN); a second signal during the bounded stop is only noted, so the bag
-is still finalised; the nodes end with it, also when it is killed or its parent goes
-(:func:`fiber_align.lifeline.watch_parent`). Exit codes: 0 a clean run, 1 a failure (a
-node died, a timeout, a stall, another graph on the domain, a FAULT, ``--strict`` goals
-missed), 2 bad input, 130 interrupted (docs/ros_interface.md).
+SIGINT and SIGTERM stop it cleanly however it was started (a second one is only noted:
+the bag is still finalised); its nodes end with it, also when it is killed. Exit codes: 0
+a clean run, 1 a failure, 2 bad input, 130 interrupted (docs/ros_interface.md).
 """
 
 import os

@@ -2,12 +2,9 @@
 """
 Node processes of ``bringup``: started, relayed, stopped, never left behind.
 
-Each child runs in a session of its own (a terminal's Ctrl-C reaches ``bringup`` only,
-which then stops the children in order) and watches its parent itself, as every
-executable of the package does (:func:`fiber_align.lifeline.watch_parent`): if
-``bringup`` is killed with SIGKILL, every node still gets a clean stop (the recorder
-finalises its bag) instead of running on as an orphan that keeps publishing on the
-domain.
+Each child runs in a session of its own (Ctrl-C reaches ``bringup``, which stops them in
+order) and watches its parent (:func:`fiber_align.lifeline.watch_parent`): ``bringup``
+killed with SIGKILL, every node still stops cleanly, its bag finalised.
 """
 
 import collections

@@ -2,10 +2,8 @@
 """
 ``bringup``'s command line: options, their checks, and the graph they describe.
 
-The options map onto the launch arguments (:func:`arguments`), which
-:func:`fiber_align.graph.arguments.describe_run` turns into the graph as under ``ros2
-launch`` (as ``bringup`` runs it), and the rest onto parameter overrides of the
-description; bringup merges nothing itself.
+Options map onto the launch arguments (:func:`arguments`; the graph then as under ``ros2
+launch``, :func:`fiber_align.graph.arguments.describe_run`) and parameter overrides.
 """
 
 import argparse

@@ -2,10 +2,7 @@
 """
 The machine-floor probe's launcher: one :class:`Floor` beside every realtime run.
 
-The probe itself (a bare loop at the graph's rate and priority, its lost periods
-counted by the plant's rule) is :mod:`fiber_align.control.floor_probe`, a process of its
-own that imports the standard library only; why and how the summary uses it:
-docs/realtime.md ("The machine's floor").
+The probe: :mod:`fiber_align.control.floor_probe`; its use: docs/realtime.md.
 """
 
 import json

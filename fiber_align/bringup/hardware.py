@@ -2,11 +2,9 @@
 """
 ``bringup --hardware``: the sensorless bench graph on a real or emulated MDT693B + PM100.
 
-The graph is ``hardware:=true``'s (:mod:`fiber_align.graph.hardware`; with ``--rig`` or
-``--array`` :mod:`fiber_align.graph.hardware_rig`). ``--emulate`` first starts
-``fiber-align emulate`` as a child and, after the hold, asks it for its ``truth``. The
-steps (ready, ``align``, ``--cycles``, ``--hold``, stop, the JSON summary) and the exit
-codes: docs/hardware.md ("The hardware graph: launch and ``bringup --hardware``").
+``hardware:=true``'s graph (``--rig``, ``--array``: :mod:`fiber_align.graph.hardware_rig`);
+``--emulate`` starts ``fiber-align emulate`` first and asks it for its ``truth`` after
+the hold. Steps and exit codes: docs/hardware.md.
 """
 
 import json

@@ -2,11 +2,9 @@
 """
 ``bringup``'s one orchestrator: spawn a described graph, observe it, stop it.
 
-Every mode (the 1-D graph, ``--rig``, ``--hardware``) runs a graph of
-:mod:`fiber_align.graph` through :class:`Harness`: the processes, node names, params
-and lifecycle are the description's (``Process.command`` and ``Graph.write_params``, as
-the launch file); ``lifecycle_manager`` activates the lifecycle nodes and the harness only
-waits for them. Its bounds are the ``bringup`` section of ``config/fiber_align.yaml``.
+Every mode runs a graph of :mod:`fiber_align.graph` through :class:`Harness`, with the
+description's processes, names, params and lifecycle (as the launch file); its bounds:
+the ``bringup`` section of ``config/fiber_align.yaml``.
 """
 
 import json
@@ -154,12 +152,7 @@ class Harness:
                     % (os.environ.get('ROS_DOMAIN_ID', '0'), ', '.join(extra)))
 
     def run(self, on=True, timeout_s=None):
-        """
-        Start (or hold) every plant's sample clock (``<plant>/run``); bounded, s.
-
-        A hold is bounded like a start, by ``service_timeout_s`` (two lockstep stations and
-        a PostgreSQL server on two cores: a plant answered its hold after more than 0.5 s).
-        """
+        """Start (or hold) every plant's sample clock (``<plant>/run``; ``timeout_s`` s)."""
         from std_srvs.srv import SetBool
         if on and self.graph.record:
             if getattr(self.graph, 'axes', None):

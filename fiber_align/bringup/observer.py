@@ -2,11 +2,10 @@
 """
 ``bringup``'s one observer of a running graph (the 1-D graph, the rig, the bench).
 
-It publishes nothing on the control topics and changes no node's state; it records the
-streams it is given (every sample) and the ``alignment_state`` changes into its
-:class:`~fiber_align.analysis.run_record.RunRecord`, and ``/diagnostics`` on a thread of
-its own. Its service clients live on a second node only the calling thread spins. Its
-rclpy context is its own.
+It publishes nothing on the control topics; it records its streams (every sample), the
+``alignment_state`` changes (a :class:`~fiber_align.analysis.run_record.RunRecord`) and
+``/diagnostics`` (a thread of its own), in an rclpy context of its own; its service
+clients live on a second node only the calling thread spins.
 """
 
 import math
@@ -22,13 +21,9 @@ from fiber_align.nodes.ros.qos import DIAG_QOS, LATCHED_QOS, sample_pub_qos, STA
 
 #: s (wall) an alignment's end state may arrive after its bound in samples has passed
 STATE_GRACE_S = 2.0
-#: s (wall): the bound of a service call unless bringup's ``service_timeout_s`` says
-CALL_S = 30.0
-#: s (wall): a service request unanswered this long is sent again, or for a command
-#: (``align``, ``release``) taken as done once its state change is seen. Two lockstep
-#: stations, a PostgreSQL server and two busy loops on two cores: ``align`` ran (its
-#: SEARCHING logged) and its answer had not come 10 s later; a parameter set likewise.
-RESEND_S = 2.0
+#: s (wall): a service call's bound (bringup's ``service_timeout_s``); unanswered for
+#: ``RESEND_S``, a request is sent again (a loaded machine loses answers: docs/ros_interface.md)
+CALL_S, RESEND_S = 30.0, 2.0
 
 
 class BringupError(RuntimeError):
@@ -85,13 +80,10 @@ class Observer(RunRecord):
     """
     Watch a running graph: streams, states, diagnostics, stall checks, service calls.
 
-    :param namespace: the graph's namespace (``''``: none).
-    :param streams: key -> topic recorded per message (``*displacement``: its position,
-        m; others ``std_msgs/Float64`` data, SI).
-    :param clock, source, lockstep, rate_hz, duration_s: the record's
-        (:class:`~fiber_align.analysis.run_record.RunRecord`).
-    :param qos: the QoS of the stream subscriptions (``None``: the per-sample topics'
-        profile of the sync mode, every sample).
+    :param namespace: the graph's (``''``: none). :param streams: key -> topic recorded
+        per message (``*displacement``: its position, m; else ``Float64`` data, SI).
+    :param clock, source, lockstep, rate_hz, duration_s: the record's (``RunRecord``).
+    :param qos: the streams' QoS (``None``: the sync mode's per-sample profile).
     """
 
     def __init__(self, namespace, streams, clock=None, source=None, lockstep=False,
@@ -120,9 +112,7 @@ class Observer(RunRecord):
                                       lambda m: self.add_state(m.data), STATE_QOS)
         self.node.create_subscription(String, 'scenario_state',
                                       lambda m: self.runner_state(m.data), LATCHED_QOS)
-        self.clients = {}
-        #: s (wall): the bound of each service call (bringup's ``service_timeout_s``)
-        self.call_s = CALL_S
+        self.clients, self.call_s = {}, CALL_S
         self.executor = SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(self.node)
         self.spin = spin_thread(self.executor)
@@ -150,9 +140,8 @@ class Observer(RunRecord):
         """
         Send every ``(client, request)`` at once (plants held together); the answers.
 
-        One unanswered for :data:`RESEND_S` is sent again (a plant's ``run``, a parameter:
-        the same request twice does the same), or, with ``effect``, a command, taken as
-        done (answer ``None``) once ``effect()`` is true, never sent twice.
+        Unanswered for :data:`RESEND_S`: sent again, or, a command (``effect``), never sent
+        twice but done (answer ``None``) once ``effect()`` is true.
         """
         end = time.monotonic() + timeout
         for client, _ in calls:
@@ -168,14 +157,12 @@ class Observer(RunRecord):
             while not fut.done() and time.monotonic() < end:
                 self.cexec.spin_until_future_complete(fut, timeout_sec=0.1)
                 alive()             # a server process that died answers nothing
-                if fut.done() or time.monotonic() - sent < RESEND_S:
-                    continue
-                if effect is not None:
-                    if effect():
-                        break
-                    continue
-                client.remove_pending_request(fut)
-                fut, sent = client.call_async(request), time.monotonic()
+                late = not fut.done() and time.monotonic() - sent > RESEND_S
+                if late and effect is not None and effect():
+                    break
+                if late and effect is None:
+                    client.remove_pending_request(fut)
+                    fut, sent = client.call_async(request), time.monotonic()
             if fut.done():
                 out.append(fut.result())
                 continue

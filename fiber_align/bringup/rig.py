@@ -2,11 +2,9 @@
 """
 ``bringup --rig``, ``--station``, ``--array``: start a multi-axis graph, align, stop.
 
-The plants start held until every driver is active; then ``align`` after
-``ALIGN_IDLE_S`` of samples, TRACKING within ``ALIGN_MAX_S`` (the station: its search
-timeout), ``LOSS_WINDOW_S`` more. In lockstep the run is compared with the offline run
-of the same description (:func:`fiber_align.analysis.run_summary.compare_offline`); the
-exit code is 1 when a stream differs beyond the tolerance. docs/alignment2d.md, docs/station.md.
+``align`` after ``ALIGN_IDLE_S``, TRACKING within ``ALIGN_MAX_S`` (station, array: their
+search timeout), ``LOSS_WINDOW_S`` more; lockstep: exit 1 when a stream differs from the
+offline run's (:func:`fiber_align.analysis.run_summary.compare_offline`).
 """
 
 import time
@@ -40,10 +38,7 @@ def run_rig(a, g):
     h = Harness(g, dict(streams=streams if full else {}), a.quiet)
 
     def ready():
-        # every client of the run made and its server discovered before the clock starts:
-        # a late discovery lets a lockstep graph idle on for seconds before the command,
-        # and a client made at its first call can lose that call's answer on a loaded
-        # machine (the server's reply writer not yet matched to it)
+        # clients made, servers found before the clock (a new client's answer can be lost)
         names = [(Trigger, 'align'), (Trigger, 'release')] + (
             [(SetParameters, g.own_nodes[-1] + '/set_parameters')] if a.part else [])
         return all([h.obs.client(*n).wait_for_service(timeout_sec=0.05) for n in names])

@@ -2,15 +2,9 @@
 """
 ``bringup`` on the simulated 1-D graph: its scenario on a :class:`~.harness.Harness`.
 
-The harness starts, waits for and stops the graph; here: start the plant, run the
-scenario, print the summary (metrics, realtime figures, CPU and memory per process, sent
-and recorded counts). A lockstep start that stalls is retried. A recorded realtime
-scenario's figures are read from its bag after the stop, no 1 kHz stream over DDS.
-
-Scenarios: ``step``, ``sine``, ``triangle``, ``staircase`` and
-``hysteresis-experiment`` run the ``scenario_runner`` node (one setpoint, or open-loop
-drive, per sample); ``align`` runs ``alignment_sequencer`` (align, then ``--cycles``
-switch cycles); ``none`` runs until SIGINT (publish ``setpoint`` yourself).
+Start the plant, run the scenario (``scenario_runner``; ``align``: the sequencer, then
+``--cycles`` switch cycles; ``none``: until SIGINT), print the summary. A stalled lockstep
+start is retried; a recorded realtime scenario's figures come from its bag.
 """
 
 import os
