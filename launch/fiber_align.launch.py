@@ -14,8 +14,9 @@ directory that is removed at shutdown. The processes get the graph's environment
 ``config/fastdds_profile.xml``) unless the user's sets it; the user's ROS discovery
 environment is kept as it is (docs/network.md). ``lifecycle_manager`` brings
 the driver to active; Ctrl-C (SIGINT) stops every process, and the recorder finalises
-its bag. With a scenario, the launch shuts down when the process hosting
-``scenario_runner`` exits (the scenario is over). A process that exits before
+its bag, also where the launch inherited SIGINT ignored (a script's ``ros2 launch ...
+&``). With a scenario, the launch shuts down when the process hosting ``scenario_runner``
+exits (the scenario is over). A process that exits before
 ``lifecycle_manager``'s start-up is done ends the launch with its reason in one line and
 exit code 1 (:mod:`fiber_align.graph.startup`); after it, any other process that exits
 leaves the rest running (the driver's watchdog holds the actuator safe, and the graph
@@ -55,6 +56,7 @@ Foxglove live view, a process of its own (:mod:`fiber_align.graph.live`, docs/li
 
 import os
 import shutil
+import signal
 import tempfile
 
 from launch import LaunchDescription
@@ -129,8 +131,21 @@ def _namespace(ns):
     return ('/' + ns) if ns else None
 
 
+def _sigint_as_in_a_terminal():
+    """
+    Give SIGINT back its default handler where this ``ros2 launch`` inherited it ignored.
+
+    A non-interactive shell starts ``cmd &`` with SIGINT ignored; Python then installs no
+    handler, launch's signal manager (a wakeup fd) never hears it, and ``kill -INT`` of
+    the launch did nothing: it ran on (a script's background job, 15 s and more).
+    """
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 def generate_launch_description():
     """Return the launch description: the arguments and the graph built from them."""
+    _sigint_as_in_a_terminal()
     return LaunchDescription(
         [DeclareLaunchArgument(name, default_value=default, description=text,
                                **({'choices': choices} if choices else {}))

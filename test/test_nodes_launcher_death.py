@@ -66,7 +66,7 @@ def _kill_all(pids):
             pass
 
 
-def _launch_and_end(ros2_env, tmp_path, end):  # noqa: F811
+def _launch_and_end(ros2_env, tmp_path, end, start=spawn):  # noqa: F811
     """
     Launch the recording graph, ``end(proc)`` it; return (s until the last is gone, bag).
 
@@ -74,7 +74,7 @@ def _launch_and_end(ros2_env, tmp_path, end):  # noqa: F811
         :data:`GONE_WITHIN_S`, or the graph did not come up.
     """
     bag, log = tmp_path / 'bag', tmp_path / 'launch.log'
-    proc = spawn(ros2_env, ['ros2', 'launch', 'fiber_align', 'fiber_align.launch.py',
+    proc = start(ros2_env, ['ros2', 'launch', 'fiber_align', 'fiber_align.launch.py',
                             'record:=%s' % bag], log)
     pids = []
     try:
@@ -127,6 +127,21 @@ def test_sigkill_of_the_launcher_leaves_no_process_and_a_finalised_bag(ros2_env,
 
 def test_sigterm_of_the_launcher_leaves_no_process_and_a_finalised_bag(ros2_env, tmp_path):  # noqa: F811,E501
     _, bag = _launch_and_end(ros2_env, tmp_path, _sigterm)
+    _finalised(bag)
+
+
+def _background_job(env, args, log_path):
+    """Start ``args`` as a non-interactive shell's ``cmd &`` does: SIGINT ignored."""
+    with open(log_path, 'wb') as log:
+        return subprocess.Popen(args, env=env, stdout=log, stderr=subprocess.STDOUT,
+                                start_new_session=True, preexec_fn=lambda: signal.signal(
+                                    signal.SIGINT, signal.SIG_IGN))
+
+
+def test_sigint_stops_a_launch_started_as_a_scripts_background_job(ros2_env, tmp_path):  # noqa: F811,E501
+    # before: launch's signal manager never heard it and ran on (15 s and more)
+    _, bag = _launch_and_end(ros2_env, tmp_path, lambda p: p.send_signal(signal.SIGINT),
+                             _background_job)
     _finalised(bag)
 
 
