@@ -103,20 +103,32 @@ def end_later(bound_s):
     still running hours later). The exit needs no GIL (:func:`exit_later`).
     """
     late = float(bound_s)
+    _BACKSTOPS.extend(stacks_then_exit(
+        'lifeline: the parent process ended %g s ago and this process has not stopped; '
+        'exiting 1, the stacks follow (the last C error' % late,
+        late, late, late + BACKSTOP_S, 1))
+
+
+def stacks_then_exit(line, say_s, dump_s, exit_s, code):
+    """
+    Arm a GIL-free exit; return its timers (keep them referenced).
+
+    ``line`` at ``say_s``, every thread's stack at ``dump_s``, ``_exit(code)`` at
+    ``exit_s`` (s from now). Without POSIX timers ``faulthandler``'s dump exits 1 instead;
+    without a usable stderr the exit is armed all the same.
+    """
+    timers = []
     try:
-        _BACKSTOPS.extend([
-            say_later(late, 'lifeline: the parent process ended %g s ago and this process '
-                      'has not stopped; exiting 1, the stacks follow (the last C error'
-                      % late),
-            exit_later(late + BACKSTOP_S, 1)])
-        faulthandler.dump_traceback_later(late, exit=False)
+        timers = [say_later(say_s, line), exit_later(exit_s, code)]
+        faulthandler.dump_traceback_later(dump_s, exit=False)
     except OSError:                     # no POSIX timers: faulthandler's exit 1
         try:
-            faulthandler.dump_traceback_later(late, exit=True)
+            faulthandler.dump_traceback_later(dump_s, exit=True)
         except (OSError, ValueError, RuntimeError):
             pass
-    except (ValueError, RuntimeError):  # no usable stderr: the exit is armed all the same
+    except (ValueError, RuntimeError):  # no usable stderr
         pass
+    return timers
 
 
 class StopFlag:
@@ -229,23 +241,12 @@ class TeardownGuard:
         self.timer = threading.Timer(self.limit_s, self._abandon)
         self.timer.daemon = True
         self.timer.start()
-        self.backstop = []
         late = self.limit_s + BACKSTOP_S
         code = self.stop.exit_code(0) if self.stop is not None else 0
-        try:
-            self.backstop = [
-                say_later(late - 0.02, 'teardown: the middleware did not end within %g s '
-                          'and holds the GIL; exiting %d without it, the stacks follow '
-                          '(the last C error' % (late, code)),
-                exit_later(late + 0.05, code)]
-            faulthandler.dump_traceback_later(late, exit=False)
-        except OSError:                 # no POSIX timers: faulthandler's exit 1 then
-            try:
-                faulthandler.dump_traceback_later(late, exit=True)
-            except (OSError, ValueError, RuntimeError):     # no usable stderr
-                pass
-        except (ValueError, RuntimeError):                  # no usable stderr
-            pass
+        self.backstop = stacks_then_exit(
+            'teardown: the middleware did not end within %g s and holds the GIL; exiting %d '
+            'without it, the stacks follow (the last C error' % (late, code),
+            late - 0.02, late, late + 0.05, code)
 
     def _abandon(self):
         code = self.stop.exit_code(0) if self.stop is not None else 0
