@@ -201,7 +201,8 @@ def _analyze_loop(bag, disp, lock, params, v_limits, res, data, keep, run):
     elif r is not None:
         loop = loop_metrics(t, r, y, v, v_limits, skip_s=float(params.get('skip_s', 0.0)),
                             step_min_m=float(params.get('step_min_m', 1e-6)),
-                            band=float(params.get('settling_band', 0.02)))
+                            band=float(params.get('settling_band', 0.02)),
+                            noise_sigmas=float(params.get('settling_noise_sigmas', 5.0)))
     elif v is not None:
         loop = {'samples': int(n), 'saturation': saturation_metrics(t, v, v_limits)}
     res['metrics']['loop'] = loop

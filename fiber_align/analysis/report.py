@@ -255,11 +255,16 @@ def metrics_rows(res):
     if tr:
         rows += [('tracking', 'RMS error', _fmt(tr['rms_error_m'], 1e6, 'um')),
                  ('tracking', 'max error', _fmt(tr['max_error_m'], 1e6, 'um'))]
+    if m.get('loop', {}).get('noise_rms_m') is not None:
+        rows.append(('tracking', 'measurement noise (RMS, sample to sample)',
+                     _fmt(m['loop']['noise_rms_m'], 1e9, 'nm')))
     for i, s in enumerate(m.get('loop', {}).get('steps', [])[:20]):
         name = 'step %d (%.4g -> %.4g um at %.6g ms)' % (
             i + 1, s['from_m'] * 1e6, s['to_m'] * 1e6, s['t_step_s'] * 1e3)
         rows += [(name, 'rise time', _fmt(s['rise_time_s'], 1e3, 'ms')),
-                 (name, 'settling time', _fmt(s['settling_time_s'], 1e3, 'ms')),
+                 (name, 'settling time' + (' (band +-%.3g nm)' % (s['band_m'] * 1e9)
+                                           if 'band_m' in s else ''),
+                  _fmt(s['settling_time_s'], 1e3, 'ms')),
                  (name, 'overshoot', _fmt(s['overshoot_pct'], 1, '%'))]
     sat = m.get('loop', {}).get('saturation')
     if sat and 'at_limit_fraction' in sat:

@@ -56,7 +56,8 @@ def scenario_metrics(name, t, r, y, v=None):
     ap = default_params()
     lm = loop_metrics(t, r, y, v, skip_s=scenario_skip_s(name, float(t[-1] - t[0])),
                       step_min_m=float(ap.get('step_min_m', 1e-6)),
-                      band=float(ap.get('settling_band', 0.02)))
+                      band=float(ap.get('settling_band', 0.02)),
+                      noise_sigmas=float(ap.get('settling_noise_sigmas', 5.0)))
     out = run_scores(lm)
     if name not in ('step', 'staircase'):
         out = {k: v for k, v in out.items() if k not in STEP_KEYS}

@@ -14,7 +14,7 @@ STEP_KEYS = ('settling_time_s', 'overshoot_pct', 'rise_time_s')
 TRACK_KEYS = ('rms_error_m', 'max_error_m')
 
 
-def step_metrics(t, y, r_final, y0=0.0, t0=None, band=0.02):
+def step_metrics(t, y, r_final, y0=0.0, t0=None, band=0.02, floor_m=0.0):
     """
     Return step-response metrics of ``y(t)`` for a step from ``y0`` to ``r_final``.
 
@@ -24,8 +24,12 @@ def step_metrics(t, y, r_final, y0=0.0, t0=None, band=0.02):
     :param y0: value before the step (m).
     :param t0: time of the step (s); default ``t[0]``.
     :param band: settling band as a fraction of the step size (0.02 = 2 %).
+    :param floor_m: the band's least half-width (m): a band narrower than the measurement
+        noise is left by noise alone, and the "settling time" is then the time of the
+        last noise spike, not the loop's (:func:`loop_metrics` sets it from the noise).
     :returns: dict with ``settling_time_s`` (last time outside the band, measured from
-        ``t0``; ``inf`` if still outside at the end), ``overshoot_pct`` (peak beyond the
+        ``t0``; ``inf`` if still outside at the end), ``band_m`` (the band's half-width
+        used, m), ``overshoot_pct`` (peak beyond the
         final value in % of the step, >= 0), ``rise_time_s`` (10 % to 90 % of the step;
         ``inf`` if never reached), ``steady_state_error_m`` (mean over the last 5 % of
         the samples) and ``peak_m``.
@@ -43,7 +47,8 @@ def step_metrics(t, y, r_final, y0=0.0, t0=None, band=0.02):
     # normalised response: 0 before, 1 at the target
     z = (ys - y0) / step
     ok = np.isfinite(z)
-    outside = (~ok) | (np.abs(z - 1.0) > band)
+    band_m = max(band * abs(step), float(floor_m))
+    outside = (~ok) | (np.abs(z - 1.0) > band_m / abs(step))
     if outside[-1]:
         settling = math.inf
     elif not outside.any():
@@ -63,6 +68,7 @@ def step_metrics(t, y, r_final, y0=0.0, t0=None, band=0.02):
     tail = ys[-max(1, ys.size // 20):]
     return {
         'settling_time_s': settling,
+        'band_m': band_m,
         'overshoot_pct': overshoot,
         'rise_time_s': rise,
         'steady_state_error_m': float(np.nanmean(tail) - r_final),
@@ -116,8 +122,23 @@ def find_steps(r, step_min_m):
     return jumps
 
 
+def noise_rms(r, y):
+    """
+    Return the measurement noise's RMS (m) in ``y`` about ``r``, from sample to sample.
+
+    The robust spread (MAD) of the first differences of ``y - r``, over sqrt(2): white
+    sensor noise shows whole in them, the loop's slow motion and the few step jumps do
+    not. 0.0 with fewer than 3 finite samples.
+    """
+    d = np.diff(np.asarray(y, float) - np.asarray(r, float))
+    d = d[np.isfinite(d)]
+    if d.size < 2:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2.0))
+
+
 def loop_metrics(t, r, y, v=None, v_limits=None, skip_s=0.0, step_min_m=1e-6, band=0.02,
-                 max_steps=1000):
+                 max_steps=1000, noise_sigmas=5.0):
     """
     Return the closed-loop metrics of one run from per-period arrays (all SI).
 
@@ -125,8 +146,10 @@ def loop_metrics(t, r, y, v=None, v_limits=None, skip_s=0.0, step_min_m=1e-6, ba
     :param v: drive voltage (V) or None; :param v_limits: (v_min, v_max) in V for the
         saturation figures; :param skip_s: leading time (s) left out of tracking;
     :param step_min_m: a setpoint jump larger than this (m) in one period is a step;
-    :param band: settling band (fraction of the step).
-    :returns: dict with ``steps`` (list of per-step dicts from
+    :param band: settling band (fraction of the step); :param noise_sigmas: the band is
+        at least this many times the run's measurement noise wide (:func:`noise_rms`;
+        5: a sample of white noise leaves it with probability 6e-7).
+    :returns: dict with ``noise_rms_m``, ``steps`` (list of per-step dicts from
         :func:`fiber_align.simulation.metrics.step_metrics` plus ``t_step_s``, ``from_m``,
         ``to_m``), ``tracking`` (:func:`~fiber_align.simulation.metrics.tracking_metrics`)
         and ``saturation`` (when ``v`` is given).
@@ -144,6 +167,8 @@ def loop_metrics(t, r, y, v=None, v_limits=None, skip_s=0.0, step_min_m=1e-6, ba
         if t[k1 - 1] - t[k0] > skip_s:
             out['tracking'] = tracking_metrics(t[k0:k1], r[k0:k1], y[k0:k1], skip_s)
         steps = []
+        out['noise_rms_m'] = noise_rms(r[k0:k1], y[k0:k1])
+        floor_m = float(noise_sigmas) * out['noise_rms_m']
         idx = find_steps(r, step_min_m)
         ends = np.concatenate([idx[1:], [r.size]]) if idx.size else idx
         for a, b in zip(idx[:max_steps].tolist(), ends[:max_steps].tolist()):
@@ -156,7 +181,7 @@ def loop_metrics(t, r, y, v=None, v_limits=None, skip_s=0.0, step_min_m=1e-6, ba
             if seg[0] == y0:
                 continue
             sm = step_metrics(t[a:b], y[a:b], float(seg[0]), y0=y0, t0=float(t[a]),
-                              band=band)
+                              band=band, floor_m=floor_m)
             sm.update({'t_step_s': float(t[a]), 'from_m': y0, 'to_m': float(seg[0]),
                        'duration_s': float(t[b - 1] - t[a])})
             steps.append(sm)

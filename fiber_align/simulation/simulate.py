@@ -382,8 +382,8 @@ def metrics(res, sc, v_limits, params):
     Return the metrics dict of a run (SI keys; keys that do not apply are None).
 
     All from :func:`fiber_align.simulation.metrics.loop_metrics` with the ``analyze``
-    settings (``step_min_m``, ``settling_band``; default ``config/recorder.yaml``) and
-    the tracking window :func:`tracking_skip_s`:
+    settings (``step_min_m``, ``settling_band``, ``settling_noise_sigmas``; default
+    ``config/recorder.yaml``) and the tracking window :func:`tracking_skip_s`:
 
     * on the measured displacement (what the graph publishes, so a lockstep bag gives
       the same numbers): ``settling_time_s``, ``overshoot_pct``, ``rise_time_s`` (the
@@ -391,7 +391,8 @@ def metrics(res, sc, v_limits, params):
       dict per step), ``max_voltage_v``, ``saturation``, ``tracking_skip_s``;
     * on the true tip position: ``true_`` + the same scalar keys.
     """
-    kw = {'step_min_m': float(params['step_min_m']), 'band': float(params['settling_band'])}
+    kw = {'step_min_m': float(params['step_min_m']), 'band': float(params['settling_band']),
+          'noise_sigmas': float(params.get('settling_noise_sigmas', 5.0))}
     skip = tracking_skip_s(sc, res.t) if res.t.size else 0.0
     out = {'max_voltage_v': float(np.max(res.v)) if res.v.size else 0.0,
            'tracking_skip_s': skip}
