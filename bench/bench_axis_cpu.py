@@ -139,6 +139,9 @@ def main(argv=None):
     ap.add_argument('--cases', default='one,one-recorded,rig')
     ap.add_argument('--baseline-args', default='',
                     help='more bringup options for the baseline runs (one string)')
+    ap.add_argument('--this-args', default='',
+                    help="more bringup options for this tree's runs (one string), e.g. "
+                         "'--catalog none' to compare the graph without its catalogue")
     ap.add_argument('--json', default=None)
     a = ap.parse_args(argv)
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -151,9 +154,9 @@ def main(argv=None):
                 for t in ('this', 'baseline'):
                     runs[(c, t)].append(run_once(
                         trees[t], c, a.seconds, tmp, a.rig_cycles,
-                        a.baseline_args.split() if t == 'baseline' else ()))
+                        (a.baseline_args if t == 'baseline' else a.this_args).split()))
     out = {'seconds': a.seconds, 'repeats': a.repeats, 'load_average': os.getloadavg(),
-           'baseline_args': a.baseline_args,
+           'baseline_args': a.baseline_args, 'this_args': a.this_args,
            'cases': {}}
     lines = ['| case | tree | CPU per axis (s/s) median [min, max] | cycles kept, worst axis '
              '(median) [min] | floor lost, median [min, max] | trips | failed runs |',

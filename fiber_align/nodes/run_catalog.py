@@ -2,22 +2,18 @@
 """
 ``run_catalog``: the graph's run and its alignments written into the run catalogue.
 
-A process of its own, never in ``control_graph`` (a locked, full or unreachable database
-costs no control period). Relative names, SI units: sub ``alignment_state`` (the
-sequencer's JSON status, with ``part_id``, ``power_w`` and ``peak_power_w``: no 1 kHz
-subscription, which cost 0.30 s/s of CPU beside the loop), ``/diagnostics`` (cycles
-kept, watchdog trips; the C++ events executor: 0.008 s/s in all, 0.013 with rclpy's
-Python one), ``snapshot_written`` (the flight recorder's bags: its row anew); the rows
-(:class:`~fiber_align.alignment.record.RunRecord`) go through a
-:class:`~fiber_align.records.writer.CatalogWriter`;
-``/diagnostics``: OK, WARN while they spool, with the reason (also logged once).
-Parameters ``config/records.yaml``; docs/records.md.
+Its own process (a locked, full or unreachable database costs no control period). Sub
+``alignment_state`` (the sequencer's JSON status: ``part_id``, power, peak; no 1 kHz topic),
+``/diagnostics`` (cycles kept, trips: raw, decoded only when a plant's or a driver's),
+``snapshot_written``; rows through a :class:`~fiber_align.records.writer.CatalogWriter`;
+``/diagnostics``: OK, WARN while they spool (logged once). docs/records.md.
 """
 
 import sys
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from std_msgs.msg import String
 
 from fiber_align.alignment.record import RunRecord
@@ -52,9 +48,8 @@ class RunCatalogNode(Node):
         self.closed, self.n_rows, self.n_status, self._said = False, 0, 0, ''
         self._put('runs', self.rec.start_row())
         self.create_subscription(String, 'alignment_state', self._on_state, STATE_QOS)
-        self.create_subscription(DiagnosticArray, '/diagnostics', lambda msg: [
-            self.rec.tally.on_status(s.name, {kv.key: kv.value for kv in s.values})
-            for s in msg.status], DIAG_QOS)
+        self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
+                                 DIAG_QOS, raw=True)
         self.create_subscription(String, 'snapshot_written', lambda msg: self._put(
             'runs', self.rec.on_snapshot(msg.data)), STATE_QOS)
         self.health = Health(self, g['diagnostics_period_s'], update=self._report)
@@ -65,6 +60,11 @@ class RunCatalogNode(Node):
     def _put(self, table, row):
         self.writer.put(table, row)
         self.n_rows += 1
+
+    def _on_diagnostics(self, data):
+        if b'sim_time_s' in data or b'watchdog_count' in data:   # a plant's or a driver's
+            for s in deserialize_message(data, DiagnosticArray).status:
+                self.rec.tally.on_status(s.name, {kv.key: kv.value for kv in s.values})
 
     def _on_state(self, msg):
         self.n_status += 1
