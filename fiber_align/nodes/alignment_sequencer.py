@@ -205,6 +205,8 @@ class AlignmentSequencerNode(Node):
             if text and state != FAULT:
                 self.get_logger().info(text)
         self.seq.events.clear()                 # (a week of alignments: not kept)
+        if (self.seq.state, self.seq.fault_reason) == self._last:    # most periods
+            return
         s = self.part(self.seq.status(), self.p_last, self.p_peak)    # the catalogue's
         # the time (s) of the last update: a lagging observer indexes the state by it
         s['sample_time_s'] = self.t_last
@@ -212,8 +214,6 @@ class AlignmentSequencerNode(Node):
         if self.m.counted:
             s.update(sample=self.n, align_sample=self.align_sample)
             values['sample'] = self.n
-        if (s['state'], s['fault_reason']) == self._last:
-            return
         self._last, self.p_peak = (s['state'], s['fault_reason']), None
         self._state_out(String(data=json.dumps(s)))
         self.n_state += 1
