@@ -139,7 +139,7 @@ class ArrayMachine(MultiAxis, Machine, PointPeaking):
         if all(ok):
             pw2 = np.asarray(powers_w, dtype=float)
         self._pw2 = pw2                 # the search, the floor, HELD: the brighter channel
-        return self._update(t_s, positions_m, None if pw2 is None else float(pw2.max()),
+        return self._update(t_s, positions_m, None if pw2 is None else max(pw2.tolist()),
                             driver_active)
 
     def _power_text(self):
@@ -151,7 +151,8 @@ class ArrayMachine(MultiAxis, Machine, PointPeaking):
         self._do_visit(t, pos, self._pw2)
 
     def _do_tracking(self, t, pos, pw):
-        gm = None if self._pw2 is None else float(math.sqrt(max(np.prod(self._pw2), 0.0)))
+        p = None if self._pw2 is None else self._pw2.tolist()
+        gm = None if p is None else math.sqrt(max(p[0] * p[1], 0.0))
         super()._do_tracking(t, pos, gm)
 
     def _hold_center(self):

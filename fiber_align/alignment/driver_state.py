@@ -77,11 +77,12 @@ class DriverState:
         """Start with nothing heard of any driver (:attr:`active` is ``None``)."""
         self.names = tuple(names)
         self._d = {n: _One() for n in self.names}
-        self._n = 0
+        self._n, self._memo = 0, {}     # each, pending: asked every period, changed by a call
         #: count of calls that changed :attr:`active` or :attr:`reason`
         self.changes = 0
 
     def _one(self, name):
+        self._memo = {}                 # every change of a driver's state comes through here
         return self._d[self.names[0] if name is None else name]
 
     def _changed(self, before):
@@ -154,11 +155,10 @@ class DriverState:
     @property
     def each(self):
         """Return per driver (in ``names`` order) False when down, True when driving, else None."""
-        out = []
-        for d in self._d.values():
-            w = self._down(d)
-            out.append(False if w else (True if w == '' else None))
-        return tuple(out)
+        if 'each' not in self._memo:
+            self._memo['each'] = tuple(False if w else (True if w == '' else None)
+                                       for w in map(self._down, self._d.values()))
+        return self._memo['each']
 
     @property
     def reason(self):
@@ -173,8 +173,10 @@ class DriverState:
     @property
     def pending(self):
         """Return True when a driver is down only by a ``drive_held`` true from before."""
-        return any(self._pending(d) for d in self._d.values()) and all(
-            self._down(d) in ('', None) or self._pending(d) for d in self._d.values())
+        if 'pending' not in self._memo:
+            self._memo['pending'] = any(self._pending(d) for d in self._d.values()) and all(
+                self._down(d) in ('', None) or self._pending(d) for d in self._d.values())
+        return self._memo['pending']
 
     def refusal(self, what='align'):
         """

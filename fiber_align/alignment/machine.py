@@ -166,7 +166,7 @@ class Machine:
     @property
     def setpoint(self):
         """Return the last setpoints (m), one per axis."""
-        return tuple(float(v) for v in self.sp)
+        return tuple(self.sp.tolist())
 
     def _down_names(self, driver_active):
         return axes_down(self.AXIS_NAMES, driver_active)
@@ -200,8 +200,9 @@ class Machine:
             return self.setpoint
         if pos is None:
             pos = self._prev_pos if self._prev_pos is not None else self.sp.copy()
-        self._rest = self._prev_pos is not None and np.all(
-            np.abs(pos - self._prev_pos) < self.p['settle_tolerance_m'])
+        tol = self.p['settle_tolerance_m']     # plain floats: numpy's cost on three values
+        self._rest = self._prev_pos is not None and all(
+            abs(a - b) < tol for a, b in zip(pos.tolist(), self._prev_pos.tolist()))
         self._prev_pos = pos
         getattr(self, '_do_' + self.state.lower())(t, self._handler_pos(pos), pw)
         if self.state == PEAKING:
@@ -273,11 +274,11 @@ class Machine:
         """Return True (and fault) when a reading is missing or frozen, or an axis is stuck."""
         p = self.p
         t0 = self._state_t if self._state_t is not None else t
-        for key, what in (('p', self._power_text()), ('y', 'displacement')):
+        for key, what in (('p', None), ('y', 'displacement')):
             last = max(self._last[key] if self._last[key] is not None else t0, t0)
             if t - last > p['sensor_timeout_s']:
                 self._fault('sensor silent: no %s reading for %.0f ms'
-                            % (what, (t - last) * 1e3))
+                            % (what or self._power_text(), (t - last) * 1e3))
                 return True
         if pos is None:
             return False
@@ -285,8 +286,9 @@ class Machine:
         if frozen:
             self._fault(frozen)
             return True
-        err = np.abs(pos - self.sp)
-        if np.any(err > p['follow_error_m']):
+        fe = p['follow_error_m']
+        if any(abs(a - b) > fe for a, b in zip(pos.tolist(), self.sp.tolist())):
+            err = np.abs(pos - self.sp)
             if self._follow_since is None:
                 self._follow_since = t
             elif t - self._follow_since > p['follow_timeout_s']:
