@@ -70,7 +70,7 @@ def watch_parent(parent_pid=PARENT_PID, signum=signal.SIGTERM, bound_s=STOP_BOUN
     if parent_gone(key[0]):      # died before the pidfd (its pid may be someone else's now)
         if fd is not None:
             os.close(fd)
-        os.kill(os.getpid(), key[1])
+        signal_main(key[1])
         end_later(bound_s)
         return None
     th = threading.Thread(target=_watch, args=(key[0], fd, key[1], bound_s),
@@ -90,8 +90,22 @@ def _watch(parent_pid, fd, signum, bound_s):
             os.close(fd)
     while not parent_gone(parent_pid):  # also the pidfd's last look: the reparent is done
         time.sleep(POLL_S)
-    os.kill(os.getpid(), signum)
+    signal_main(signum)
     end_later(bound_s)
+
+
+def signal_main(signum):
+    """
+    Send ``signum`` to this process's main thread, where Python runs its handler.
+
+    A process-directed ``kill`` from a thread can land on that thread: the handler then
+    waited for the main thread's next bytecode, 7 s later in a ``time.sleep(8)`` (2 of 4
+    tries, 2026-12-07); sent to the main thread it interrupts its blocking call (EINTR).
+    """
+    try:
+        signal.pthread_kill(threading.main_thread().ident, signum)
+    except (OSError, ValueError):
+        os.kill(os.getpid(), signum)
 
 
 def end_later(bound_s):
