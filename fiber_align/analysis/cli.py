@@ -9,7 +9,7 @@ import numpy as np
 
 from fiber_align.analysis import bag as bagio, plots, report as rp, run_kind as rk
 from fiber_align.config import ConfigError, load_params
-from fiber_align.simulation.metrics import loop_metrics, saturation_metrics
+from fiber_align.simulation.metrics import loop_metrics, saturation_metrics, step_settings
 
 NEEDS = {
     'displacement': 'the time base and every loop, step, tracking, timing and hysteresis metric',
@@ -200,9 +200,7 @@ def _analyze_loop(bag, disp, lock, params, v_limits, res, data, keep, run):
             loop['saturation'] = saturation_metrics(t, v, v_limits)
     elif r is not None:
         loop = loop_metrics(t, r, y, v, v_limits, skip_s=float(params.get('skip_s', 0.0)),
-                            step_min_m=float(params.get('step_min_m', 1e-6)),
-                            band=float(params.get('settling_band', 0.02)),
-                            noise_sigmas=float(params.get('settling_noise_sigmas', 5.0)))
+                            **step_settings(params))
     elif v is not None:
         loop = {'samples': int(n), 'saturation': saturation_metrics(t, v, v_limits)}
     res['metrics']['loop'] = loop

@@ -19,7 +19,7 @@ from fiber_align.simulation import array_scenarios as asc
 from fiber_align.simulation import harness as hs
 from fiber_align.simulation import station_scenarios as sc
 from fiber_align.simulation.alignment_scenarios import rise_time
-from fiber_align.simulation.metrics import loop_metrics, run_scores, STEP_KEYS
+from fiber_align.simulation.metrics import loop_metrics, run_scores, step_settings, STEP_KEYS
 from fiber_align.simulation.simulate import tracking_skip_s
 
 #: align scenario timing (s of sample time): rest before ``align``, loss window after
@@ -55,9 +55,7 @@ def scenario_metrics(name, t, r, y, v=None):
     """
     ap = default_params()
     lm = loop_metrics(t, r, y, v, skip_s=scenario_skip_s(name, float(t[-1] - t[0])),
-                      step_min_m=float(ap.get('step_min_m', 1e-6)),
-                      band=float(ap.get('settling_band', 0.02)),
-                      noise_sigmas=float(ap.get('settling_noise_sigmas', 5.0)))
+                      **step_settings(ap))
     out = run_scores(lm)
     if name not in ('step', 'staircase'):
         out = {k: v for k, v in out.items() if k not in STEP_KEYS}

@@ -137,6 +137,18 @@ def noise_rms(r, y):
     return float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2.0))
 
 
+def step_settings(params):
+    """
+    Return :func:`loop_metrics`'s step keywords from the ``analyze`` settings (SI).
+
+    ``params``: the ``analyze`` section of ``config/recorder.yaml`` (``step_min_m``,
+    ``settling_band``, ``settling_noise_sigmas``); a key left out takes that file's value.
+    """
+    return {'step_min_m': float(params.get('step_min_m', 1e-6)),
+            'band': float(params.get('settling_band', 0.02)),
+            'noise_sigmas': float(params.get('settling_noise_sigmas', 5.0))}
+
+
 def loop_metrics(t, r, y, v=None, v_limits=None, skip_s=0.0, step_min_m=1e-6, band=0.02,
                  max_steps=1000, noise_sigmas=5.0):
     """

@@ -49,7 +49,8 @@ from fiber_align.hysteresis.pi import PIModel
 from fiber_align.plant.actuator import KINDS as PLANTS, SimulatedActuator
 from fiber_align.simulation import scenarios as scen
 from fiber_align.simulation.loop import ClosedLoop
-from fiber_align.simulation.metrics import loop_metrics, run_scores, STEP_KEYS, TRACK_KEYS
+from fiber_align.simulation.metrics import (loop_metrics, run_scores, step_settings,
+                                            STEP_KEYS, TRACK_KEYS)
 
 COMPENSATOR_FILE = 'compensator.yaml'
 # The generated feedforward model (tuning --compensator), read after compensator.yaml.
@@ -391,8 +392,7 @@ def metrics(res, sc, v_limits, params):
       dict per step), ``max_voltage_v``, ``saturation``, ``tracking_skip_s``;
     * on the true tip position: ``true_`` + the same scalar keys.
     """
-    kw = {'step_min_m': float(params['step_min_m']), 'band': float(params['settling_band']),
-          'noise_sigmas': float(params.get('settling_noise_sigmas', 5.0))}
+    kw = step_settings(params)
     skip = tracking_skip_s(sc, res.t) if res.t.size else 0.0
     out = {'max_voltage_v': float(np.max(res.v)) if res.v.size else 0.0,
            'tracking_skip_s': skip}
