@@ -167,4 +167,34 @@ def test_shipped_layouts_are_json_with_panels_that_read_topics(path):
 
 
 def test_layouts_are_shipped():
-    assert {p.name for p in LAYOUTS} == {'fiber_align.json', 'fiber_align_rig.json'}
+    assert {p.name for p in LAYOUTS} == {'fiber_align.json', 'fiber_align_rig.json',
+                                         'fiber_align_array.json'}
+
+
+def test_the_array_layout_reads_what_the_array_graph_serves_at_the_model_s_indices():
+    """Its topics are the live array graph's; each ``array_model.data[k]`` is the label named."""
+    import re
+    from fiber_align.config import load_params
+    from fiber_align.graph import array as ga
+    from fiber_align.graph.live import graph_topics, with_live
+    from fiber_align.plant import array_optics as ao
+    layout = json.loads((ROOT / 'layouts' / 'fiber_align_array.json').read_text())
+    g = with_live(ga.build_array(), True)
+    served = {'/%s/%s' % (g.namespace, t) for t in graph_topics(g)} | {
+        '/%s/live_view/%s' % (g.namespace, c) for c in ('alignment', 'optical_power_dbm')}
+    assert lv.layout_topics(layout) <= served, sorted(lv.layout_topics(layout) - served)
+    n = int(load_params(ao.CONFIG_FILE, ao.CONFIG_NODE)['channels'])
+    labels = ao.model_labels(n)
+    # the label a panel gives each index (the panel's text -> the model's label)
+    meaning = {'x (m)': 'x_m', 'y (m)': 'y_m', 'roll (rad)': 'roll_rad'}
+    meaning.update({'best ' + k: 'best_' + v for k, v in meaning.items()})
+    meaning.update({'channel %d%s' % (i + 1, ' (measured)' if i in (0, n - 1) else ''):
+                    'coupling_%d' % (i + 1) for i in range(n)})
+    seen = set()
+    for panel in layout['configById'].values():
+        for path in panel.get('paths', ()):
+            m = re.fullmatch(r'/array/array_model\.data\[(\d+)\]', path['value'])
+            if m:
+                assert labels[int(m.group(1))] == meaning[path['label']], path
+                seen.add(labels[int(m.group(1))])
+    assert seen == set(meaning.values())

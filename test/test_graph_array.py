@@ -16,9 +16,11 @@ import sys
 import numpy as np
 import pytest
 
+from fiber_align.analysis.cli import analyze_bag
 from fiber_align.graph import array as ga
 from fiber_align.graph.arguments import describe
 from fiber_align.graph.params import GraphError
+from fiber_align.plant import array_optics as ao
 from fiber_align.simulation import array_scenarios as sc
 from fiber_align.simulation import harness as hs
 from procs import run_bounded
@@ -65,7 +67,8 @@ def test_array_lockstep_equals_the_offline_run(tmp_path):
     trace, summary = tmp_path / 'array.csv', tmp_path / 'array.json'
     code, out = run_bounded([sys.executable, '-m', 'fiber_align.bringup', '--array',
                              '--sync', 'lockstep', '--seed', '5', '--trace', str(trace),
-                             '--summary', str(summary), '--quiet'], 120)
+                             '--summary', str(summary), '--quiet',
+                             '--record', str(tmp_path / 'bag')], 120)
     assert code == 0, out
     s = json.loads(summary.read_text(encoding='utf-8'))
     cols = np.loadtxt(trace, delimiter=',', skiprows=1, ndmin=2)
@@ -85,3 +88,18 @@ def test_array_lockstep_equals_the_offline_run(tmp_path):
     assert s['time_to_peak_s'] == pytest.approx(res['time_to_peak_s'], abs=1e-12)
     assert s['peak_samples'] == res['peak_samples']
     assert s['offline']['equal'] and s['offline']['samples'] == n
+    # the recorded model (array_model): the report's array section
+    res, _ = analyze_bag(tmp_path / 'bag')
+    a, c = res['metrics']['array'], bench.link.coupling
+    assert a['channels'] == c.n and a['measured'] == [1, c.n]
+    assert [a['best_pose'][k] for k in ao.POSE_LABELS] == pytest.approx(c.best(), abs=1e-12)
+    assert a['worst_channel_loss_db'] <= 0.1            # the goal, at the run's end
+    assert a['time_to_aligned_s'] == pytest.approx(s['time_to_peak_s'], abs=1e-9)
+    assert a['samples'] == s['peak_samples']
+    # its pose: the plants' true one at its sample, the sensors' within 5 sigma (10 nm)
+    k = int(round(a['t_s'] / bench.period_s))
+    seen = ao.pose([graph[m][k] for m in sc.ArrayBench.MEASURED], c.roll_arm_m)
+    assert k > s['align_sample'] and abs(a['t_s'] - k * bench.period_s) < 1e-9
+    tol = (5e-8, 5e-8, 5e-8 * 2 ** 0.5 / c.roll_arm_m)         # m, m, rad
+    for p, v, t in zip(ao.POSE_LABELS, seen, tol):
+        assert abs(a['pose'][p] - v) <= t, (p, a['pose'][p], v)

@@ -7,7 +7,8 @@ import sys
 
 import numpy as np
 
-from fiber_align.analysis import bag as bagio, plots, report as rp, run_kind as rk
+from fiber_align.analysis import array_run, bag as bagio, plots, report as rp
+from fiber_align.analysis import run_kind as rk
 from fiber_align.config import ConfigError, load_params
 from fiber_align.simulation.metrics import loop_metrics, saturation_metrics, step_settings
 
@@ -154,6 +155,7 @@ def analyze_bag(path, params=None, v_limits=None, keep_arrays=False):
             res['alignment'] = 'none (no time base)'
             _analyze_without_base(bag, params, res, data, keep_arrays, run)
         _analyze_extras(bag, disp, lock, params, res, data, keep_arrays, states)
+        _analyze_array(bag, disp, lock, res, data)
     analysed = sorted(k for k, v in res['metrics'].items() if v)
     if missing:
         res['notes'].append('analysed anyway: %s' % (', '.join(analysed) or 'nothing'))
@@ -250,6 +252,19 @@ def _time_of(disp, lock, t_ns, n_fallback_t0=None):
     t = (stamp - stamp[0]) / 1e9
     i = np.clip(np.searchsorted(disp.t_ns, t_ns, side='right') - 1, 0, t.size - 1)
     return t[i]
+
+
+def _analyze_array(bag, disp, lock, res, data):
+    """Add ``metrics.array`` from the last ``array_model`` message (the array's model)."""
+    model = bag.read('array_model')
+    if model is None or not len(model) or model.fields.get('data') is None:
+        return
+    try:
+        t0 = 0.0 if disp is None else float(disp.fields['stamp_ns'][0]) / 1e9
+        res['metrics']['array'] = data['array'] = array_run.array_metrics(
+            model.labels, model.fields['data'][-1], t0, res['metrics'].get('align'))
+    except ValueError as exc:
+        res['notes'].append('array_model not read: %s' % exc)
 
 
 def _analyze_extras(bag, disp, lock, params, res, data, keep, s):

@@ -132,6 +132,25 @@ def plot_power(path, t, p_w, max_points=4000):
     return _save(fig, path)
 
 
+def plot_channels(path, m):
+    """Plot each array channel's coupling (dB) at the end of the run and at the best pose."""
+    plt = _plt()
+    n = m['channels']
+    ch = np.arange(1, n + 1)
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    ax.bar(ch - 0.2, m['coupling_db'], 0.4, label='end of the run')
+    ax.bar(ch + 0.2, np.asarray(m['coupling_db']) + np.asarray(m['loss_db']), 0.4,
+           label='best joint pose')
+    ax.set_xticks(ch)
+    ax.set_xlabel('channel (%d and %d measured)' % tuple(m['measured']))
+    ax.set_ylabel('coupling (dB)')
+    ax.set_title('roll %.3f mrad (best joint pose %.3f mrad)' % (
+        m['pose']['roll_rad'] * 1e3, m['best_pose']['roll_rad'] * 1e3))
+    ax.legend(loc='upper center', bbox_to_anchor=(0.5, -0.2), ncol=2)
+    ax.grid(True, alpha=0.3, axis='y')
+    return _save(fig, path)
+
+
 def make_figures(out_dir, data, max_points=4000):
     """
     Write every figure the data allows into ``out_dir``; return [(title, path)].
@@ -162,4 +181,7 @@ def make_figures(out_dir, data, max_points=4000):
     if data.get('power_t') is not None:
         figs.append(('Optical power', plot_power(out / 'optical_power.png', data['power_t'],
                                                  data['power'], max_points)))
+    if data.get('array'):
+        figs.append(('Array channels', plot_channels(out / 'array_channels.png',
+                                                     data['array'])))
     return figs

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fiber_align.analysis.array_run import array_rows
 from fiber_align.config import load_params
 from fiber_align.jsonout import json_clean, json_default
 
@@ -251,6 +252,8 @@ def metrics_rows(res):
     aligning = res.get('kind') == 'alignment'
     if aligning:
         rows += align_rows(m.get('align') or {})
+    if m.get('array'):
+        rows += array_rows(m['array'])
     tr = m.get('loop', {}).get('tracking')
     if tr:
         rows += [('tracking', 'RMS error', _fmt(tr['rms_error_m'], 1e6, 'um')),

@@ -109,9 +109,12 @@ def align_figures(t, p, loss, states, events, rate_hz):
     if ka is not None and kt is not None:
         out['time_to_peak_s'] = float((kt - ka) * period)
         out['final_loss_db'] = float(np.mean(loss[kt:kt + n_win]))
-        peak = next((st.get('peak_samples') for k, st in states
-                     if k >= kt and st.get('state') == 'TRACKING'), None)
-        out['peak_samples'] = peak
+        tr = next((st for k, st in states if k >= kt and st.get('state') == 'TRACKING'), {})
+        out['peak_samples'] = tr.get('peak_samples')
+        if tr.get('sample') is not None and tr.get('align_sample') is not None:
+            # a counted sequencer (multi-axis) names the updates: command to the one that
+            # entered TRACKING, as offline (its SEARCHING came between two updates)
+            out['time_to_peak_s'] = float((tr['sample'] - 1 - tr['align_sample']) * period)
     cyc = []
     for k_off, k_on, k_end in events.get('cycles', []):
         lo = float(np.mean(p[max(k_on - n_lvl, k_off):k_on]))

@@ -11,7 +11,8 @@ processes and params merge) with the array's three actuators. Under one namespac
   position too), sensor-noise seed and params sections;
 - ``/array/simulated_array_optics`` (executable ``simulated_optics``, ``link: array``):
   the three true tip positions in, the outer channels' readings ``optical_power``
-  (channel 1) and ``optical_power_n`` (channel N) out (W);
+  (channel 1) and ``optical_power_n`` (channel N) out (W), and ``array_model`` (the
+  pose and every channel's coupling the model predicts, every ``model_period_s``);
 - ``/array/array_sequencer`` (executable ``alignment_sequencer``, ``machine: array``):
   the three setpoints, services ``align``, ``release``, ``switch``;
 - ``/array/lifecycle_manager``: activates the three drivers;
@@ -36,7 +37,7 @@ OWN_NODES = {n: NODES[n].executable for n in (OPTICS, SEQUENCER)}
 #: Topics the recorder records (relative to the array's namespace).
 PER_AXIS_RECORDED = ('displacement', 'setpoint', 'drive_voltage')
 RECORDED = tuple('%s/%s' % (a, t) for a in AXES for t in PER_AXIS_RECORDED) + \
-    ARRAY_POWERS + ('alignment_state', '/diagnostics', '/clock')
+    ARRAY_POWERS + ('array_model', 'alignment_state', '/diagnostics', '/clock')
 #: The per-sample streams: :class:`~fiber_align.simulation.array_scenarios.ArrayBench`'s
 #: trace columns, measured and setpoint per actuator, the outer channels' readings.
 STREAMS = tuple(zip(sc.ArrayBench.MEASURED, ['%s/displacement' % a for a in AXES])) + tuple(

@@ -19,9 +19,9 @@ from fiber_align.control import driver_axes as da
 from fiber_align.control.factory import CONTROLLERS, PARAM_RANGES
 from fiber_align.control.trajectory import REALTIME_SETPOINT_RATE_M_PER_S
 from fiber_align.graph.params import (
-    AMPLIFIER, COMPENSATOR, CONTROLLER, DRIVER, flat, LIFECYCLE_MANAGER, LIVE_VIEW, OPTICS_2D,
-    PLANT, RECORDER, RUN_CATALOG, SCENARIO_RUNNER, SEQUENCER, SEQUENCER_2D, STATION_OPTICS,
-    STATION_SEQUENCER, SYNC_MODES)
+    AMPLIFIER, ARRAY_OPTICS, COMPENSATOR, CONTROLLER, DRIVER, flat, LIFECYCLE_MANAGER,
+    LIVE_VIEW, OPTICS_2D, PLANT, RECORDER, RUN_CATALOG, SCENARIO_RUNNER, SEQUENCER,
+    SEQUENCER_2D, STATION_OPTICS, STATION_SEQUENCER, SYNC_MODES)
 from fiber_align.hardware.mdt693b_session import DEVICE_DOCS
 
 #: The graph-wide values: name -> (description, low, high, choices, fallback). Every
@@ -90,6 +90,10 @@ PLANT_RANGES = {
 
 #: The simulated optics of several axes (the rig's, the station's).
 OPTICS_RANGES = {'seed': ('detector noise seed', 0, 2 ** 31 - 1)}
+#: ``simulated_array_optics``: also how often its model is published (0: never).
+ARRAY_OPTICS_RANGES = dict(OPTICS_RANGES, model_period_s=(
+    'the model\'s pose and per-channel coupling on array_model every this (s; 0: never)',
+    0.0, 60.0))
 
 #: ``hysteresis_compensator``'s own.
 COMPENSATOR_RANGES = {
@@ -198,6 +202,7 @@ OWN = {PLANT: PLANT_RANGES, COMPENSATOR: dict(SHAPING, **COMPENSATOR_RANGES),
        CONTROLLER: dict(SHAPING, **CONTROLLER_RANGES), SCENARIO_RUNNER: SCENARIO_RANGES,
        RECORDER: RECORDER_RANGES, LIFECYCLE_MANAGER: MANAGER_RANGES,
        OPTICS_2D: OPTICS_RANGES, STATION_OPTICS: OPTICS_RANGES,
+       ARRAY_OPTICS: ARRAY_OPTICS_RANGES,
        'power_meter': POWER_METER_RANGES, 'power_meter_n': POWER_METER_RANGES,
        LIVE_VIEW: LIVE_VIEW_RANGES, RUN_CATALOG: CATALOG_RANGES}
 #: The driver nodes (one executable): per-axis limits, settings, device settings.

@@ -99,7 +99,7 @@ NODES = {
     # the fiber array (graph/array.py): three actuators x, y_left, y_right
     'simulated_array_optics': NodeSpec(
         'simulated_array_optics', 'simulated_optics', 'ArrayOpticsNode', ('array.yaml',),
-        area=False, publishes=ARRAY_POWERS,
+        area=False, publishes=ARRAY_POWERS + ('array_model',),
         subscribes=tuple('%s/tip_position' % a for a in ARRAY_AXES)),
     'array_sequencer': NodeSpec(
         'array_sequencer', 'alignment_sequencer', 'ArraySequencerNode', ('array.yaml',),

@@ -2,34 +2,26 @@
 """
 ``simulated_optics``: the detector reading of a multi-axis machine's optical link.
 
-One executable for every link, chosen by the read-only parameter ``link`` (the params
-files set it per node: ``simulated_optics_2d`` rig, ``simulated_station_optics``
-station, ``simulated_array_optics`` array: :class:`fiber_align.plant.array_optics.
-ArrayLink`, the outer channels' readings on ``optical_power`` and ``optical_power_n``).
-The rig's link is :class:`fiber_align.plant.optics2d.OpticalLink2D` (the Gaussian overlap
-of an (x, y) offset, the moving target); the station's
-:class:`fiber_align.plant.station_optics.StationLink` (the input and output facets, the
-chip's loss, the cure's pull); both with the detector of the 1-D model. Runs in the
-machine's namespace (``/rig``, ``/station``); topics (relative names, SI units):
+One executable for every link, chosen by the read-only parameter ``link``: ``rig``
+(:class:`~fiber_align.plant.optics2d.OpticalLink2D`, node ``simulated_optics_2d``),
+``station`` (:class:`~fiber_align.plant.station_optics.StationLink`), ``array``
+(:class:`~fiber_align.plant.array_optics.ArrayLink`), in the machine's namespace. Topics
+(relative names, SI units):
 
-- sub ``<a>/tip_position`` for each axis ``<a>`` (``x``, ``y``; ``in/x`` ... ``out/y``;
-  sensor_msgs/JointState, position[0] in m, stamp = t_k): the true tip positions the
-  plants publish (``tip_position_every`` 1).
-- pub ``optical_power`` (std_msgs/Float64, W): one detector reading per sample, per-sample
-  QoS; a position that is not a number gives a NaN reading (the detector's averaging is
-  not fed it) and a WARN.
-- ``/diagnostics``: OK, the sample count and the last reading.
+- sub ``<a>/tip_position`` per axis (sensor_msgs/JointState, position[0] m, stamp t_k).
+- pub ``optical_power`` (std_msgs/Float64, W; the array: channel 1, channel N on
+  ``optical_power_n``): a reading per sample; a position that is not a number gives a NaN
+  reading (kept out of the detector's averaging) and a WARN.
+- pub ``array_model`` (the array; std_msgs/Float64MultiArray, one dim per value labelled
+  by :func:`~fiber_align.plant.array_optics.model_labels`), every ``model_period_s``: the
+  pose and the best joint pose (m, m, rad), every channel's coupling (0..1) there and at
+  the best pose (for the live view and the report).
 
-Pairing: ``lockstep`` takes the i-th position of every axis and reads the detector at
-``t_i = i / rate_hz`` (the offline bench's ``k T``, bit for bit); ``realtime`` reads on
-every sample of the first axis with the latest position of the others, at its stamp.
-
-Parameters (read-only but ``meter_frozen``, fault injection: the last reading repeated,
-a frozen meter): ``link``; ``seed`` (detector noise seed); ``optics.*`` (the
-source and detector constants of ``config/optics.yaml``, shared with the 1-D plant); the
-rig's ``target.*`` (``config/optics2d.yaml``) or the station's chip, facet and cure keys
-(``config/station.yaml``); the graph-wide ``sync_mode``, ``diagnostics_period_s``,
-``rate_hz``, ``realtime_priority``.
+Pairing: ``lockstep`` reads the i-th position of every axis at ``t_i = i / rate_hz`` (the
+offline bench, bit for bit); ``realtime`` reads on every sample of the first axis with
+the latest of the others. Parameters: read-only but ``meter_frozen`` (fault injection:
+the last reading repeated); ``link``, ``seed``, ``optics.*`` (``optics.yaml``), the link's
+own keys (``optics2d.yaml``, ``station.yaml``, ``array.yaml``) and the graph-wide ones.
 """
 
 import math
@@ -39,10 +31,11 @@ import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension as Dim
+from std_msgs.msg import MultiArrayLayout
 
 from fiber_align.control.trajectory import stamp_to_s
-from fiber_align.graph.ranges import OPTICS_RANGES
+from fiber_align.graph.ranges import ARRAY_OPTICS_RANGES, OPTICS_RANGES
 from fiber_align.graph.registry import ARRAY_AXES, ARRAY_POWERS, STATION_AXES
 from fiber_align.nodes.ros.bus import Pub, sender_of, slack_of, subscription
 from fiber_align.nodes.ros.diagnostics import Health, OK
@@ -69,12 +62,7 @@ class SimulatedOpticsNode(Node):
     NAME = 'simulated_optics_2d'
 
     def __init__(self, bus=None, **kwargs):
-        """
-        Declare the parameters (defaults from config/), build the link, wire the axes.
-
-        :param bus: the :class:`~fiber_align.nodes.ros.bus.LocalBus` of a composed
-            process, or ``None``.
-        """
+        """Declare the parameters, build the link, wire the axes (``bus``: a LocalBus or None)."""
         super().__init__(self.NAME, **kwargs)
         d = node_defaults(self.get_name(), tuple(f for _, f, _ in LINKS.values()))
         self.link_name = declare(self, d, 'link', 'the optical link simulated',
@@ -89,10 +77,15 @@ class SimulatedOpticsNode(Node):
         optics = {name: declare(self, d, name, 'optics constant (SI, see optics.yaml)',
                                 read_only=True)
                   for name in sorted(k for k in d if k.startswith('optics.'))}
+        self.model_every, self.model = 0, None     # the array: its model, published
         self.link = getattr(self, '_' + self.link_name)(d, seed, optics)
         self.topics = ARRAY_POWERS if self.link_name == 'array' else ARRAY_POWERS[:1]
-        self.pubs = [Pub(self, Float64, topic, sample_pub_qos(self.lockstep), bus)
-                     for topic in self.topics]
+        out = sample_pub_qos(self.lockstep)
+        self.pubs = [Pub(self, Float64, topic, out, bus) for topic in self.topics]
+        if self.model_every:    # one labelled dim per value, as controller_state
+            self.model_pub = Pub(self, Float64MultiArray, 'array_model', out, bus)
+            self._model_msg = Float64MultiArray(layout=MultiArrayLayout(dim=[
+                Dim(label=k, size=1, stride=1) for k in ao.model_labels(self.model.n)]))
         qos = sample_qos(self.lockstep)
         self.q = [[] for _ in axes]             # lockstep: positions not yet read (m)
         self.latest = [None] * len(axes)        # realtime: the newest position (m)
@@ -103,9 +96,8 @@ class SimulatedOpticsNode(Node):
                              sender=sender_of(bus))
         self.frozen = declare(self, d, 'meter_frozen', 'fault injection: every reading '
                               'repeats the last one, a frozen meter (bool, live)')
-        self._last = None                       # the last readings (W), one per topic
+        self._last, self.n = None, 0            # the last readings (W), one per topic
         self.add_on_set_parameters_callback(self._on_set)
-        self.n = 0
         # one message per topic: the DDS copy is written off this thread, after the loop
         self._msgs = [Float64() for _ in self.pubs]
         self.health.summary(OK, 'ready')
@@ -129,8 +121,12 @@ class SimulatedOpticsNode(Node):
 
     def _array(self, d, seed, optics):
         """Return the array's link: ``optics.*`` and the geometry, chip and layout keys."""
-        return self._keyed(d, seed, optics, ao.ArrayLink, ao.ARRAY_KEYS, 'array geometry, '
+        link = self._keyed(d, seed, optics, ao.ArrayLink, ao.ARRAY_KEYS, 'array geometry, '
                            'chip pose or layout (SI: m, rad; see array.yaml)')
+        every = declare_row(self, d, ARRAY_OPTICS_RANGES, 'model_period_s') / self.period_s
+        self.model_every, self.model = int(round(every)), link.coupling
+        link.coupling.model(0.0, (0.0, 0.0, 0.0))   # the best pose's fit (0.3 s): not in a tick
+        return link
 
     def _keyed(self, d, seed, optics, cls, keys, what):
         """Return ``cls.from_params`` of ``optics.*`` and the declared ``keys``."""
@@ -167,6 +163,9 @@ class SimulatedOpticsNode(Node):
             if self.frozen and self._last is not None:
                 values = self._last     # the detector runs on: its noise stream holds
             self._last = values
+            if self.model_every and self.n % self.model_every == 0:
+                self._model_msg.data = self.model.model(t_s, pos)
+                self.model_pub.publish(self._model_msg)
         for pub, msg, v in zip(self.pubs, self._msgs, values):
             msg.data = float(v)
             pub.publish(msg)

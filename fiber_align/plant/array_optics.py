@@ -44,6 +44,23 @@ ARRAY_KEYS = GEOMETRY_KEYS + ('mode_radius_m', 'chip_x_m', 'chip_y_m', 'chip_rol
 SOURCE_KEYS = ('source_power_w', 'fiber_broken')
 #: What a run may set instead of drawing it (one ``[wx, wy]`` and one ``a`` per channel).
 LAYOUT_KEYS = ('waveguide_offsets_m', 'channel_gains')
+#: The node's own keys (what it publishes), not the link's.
+NODE_KEYS = ('model_period_s',)
+#: The pose's labels (m, m, rad), in the order of :func:`pose`.
+POSE_LABELS = ('x_m', 'y_m', 'roll_rad')
+
+
+def model_labels(n):
+    """
+    Return the labels of :meth:`ArrayCoupling.model` for ``n`` channels (topic ``array_model``).
+
+    The sample's time ``t_s`` (its stamp, s), the pose, the best joint pose, each
+    channel's coupling (``coupling_1`` .. ``coupling_N``, 0..1 of the source power), then
+    each one's at the best joint pose.
+    """
+    ch = tuple('coupling_%d' % (i + 1) for i in range(int(n)))
+    return ('t_s',) + POSE_LABELS + tuple('best_' + k for k in POSE_LABELS) + ch + tuple(
+        'best_' + k for k in ch)
 
 
 def positions_along(channels, pitch_m):
@@ -149,7 +166,7 @@ class ArrayCoupling:
                 self.mode_radius_m)], 1.0, fiber_broken)
             for a, (wx, wy) in zip(self.gains, self.offsets_m))
         self.source_power_w = float(source_power_w)
-        self._best = None
+        self._best = self._at_best = None
 
     def coordinates(self, positions_m):
         """Return each channel's ``(X_i, Y_i)`` (m) on its link with the actuators there."""
@@ -184,6 +201,22 @@ class ArrayCoupling:
             self._best = best_pose(self.chip, self.u_m, self.offsets_m, self.gains,
                                    self.mode_radius_m)
         return self._best
+
+    def model(self, t_s, positions_m):
+        """
+        Return what the model predicts with the actuators at ``positions_m`` (m).
+
+        In the order of :func:`model_labels`: ``t_s`` (s), the pose, the best joint pose
+        (m, m, rad), then every channel's coupling (0..1) at this pose and at the best pose.
+        """
+        now = pose(positions_m, self.roll_arm_m)
+        if self._at_best is None:
+            self._at_best = [float(c) for c in couplings(
+                self.best(), self.chip, self.u_m, self.offsets_m, self.gains,
+                self.mode_radius_m)]
+        c = couplings(now, self.chip, self.u_m, self.offsets_m, self.gains,
+                      self.mode_radius_m)
+        return [float(t_s)] + list(now) + list(self.best()) + c.tolist() + self._at_best
 
     def loss_at(self, t_s, positions_m):
         """Return the worst channel's loss (dB) with the actuators there, against the best."""
@@ -225,6 +258,7 @@ class ArrayLink:
         """
         layout = {k: overrides.pop(k) for k in LAYOUT_KEYS if k in overrides}
         o, c = ln.sections(optics_params, array_params, CONFIG_FILE, CONFIG_NODE)
+        c = {k: v for k, v in c.items() if k not in NODE_KEYS}
         ln.split_overrides(overrides, ((ARRAY_KEYS, c), (SOURCE_KEYS + ln.DETECTOR_KEYS, o)),
                            'array optics')
         missing, unknown = sorted(set(ARRAY_KEYS) - set(c)), sorted(set(c) - set(ARRAY_KEYS))

@@ -32,6 +32,7 @@ GRAPH_TOPICS = {
     'diagnostics': DIAGNOSTICS,
     'clock': CLOCK,
     'alignment_state': STRING,
+    'array_model': MULTI_ARRAY,
 }
 
 #: Default labels of ``controller_state`` (Float64MultiArray dim labels).

@@ -1,0 +1,82 @@
+# SPDX-License-Identifier: Apache-2.0
+"""
+The fiber array's section of a run report, from the model's ``array_model`` stream.
+
+``simulated_array_optics`` publishes, every ``model_period_s``, the array's pose, the best
+joint pose and every channel's coupling there and at the best pose
+(:func:`fiber_align.plant.array_optics.model_labels`). The section takes the last message
+of the run: the pose the alignment left the array in (the roll found), each channel's
+coupling and its loss against its coupling at the best joint pose (the worst of them is
+the offline JSON's ``worst_channel_loss_db``), with the alignment's time and samples.
+SI units in the metrics (m, rad, s; dB for ratios); the rows are for people (um, mrad).
+"""
+
+import math
+
+import numpy as np
+
+POSE = ('x_m', 'y_m', 'roll_rad')
+
+
+def array_metrics(labels, row, t0_s=0.0, align=None):
+    """
+    Return the array's figures (SI) from one ``array_model`` message.
+
+    :param labels: the message's labels (``t_s``, ``x_m`` ... ``best_coupling_N``).
+    :param row: its values, in the order of ``labels``.
+    :param t0_s: the run's first sample's stamp (s): ``t_s`` is given from it.
+    :param align: the run's ``metrics.align`` (time to peak, peak samples), or None.
+    :raises ValueError: labels that are not the model's.
+    """
+    v = dict(zip(labels, (float(x) for x in row)))
+    n = sum(1 for k in labels if k.startswith('coupling_'))
+    need = ('t_s',) + POSE + tuple('best_' + k for k in POSE) + tuple(
+        '%scoupling_%d' % (b, i + 1) for b in ('', 'best_') for i in range(n))
+    if n < 2 or any(k not in v for k in need):
+        raise ValueError('array_model labels %r are not the model\'s (t_s, x_m ... '
+                         'best_coupling_N)' % (tuple(labels),))
+    now = np.array([v['coupling_%d' % (i + 1)] for i in range(n)])
+    best = np.array([v['best_coupling_%d' % (i + 1)] for i in range(n)])
+    with np.errstate(divide='ignore', invalid='ignore'):
+        loss = 10.0 * np.log10(best / now)
+        coupled = 10.0 * np.log10(now)
+    j = int(np.argmin(now))
+    align = align or {}
+    return {
+        'channels': n, 'measured': [1, n], 't_s': v['t_s'] - t0_s,
+        'pose': {k: v[k] for k in POSE}, 'best_pose': {k: v['best_' + k] for k in POSE},
+        'coupling': now.tolist(), 'coupling_db': coupled.tolist(),
+        'loss_db': loss.tolist(), 'worst_channel': j + 1,
+        'worst_channel_loss_db': float(loss[j]),
+        'time_to_aligned_s': align.get('time_to_peak_s'),
+        'samples': align.get('peak_samples'),
+    }
+
+
+def _num(v, scale, unit, nd=4):
+    if v is None or not math.isfinite(v):
+        return 'n/a'
+    return '%.*g %s' % (nd, v * scale, unit)
+
+
+def array_rows(m):
+    """Return the report's (section, name, value) rows of ``metrics.array``."""
+    p, b = m['pose'], m['best_pose']
+    rows = [
+        ('array', 'channels', '%d (measured: %d and %d)' % (m['channels'], *m['measured'])),
+        ('array', 'roll found', '%s (best joint pose %s, off by %s)' % (
+            _num(p['roll_rad'], 1e3, 'mrad'), _num(b['roll_rad'], 1e3, 'mrad'),
+            _num(p['roll_rad'] - b['roll_rad'], 1e3, 'mrad', 2))),
+        ('array', 'x, y found', '%s, %s (best %s, %s)' % tuple(
+            _num(v, 1e6, 'um') for v in (p['x_m'], p['y_m'], b['x_m'], b['y_m']))),
+        ('array', 'worst channel', 'channel %d: %.4f dB below its coupling at the best '
+         'joint pose' % (m['worst_channel'], m['worst_channel_loss_db'])),
+        ('array', 'time to aligned', _num(m['time_to_aligned_s'], 1e3, 'ms')),
+        ('array', 'samples', 'n/a' if m['samples'] is None else str(m['samples'])),
+        ('array', 'at', 'the model\'s last message, %s into the run' % _num(
+            m['t_s'], 1.0, 's'))]
+    for i, (c, loss) in enumerate(zip(m['coupling_db'], m['loss_db'])):
+        name = 'channel %d%s' % (i + 1, ' (measured)' if i + 1 in m['measured'] else '')
+        rows.append(('array channels', name, '%.3f dB coupled, %.4f dB against the best '
+                     'joint pose' % (c, loss)))
+    return rows
