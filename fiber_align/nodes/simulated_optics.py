@@ -124,7 +124,7 @@ class SimulatedOpticsNode(Node):
         link = self._keyed(d, seed, optics, ao.ArrayLink, ao.ARRAY_KEYS, 'array geometry, '
                            'chip pose or layout (SI: m, rad; see array.yaml)')
         every = declare_row(self, d, ARRAY_OPTICS_RANGES, 'model_period_s') / self.period_s
-        self.model_every, self.model = int(round(every)), link.coupling
+        self.model_every, self.model = every and max(1, int(round(every))), link.coupling
         link.coupling.model(0.0, (0.0, 0.0, 0.0))   # the best pose's fit (0.3 s): not in a tick
         return link
 
@@ -163,12 +163,12 @@ class SimulatedOpticsNode(Node):
             if self.frozen and self._last is not None:
                 values = self._last     # the detector runs on: its noise stream holds
             self._last = values
-            if self.model_every and self.n % self.model_every == 0:
-                self._model_msg.data = self.model.model(t_s, pos)
-                self.model_pub.publish(self._model_msg)
         for pub, msg, v in zip(self.pubs, self._msgs, values):
             msg.data = float(v)
             pub.publish(msg)
+        if self.model_every and self.n % self.model_every == 0 and math.isfinite(values[0]):
+            self._model_msg.data = self.model.model(t_s, pos)     # after the loop's readings
+            self.model_pub.publish(self._model_msg)
         self.n += 1
         self.health.set_values(samples=self.n, optical_power_w=float(values[0]))
 
