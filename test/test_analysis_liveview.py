@@ -198,3 +198,19 @@ def test_the_array_layout_reads_what_the_array_graph_serves_at_the_model_s_indic
                 assert labels[int(m.group(1))] == meaning[path['label']], path
                 seen.add(labels[int(m.group(1))])
     assert seen == set(meaning.values())
+
+
+def test_a_tap_sends_states_whole_and_samples_decimated_and_only_samples_are_lazy():
+    state = lv.Tap('/s', 'std_msgs/msg/String', None, object(), True, None, None)
+    assert not state.lazy and state.frames([], True, 0.0) == []     # nothing to resend
+    assert state.frames([(b'a', {}), (b'b', {})], False, 0.0) == [b'a', b'b']
+    assert state.frames([], True, 0.0) == [b'b'] and state.frames([], False, 0.0) == []
+    sample = lv.Tap('/d', 'sensor_msgs/msg/JointState', None, object(), False,
+                    lv.Decimator(100.0), None)
+    assert sample.lazy
+    assert sample.frames([(b'1', {}), (b'2', {})], False, 10.0) == [b'2']
+    assert sample.frames([(b'3', {})], False, 10.001) == []         # within 10 ms: held back
+    assert sample.frames([], True, 10.02) == [b'3']                 # resent: the newest
+    # the power map's topics and a topic served for another channel only stay subscribed
+    assert not lv.Tap('/x', 't', None, object(), False, lv.Decimator(100.0), 'x').lazy
+    assert not lv.Tap('/p', 't', None, None, False, lv.Decimator(100.0), None).lazy

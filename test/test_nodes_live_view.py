@@ -234,6 +234,47 @@ def test_displacement_matches_an_rclpy_subscriber_within_1_um(graph):
     assert proc.poll() is None
 
 
+def test_a_per_sample_topic_is_read_only_while_a_client_watches_it(graph):
+    """The view's DDS reader of ``feedback_voltage`` exists only while a client subscribes."""
+    port, proc, log = graph
+    import rclpy
+    rclpy.init()
+    node = rclpy.create_node('live_view_lazy_test')
+
+    def view_readers():
+        return sum(i.node_name == 'live_view_taps'
+                   for i in node.get_subscriptions_info_by_topic('/feedback_voltage'))
+
+    def until(want, seconds=5.0):
+        end = time.monotonic() + seconds
+        while view_readers() != want and time.monotonic() < end:
+            time.sleep(0.05)
+        return view_readers()
+    try:
+        async def go():
+            ws = await _connect(port)
+            try:
+                c = Client(ws)
+                await c.pump(15.0, lambda: '/feedback_voltage' in c.channels)
+                seen = [until(0)]                           # advertised, nobody watching
+                await c.subscribe(3, '/feedback_voltage')
+                seen.append(await asyncio.to_thread(until, 1))
+                await c.pump(1.0)
+                seen.append(sum(s == 3 for s, *_ in c.data))
+                await ws.send(json.dumps({'op': 'unsubscribe', 'subscriptionIds': [3]}))
+                seen.append(await asyncio.to_thread(until, 0))
+                return seen
+            finally:
+                await ws.close()
+        before, during, frames, after = run(go())
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+    assert (before, during, after) == (0, 1, 0)
+    assert frames >= 10                  # the reader made on subscribe delivers (100 Hz)
+    assert proc.poll() is None
+
+
 def test_garbage_and_unknown_channels_are_refused_to_that_client_only(graph):
     port, proc, log = graph
 

@@ -10,6 +10,7 @@ the power map of the search as JSON channels. Channels, costs, parameters
 (``config/live_view.yaml``) and failures: docs/live_view.md.
 """
 
+import functools
 import os
 import sys
 import time
@@ -82,7 +83,7 @@ class LiveViewNode(Node):
         self.power_topic = self.resolve_topic_name('optical_power')
         self.taps = {}
         self.skipped = set()
-        self.schemas = {}
+        self.schema = functools.lru_cache(None)(lambda t: lv.ros2msg_schema(t, lv.read_msg))
         own = self.get_fully_qualified_name()
         self.ch_align = self._json_channel(own + '/alignment', lv.ALIGNMENT_SCHEMA, 'every '
                                            'alignment_state message, as structured data')
@@ -109,12 +110,6 @@ class LiveViewNode(Node):
                                metadata={'decimation': decimation})
 
     # -- discovery ------------------------------------------------------------------
-    def schema(self, msgtype):
-        """Return the ``ros2msg`` schema text of ``msgtype`` (cached)."""
-        if msgtype not in self.schemas:
-            self.schemas[msgtype] = lv.ros2msg_schema(msgtype, lv.read_msg)
-        return self.schemas[msgtype]
-
     def discover(self):
         """Advertise every wanted topic whose type a publisher now shows."""
         types = dict(self.get_topic_names_and_types())
@@ -144,12 +139,26 @@ class LiveViewNode(Node):
                                       data=self.schema(msgtype).encode('utf-8')),
                 metadata={'ros_type': msgtype, 'decimation': 'every message' if state
                           else dec.describe()})
-        sub = self.taps_node.create_subscription(
-            message_class(msgtype), topic, lambda msg: None, profile(depth, state, state),
-            raw=True)
-        self.taps[topic] = lv.Tap(topic, msgtype, sub, channel, state, dec, map_key)
+        tap = self.taps[topic] = lv.Tap(topic, msgtype, None, channel, state, dec, map_key)
+        if not tap.lazy:
+            self._subscribe(tap, depth)
         self.sent[topic] = 0
         self.get_logger().info('serving %s (%s)' % (topic, msgtype))
+
+    def _subscribe(self, tap, depth=1):
+        tap.sub = self.taps_node.create_subscription(message_class(tap.msgtype), tap.topic,
+                                                     lambda msg: None, profile(
+                                                         depth, tap.state, tap.state), raw=True)
+
+    def _watched(self, tap):
+        """Subscribe a lazy tap while a client watches it (or its dBm view); else drop it."""
+        want = tap.channel.has_sinks() or tap.topic == self.power_topic and self.ch_dbm.has_sinks()
+        if want and tap.sub is None:
+            self._subscribe(tap)
+        elif not want and tap.sub is not None:
+            self.taps_node.destroy_subscription(tap.sub)
+            tap.sub = tap.last = None
+        return want
 
     # -- the UI tick ----------------------------------------------------------------
     @staticmethod
@@ -170,32 +179,22 @@ class LiveViewNode(Node):
         resend = self.listener.take()
         map_events = []
         for tap in tuple(self.taps.values()):
+            if tap.lazy and not self._watched(tap):
+                continue
             got = self._take_all(tap.sub, tap.sub.qos_profile.depth)
             if tap.map_key and got:
                 map_events += [(info.get('source_timestamp', 0), tap.map_key, data)
                                for data, info in got]
             ch = tap.channel
-            if tap.state:
-                for data, _ in got:
-                    tap.last = data
-                    if ch is not None:
-                        ch.log(data, log_time=now_ns)
-                        self.sent[tap.topic] += 1
-                    if tap.topic == self.align_topic:
-                        self._on_alignment(data, now_ns)
-                if ch is not None and ch.id() in resend and tap.last is not None and not got:
-                    ch.log(tap.last, log_time=now_ns)
-                continue
-            if got:
-                tap.last = got[-1][0]
-            if tap.last is not None and (got or ch is not None and ch.id() in resend) \
-                    and tap.decimator.due(now):
-                if ch is not None:
-                    ch.log(tap.last, log_time=now_ns)
-                    self.sent[tap.topic] += 1
-                if tap.topic == self.power_topic:
-                    self.ch_dbm.log(lv.json_bytes(lv.power_dbm_view(
-                        lv.float64_value(tap.last))), log_time=now_ns)
+            out = tap.frames(got, ch is not None and ch.id() in resend, now)
+            for data in out if ch is not None else ():
+                ch.log(data, log_time=now_ns)
+                self.sent[tap.topic] += 1
+            for data, _ in got if tap.topic == self.align_topic else ():
+                self._on_alignment(data, now_ns)
+            if out and tap.topic == self.power_topic:
+                self.ch_dbm.log(lv.json_bytes(lv.power_dbm_view(lv.float64_value(out[-1]))),
+                                log_time=now_ns)
         if self.ch_align.id() in resend and self.last_align is not None:
             self.ch_align.log(self.last_align, log_time=now_ns)
         if self.map is not None:
