@@ -8,10 +8,9 @@ joint pose and every channel's coupling there and at the best pose
 of the run: the pose the alignment left the array in (the roll found), each channel's
 coupling and its loss against its coupling at the best joint pose (the worst of them is
 the offline JSON's ``worst_channel_loss_db``), with the alignment's time and samples.
-SI units in the metrics (m, rad, s; dB for ratios); the rows are for people (um, mrad).
+SI units (m, rad, s; dB for ratios); the report's rows: :func:`fiber_align.analysis.
+report.array_rows`.
 """
-
-import math
 
 import numpy as np
 
@@ -51,32 +50,3 @@ def array_metrics(labels, row, t0_s=0.0, align=None):
         'time_to_aligned_s': align.get('time_to_peak_s'),
         'samples': align.get('peak_samples'),
     }
-
-
-def _num(v, scale, unit, nd=4):
-    if v is None or not math.isfinite(v):
-        return 'n/a'
-    return '%.*g %s' % (nd, v * scale, unit)
-
-
-def array_rows(m):
-    """Return the report's (section, name, value) rows of ``metrics.array``."""
-    p, b = m['pose'], m['best_pose']
-    rows = [
-        ('array', 'channels', '%d (measured: %d and %d)' % (m['channels'], *m['measured'])),
-        ('array', 'roll found', '%s (best joint pose %s, off by %s)' % (
-            _num(p['roll_rad'], 1e3, 'mrad'), _num(b['roll_rad'], 1e3, 'mrad'),
-            _num(p['roll_rad'] - b['roll_rad'], 1e3, 'mrad', 2))),
-        ('array', 'x, y found', '%s, %s (best %s, %s)' % tuple(
-            _num(v, 1e6, 'um') for v in (p['x_m'], p['y_m'], b['x_m'], b['y_m']))),
-        ('array', 'worst channel', 'channel %d: %.4f dB below its coupling at the best '
-         'joint pose' % (m['worst_channel'], m['worst_channel_loss_db'])),
-        ('array', 'time to aligned', _num(m['time_to_aligned_s'], 1e3, 'ms')),
-        ('array', 'samples', 'n/a' if m['samples'] is None else str(m['samples'])),
-        ('array', 'at', 'the model\'s last message, %s into the run' % _num(
-            m['t_s'], 1.0, 's'))]
-    for i, (c, loss) in enumerate(zip(m['coupling_db'], m['loss_db'])):
-        name = 'channel %d%s' % (i + 1, ' (measured)' if i + 1 in m['measured'] else '')
-        rows.append(('array channels', name, '%.3f dB coupled, %.4f dB against the best '
-                     'joint pose' % (c, loss)))
-    return rows

@@ -155,7 +155,7 @@ def analyze_bag(path, params=None, v_limits=None, keep_arrays=False):
             res['alignment'] = 'none (no time base)'
             _analyze_without_base(bag, params, res, data, keep_arrays, run)
         _analyze_extras(bag, disp, lock, params, res, data, keep_arrays, states)
-        _analyze_array(bag, disp, lock, res, data)
+        _analyze_array(bag, disp, res, data)
     analysed = sorted(k for k, v in res['metrics'].items() if v)
     if missing:
         res['notes'].append('analysed anyway: %s' % (', '.join(analysed) or 'nothing'))
@@ -254,7 +254,7 @@ def _time_of(disp, lock, t_ns, n_fallback_t0=None):
     return t[i]
 
 
-def _analyze_array(bag, disp, lock, res, data):
+def _analyze_array(bag, disp, res, data):
     """Add ``metrics.array`` from the last ``array_model`` message (the array's model)."""
     model = bag.read('array_model')
     if model is None or not len(model) or model.fields.get('data') is None:

@@ -24,7 +24,6 @@ from pathlib import Path
 
 import numpy as np
 
-from fiber_align.analysis.array_run import array_rows
 from fiber_align.config import load_params
 from fiber_align.jsonout import json_clean, json_default
 
@@ -237,6 +236,29 @@ def align_rows(al):
              ('alignment', 'loss reference', '%s (highest mean power over %s)'
               % (_dbm(al.get('reference_power_w')),
                  _fmt(al.get('reference_window_s'), 1e3, 'ms')))]
+    return rows
+
+
+def array_rows(m):
+    """Return the report's (section, name, value) rows of ``metrics.array``."""
+    p, b = m['pose'], m['best_pose']
+    rows = [
+        ('array', 'channels', '%d (measured: %d and %d)' % (m['channels'], *m['measured'])),
+        ('array', 'roll found', '%s (best joint pose %s, off by %s)' % (
+            _fmt(p['roll_rad'], 1e3, 'mrad'), _fmt(b['roll_rad'], 1e3, 'mrad'),
+            _fmt(p['roll_rad'] - b['roll_rad'], 1e3, 'mrad', 2))),
+        ('array', 'x, y found', '%s, %s (best %s, %s)' % tuple(
+            _fmt(v, 1e6, 'um') for v in (p['x_m'], p['y_m'], b['x_m'], b['y_m']))),
+        ('array', 'worst channel', 'channel %d: %.4f dB below its coupling at the best '
+         'joint pose' % (m['worst_channel'], m['worst_channel_loss_db'])),
+        ('array', 'time to aligned', _fmt(m['time_to_aligned_s'], 1e3, 'ms')),
+        ('array', 'samples', 'n/a' if m['samples'] is None else str(m['samples'])),
+        ('array', 'at', 'the model\'s last message, %s into the run' % _fmt(
+            m['t_s'], 1.0, 's'))]
+    for i, (c, loss) in enumerate(zip(m['coupling_db'], m['loss_db'])):
+        name = 'channel %d%s' % (i + 1, ' (measured)' if i + 1 in m['measured'] else '')
+        rows.append(('array channels', name, '%.3f dB coupled, %.4f dB against the best '
+                     'joint pose' % (c, loss)))
     return rows
 
 

@@ -57,8 +57,7 @@ class DacClock:
     ``max_catch_up`` periods it waits for them (they race the timer when the process
     wakes, and a loaded machine delivers a backlog over several ticks): one tick, then
     while none has arrived yet or new ones still arrive, at most :data:`MAX_WAIT_TICKS`
-    ticks. Pure: the node
-    passes the clock readings (s, ns).
+    ticks. Pure: the node passes the clock readings (s, ns).
 
     :param plant: the :class:`~fiber_align.plant.actuator.SimulatedActuator`.
     :param period_s: sample period (s).
