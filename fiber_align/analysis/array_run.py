@@ -14,7 +14,7 @@ report.array_rows`.
 
 import numpy as np
 
-POSE = ('x_m', 'y_m', 'roll_rad')
+from fiber_align.plant.array_optics import measured, model_labels, POSE_LABELS as POSE
 
 
 def array_metrics(labels, row, t0_s=0.0, align=None):
@@ -29,9 +29,7 @@ def array_metrics(labels, row, t0_s=0.0, align=None):
     """
     v = dict(zip(labels, (float(x) for x in row)))
     n = sum(1 for k in labels if k.startswith('coupling_'))
-    need = ('t_s',) + POSE + tuple('best_' + k for k in POSE) + tuple(
-        '%scoupling_%d' % (b, i + 1) for b in ('', 'best_') for i in range(n))
-    if n < 2 or any(k not in v for k in need):
+    if n < 2 or any(k not in v for k in model_labels(n)):
         raise ValueError('array_model labels %r are not the model\'s (t_s, x_m ... '
                          'best_coupling_N)' % (tuple(labels),))
     now = np.array([v['coupling_%d' % (i + 1)] for i in range(n)])
@@ -42,7 +40,7 @@ def array_metrics(labels, row, t0_s=0.0, align=None):
     j = int(np.argmin(now))
     align = align or {}
     return {
-        'channels': n, 'measured': [1, n], 't_s': v['t_s'] - t0_s,
+        'channels': n, 'measured': [i + 1 for i in measured(n)], 't_s': v['t_s'] - t0_s,
         'pose': {k: v[k] for k in POSE}, 'best_pose': {k: v['best_' + k] for k in POSE},
         'coupling': now.tolist(), 'coupling_db': coupled.tolist(),
         'loss_db': loss.tolist(), 'worst_channel': j + 1,

@@ -351,7 +351,7 @@ class Tap:
 
     A per-sample topic outside the power map is ``lazy``: subscribed only while a client
     watches it (``sub`` ``None`` meanwhile), so that the graph sends DDS nothing for a
-    channel nobody shows (the array's 27 per-sample topics took 0.63 core of its
+    channel nobody shows (the array's 27 per-sample topics took 0.6 core of its
     process's time with the view and no client).
     """
 
