@@ -56,8 +56,8 @@ class DacClock:
     the drives written meanwhile over them (:func:`replay_edges`); after a stall of over
     ``max_catch_up`` periods it waits for them (they race the timer when the process
     wakes, and a loaded machine delivers a backlog over several ticks): one tick, then
-    while none has arrived yet or new ones still arrive, at most :data:`MAX_WAIT_TICKS`
-    ticks. Pure: the node passes the clock readings (s, ns).
+    while new ones still arrive, at most :data:`MAX_WAIT_TICKS` ticks. Pure: the node
+    passes the clock readings (s, ns).
 
     :param plant: the :class:`~fiber_align.plant.actuator.SimulatedActuator`.
     :param period_s: sample period (s).
@@ -138,17 +138,8 @@ class DacClock:
         return steps
 
     def _wait_for_drives(self):
-        """
-        Return True while a long stall's catch-up waits for the drives written during it.
-
-        One tick, then while none has come yet or more still come, at most
-        :data:`MAX_WAIT_TICKS` ticks: on a loaded machine the process's DDS thread can
-        deliver the backlog only after the timer has ticked twice, and a catch-up without
-        it held the drive of before the stall and then stepped to the newest (52 V to 0 V
-        at once, -20 um; one run of the realtime suite). A stall nothing was written in
-        (the driver stalled too) goes on after those ticks, within its watchdog.
-        """
-        if self.waited == 0 or ((self.n_drive > self.n_drive_waited or not self.writes)
+        """Return True while a long stall's catch-up waits (one tick, then while drives come)."""
+        if self.waited == 0 or (self.n_drive > self.n_drive_waited
                                 and self.waited < MAX_WAIT_TICKS):
             self.waited += 1
             self.n_drive_waited = self.n_drive
